@@ -1,0 +1,32 @@
+# mocapkit — the two commands a newcomer runs: `make demo` and `make test`.
+PYTHON ?= python3.11
+VENV   := .venv
+PY     := $(VENV)/bin/python
+PIP    := $(VENV)/bin/pip
+STAMP  := $(VENV)/.installed
+
+.PHONY: demo test fuzz bench clean venv
+
+$(PY):
+	$(PYTHON) -m venv $(VENV) || python3 -m venv $(VENV)
+	$(PIP) install -q --upgrade pip
+
+$(STAMP): pyproject.toml | $(PY)
+	$(PIP) install -q -e ".[test]"
+	touch $(STAMP)
+
+venv: $(STAMP)
+
+# Clean a bundled real CMU clip (corrupted with noise, outliers and gaps) with the
+# default method and write a before/after report to demo_out/.
+demo: $(STAMP)
+	$(PY) -m mocapkit.demo --out demo_out
+
+test: $(STAMP)
+	$(PY) -m pytest -x -q -p no:cacheprovider
+
+fuzz: $(STAMP)
+	MOCAPKIT_FUZZ_EXAMPLES=2000 $(PY) -m pytest -q tests -k fuzz
+
+clean:
+	rm -rf $(VENV) demo_out build *.egg-info

@@ -1,0 +1,212 @@
+"""The common Denoiser interface, the method registry and model save/load.
+
+Every method is one class deriving from :class:`Denoiser`, registered with
+``@register``. Following scikit-learn's estimator pattern:
+
+* ``__init__`` only stores its keyword parameters unchanged (no work, no validation
+  beyond what is free);
+* ``fit(motions)`` learns state into trailing-underscore attributes and returns self
+  (training-free methods inherit the no-op);
+* ``denoise(motion)`` returns a new Motion with the same frames, joints and skeleton,
+  every entry finite and observed (missing entries filled).
+
+Models are saved as ``.npz`` (see :meth:`Denoiser.save`): a JSON header with the method
+name, its parameters and the format version, plus every fitted array attribute.
+Neural methods override save/load to use torch state dicts.
+"""
+from __future__ import annotations
+
+import inspect
+import json
+import os
+from typing import Any, ClassVar, Iterable, Sequence
+
+import numpy as np
+
+from ..errors import MocapFormatError, MocapValueError, NotFittedError
+from ..motion import Motion
+
+MODEL_FORMAT_VERSION = 1
+
+_REGISTRY: dict[str, type["Denoiser"]] = {}
+
+
+def register(cls: type["Denoiser"]) -> type["Denoiser"]:
+    """Class decorator adding a Denoiser to the registry under ``cls.name``."""
+    if not getattr(cls, "name", None):
+        raise TypeError(f"{cls.__name__} needs a class attribute 'name'")
+    if cls.name in _REGISTRY and _REGISTRY[cls.name] is not cls:
+        raise TypeError(f"method name {cls.name!r} registered twice")
+    _REGISTRY[cls.name] = cls
+    return cls
+
+
+def available() -> dict[str, type["Denoiser"]]:
+    """Registered methods by name (sorted)."""
+    from . import _load_families  # noqa: F401  (ensures every family module is imported)
+
+    return dict(sorted(_REGISTRY.items()))
+
+
+def get(name: str, **params: Any) -> "Denoiser":
+    """Instantiate the method ``name`` with ``params``; clear error for unknown names/params."""
+    methods = available()
+    if name not in methods:
+        raise MocapValueError(f"unknown method {name!r}; available: {', '.join(methods)}")
+    cls = methods[name]
+    accepted = cls._param_names()
+    bad = sorted(set(params) - set(accepted))
+    if bad:
+        raise MocapValueError(
+            f"method {name!r} has no parameter(s) {bad}; it accepts: {', '.join(accepted) or 'none'}")
+    return cls(**params)
+
+
+class Denoiser:
+    """Base class of every denoising / gap-filling method.
+
+    Subclasses set ``name``, ``description`` (one line, shown by ``mocapkit methods``),
+    ``needs_training`` and implement :meth:`denoise` (and :meth:`fit` if data-driven).
+    """
+
+    name: ClassVar[str] = ""
+    description: ClassVar[str] = ""
+    needs_training: ClassVar[bool] = False
+    #: whether observed, trusted entries are returned unchanged (property tests check it)
+    keeps_observed: ClassVar[bool] = False
+
+    # -- parameters (scikit-learn style) -------------------------------------------------
+    @classmethod
+    def _param_names(cls) -> list[str]:
+        sig = inspect.signature(cls.__init__)
+        return [p.name for p in sig.parameters.values()
+                if p.name != "self" and p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)]
+
+    def get_params(self) -> dict[str, Any]:
+        return {k: getattr(self, k) for k in self._param_names()}
+
+    def set_params(self, **params: Any) -> "Denoiser":
+        for k, v in params.items():
+            if k not in self._param_names():
+                raise MocapValueError(f"method {self.name!r} has no parameter {k!r}")
+            setattr(self, k, v)
+        return self
+
+    def __repr__(self) -> str:
+        args = ", ".join(f"{k}={v!r}" for k, v in self.get_params().items())
+        return f"{type(self).__name__}({args})"
+
+    # -- the interface -------------------------------------------------------------------
+    def fit(self, motions: Sequence[Motion]) -> "Denoiser":
+        """Learn from clean training motions. Training-free methods do nothing."""
+        return self
+
+    def denoise(self, motion: Motion) -> Motion:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def fit_denoise(self, motion: Motion) -> Motion:
+        return self.fit([motion]).denoise(motion)
+
+    # -- fitted state ------------------------------------------------------------------------
+    def _fitted_attrs(self) -> dict[str, Any]:
+        return {k: v for k, v in vars(self).items()
+                if k.endswith("_") and not k.startswith("_")}
+
+    def is_fitted(self) -> bool:
+        return (not self.needs_training) or bool(self._fitted_attrs())
+
+    def _check_fitted(self) -> None:
+        if not self.is_fitted():
+            raise NotFittedError(
+                f"method {self.name!r} needs training: call fit(motions) or load a model "
+                f"(CLI: mocapkit train --method {self.name} CLIPS... -o model.npz, then --model)")
+
+    # -- persistence -----------------------------------------------------------------------
+    def save(self, path: str | os.PathLike) -> None:
+        """Save parameters and fitted arrays to ``path`` (.npz), atomically.
+
+        Fitted attributes must be numpy arrays, numbers, strings, or lists/dicts of
+        those (stored as JSON); anything else is a programming error.
+        """
+        from ..io._atomic import atomic_write
+
+        arrays: dict[str, np.ndarray] = {}
+        scalars: dict[str, Any] = {}
+        for k, v in self._fitted_attrs().items():
+            if isinstance(v, np.ndarray):
+                arrays[k] = v
+            elif isinstance(v, (list, tuple)) and v and all(isinstance(a, np.ndarray) for a in v):
+                for i, a in enumerate(v):
+                    arrays[f"{k}#{i}"] = a
+                scalars[k] = {"__array_list__": len(v)}
+            else:
+                scalars[k] = v
+        header = {"method": self.name, "version": MODEL_FORMAT_VERSION,
+                  "params": _jsonable(self.get_params()), "state": _jsonable(scalars)}
+
+        def _write(f):
+            np.savez_compressed(f, __header__=np.array(json.dumps(header)), **arrays)
+
+        atomic_write(path, _write, binary=True)
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> "Denoiser":
+        """Load a model saved by :meth:`save`. ``Denoiser.load`` picks the right class."""
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                header = json.loads(str(z["__header__"]))
+                arrays = {k: z[k] for k in z.files if k != "__header__"}
+        except (OSError, ValueError, KeyError, json.JSONDecodeError) as e:
+            raise MocapFormatError(path, f"not a mocapkit model file ({e})") from None
+        if header.get("version") != MODEL_FORMAT_VERSION:
+            raise MocapFormatError(path, f"model format version {header.get('version')} "
+                                         f"is not supported (expected {MODEL_FORMAT_VERSION})")
+        methods = available()
+        name = header.get("method")
+        if name not in methods:
+            raise MocapFormatError(path, f"model is for unknown method {name!r}")
+        target = methods[name]
+        if cls is not Denoiser and not issubclass(target, cls):
+            raise MocapFormatError(path, f"model is for method {name!r}, not {cls.name!r}")
+        obj = target(**header["params"])
+        state = header.get("state", {})
+        for k, v in state.items():
+            if isinstance(v, dict) and "__array_list__" in v:
+                v = [arrays.pop(f"{k}#{i}") for i in range(v["__array_list__"])]
+            setattr(obj, k, v)
+        for k, v in arrays.items():
+            setattr(obj, k, v)
+        return obj
+
+
+def _jsonable(obj: Any) -> Any:
+    if isinstance(obj, dict):
+        return {str(k): _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_jsonable(v) for v in obj]
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    return obj
+
+
+def check_output(inp: Motion, out: Motion, method: str) -> Motion:
+    """Validate a denoiser's output against its input (same T, J, skeleton; finite)."""
+    if out.positions.shape != inp.positions.shape:
+        raise RuntimeError(f"{method}: output shape {out.positions.shape} != input {inp.positions.shape}")
+    if not out.observed.all():
+        raise RuntimeError(f"{method}: output still has missing entries")
+    return out
+
+
+def training_matrices(motions: Iterable[Motion]) -> list[np.ndarray]:
+    """(T, 3J) matrices of training motions, checking they are fully observed."""
+    mats = []
+    for m in motions:
+        if not m.observed.all():
+            raise MocapValueError(f"training motion {m!r} has missing entries; fill them first")
+        mats.append(m.matrix())
+    if not mats:
+        raise MocapValueError("fit() needs at least one training motion")
+    return mats

@@ -1,0 +1,44 @@
+"""Exceptions raised by mocapkit.
+
+Every error a user can cause with bad input is a :class:`MocapError`; the CLI turns
+these into one-line messages and exit code 2.
+"""
+from __future__ import annotations
+
+import os
+
+
+class MocapError(Exception):
+    """Base class of every error mocapkit raises on purpose."""
+
+
+class MocapFormatError(MocapError, ValueError):
+    """A file could not be read (or written) because its content is malformed.
+
+    Parameters
+    ----------
+    path : file the problem is in.
+    message : what was found and what was expected.
+    line : 1-based line number for text formats (None when not applicable).
+    """
+
+    def __init__(self, path: str | os.PathLike | None, message: str, line: int | None = None):
+        self.path = None if path is None else os.fspath(path)
+        self.line = line
+        self.message = message
+        where = self.path or "<input>"
+        if line is not None:
+            where = f"{where}, line {line}"
+        super().__init__(f"{where}: {message}")
+
+
+class MocapValueError(MocapError, ValueError):
+    """An argument (parameter, mask, motion) is invalid for the requested operation."""
+
+
+class NotFittedError(MocapError, RuntimeError):
+    """A data-driven method was used before ``fit`` (or ``load``)."""
+
+
+class MissingDependencyError(MocapError, ImportError):
+    """An optional dependency (e.g. torch for the neural methods) is not installed."""

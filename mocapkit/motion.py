@@ -1,0 +1,236 @@
+"""Motion: joint positions over time, in centimetres, with an observed mask.
+
+Conventions (every module relies on them):
+
+* ``positions`` is a float64 array (T, J, 3) in **cm**; axes as the source file has them
+  (CMU/BVH: Y up).
+* ``observed`` is a bool array (T, J); False means the marker/joint is missing in that
+  frame. Missing entries of ``positions`` are always NaN, observed ones always finite:
+  the constructor enforces this, so no method can silently use a missing value.
+* Arrays are read-only; every operation returns a new Motion.
+* ``source`` holds metadata from the reader: ``path``, ``format``, ``units`` (what the
+  file used and the factor to cm) and, under ``per_frame``, arrays whose first axis is
+  time (e.g. BVH/AMC rotation channels) which :meth:`Motion.slice` keeps aligned and
+  :meth:`Motion.resample` / :meth:`Motion.select` drop.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+from .errors import MocapValueError
+from .skeleton import Skeleton
+
+
+def _readonly(a: np.ndarray) -> np.ndarray:
+    a.setflags(write=False)
+    return a
+
+
+@dataclass(frozen=True, eq=False)
+class Motion:
+    """A motion clip.
+
+    Parameters
+    ----------
+    positions : array-like (T, J, 3), cm. NaN marks a missing joint.
+    skeleton : Skeleton with J joints.
+    fps : frames per second (> 0).
+    observed : optional bool (T, J); defaults to "finite in ``positions``". Entries that
+        are not finite are always treated as missing.
+    source : optional metadata mapping (see module docstring).
+    """
+
+    positions: np.ndarray
+    skeleton: Skeleton
+    fps: float
+    observed: np.ndarray | None = None
+    source: Mapping[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        P = np.array(self.positions, dtype=np.float64, copy=True)
+        if P.ndim != 3 or P.shape[2] != 3:
+            raise MocapValueError(f"positions must have shape (T, J, 3), got {P.shape}")
+        T, J, _ = P.shape
+        if J != self.skeleton.n_joints:
+            raise MocapValueError(
+                f"positions have {J} joints but the skeleton has {self.skeleton.n_joints}")
+        if T == 0:
+            raise MocapValueError("a motion needs at least one frame")
+        fps = float(self.fps)
+        if not np.isfinite(fps) or fps <= 0:
+            raise MocapValueError(f"fps must be a positive number, got {self.fps!r}")
+        finite = np.isfinite(P).all(axis=2)
+        if self.observed is None:
+            obs = finite
+        else:
+            obs = np.asarray(self.observed)
+            if obs.shape != (T, J):
+                raise MocapValueError(f"observed mask must have shape ({T}, {J}), got {obs.shape}")
+            obs = obs.astype(bool) & finite
+        P[~obs] = np.nan
+        object.__setattr__(self, "positions", _readonly(P))
+        object.__setattr__(self, "observed", _readonly(np.array(obs, dtype=bool)))
+        object.__setattr__(self, "fps", fps)
+        object.__setattr__(self, "source", dict(self.source))
+
+    # -- shape --------------------------------------------------------------------------
+    @property
+    def n_frames(self) -> int:
+        return self.positions.shape[0]
+
+    @property
+    def n_joints(self) -> int:
+        return self.positions.shape[1]
+
+    @property
+    def duration(self) -> float:
+        """Length in seconds."""
+        return self.n_frames / self.fps
+
+    @property
+    def missing_fraction(self) -> float:
+        return float(1.0 - self.observed.mean())
+
+    def __len__(self) -> int:
+        return self.n_frames
+
+    def __repr__(self) -> str:
+        src = self.source.get("path", "")
+        return (f"Motion({self.n_frames} frames x {self.n_joints} joints @ {self.fps:g} fps, "
+                f"{100 * self.missing_fraction:.1f}% missing{', ' + str(src) if src else ''})")
+
+    # -- matrix view used by the papers -------------------------------------------------------
+    def matrix(self) -> np.ndarray:
+        """Frame-by-coordinate matrix (T, 3J), columns x0, y0, z0, x1, ... (cm; NaN = missing)."""
+        return self.positions.reshape(self.n_frames, -1).copy()
+
+    def matrix_mask(self) -> np.ndarray:
+        """Observed mask expanded to the (T, 3J) matrix layout."""
+        return np.repeat(self.observed, 3, axis=1)
+
+    def with_matrix(self, X: np.ndarray, observed: np.ndarray | None = None) -> "Motion":
+        """New motion from a (T, 3J) matrix (see :meth:`matrix`)."""
+        X = np.asarray(X, dtype=float)
+        if X.shape != (self.n_frames, 3 * self.n_joints):
+            raise MocapValueError(
+                f"matrix must have shape ({self.n_frames}, {3 * self.n_joints}), got {X.shape}")
+        return self.with_positions(X.reshape(self.n_frames, self.n_joints, 3), observed)
+
+    # -- immutable updates ------------------------------------------------------------------
+    def with_positions(self, positions: np.ndarray, observed: np.ndarray | None = None) -> "Motion":
+        """Same skeleton/fps/source, new positions (T', J, 3).
+
+        ``observed`` defaults to "finite in the new positions" (so a denoiser that fills
+        every entry returns a fully observed motion).
+        """
+        P = np.asarray(positions, dtype=float)
+        src = dict(self.source)
+        if P.shape[0] != self.n_frames:
+            src.pop("per_frame", None)
+        return Motion(P, self.skeleton, self.fps, observed, src)
+
+    def with_observed(self, observed: np.ndarray) -> "Motion":
+        """Same motion with a new observed mask (entries marked missing become NaN)."""
+        return Motion(self.positions, self.skeleton, self.fps, observed, self.source)
+
+    def with_source(self, **updates: Any) -> "Motion":
+        src = dict(self.source)
+        src.update(updates)
+        return Motion(self.positions, self.skeleton, self.fps, self.observed, src)
+
+    def slice(self, start: int | None = None, stop: int | None = None) -> "Motion":
+        """Frames ``start:stop`` (Python slice semantics); per-frame source arrays follow."""
+        sl = slice(start, stop)
+        idx = range(self.n_frames)[sl]
+        if len(idx) == 0:
+            raise MocapValueError(
+                f"slice({start}, {stop}) of a {self.n_frames}-frame motion is empty")
+        src = dict(self.source)
+        if "per_frame" in src:
+            src["per_frame"] = {k: np.asarray(v)[sl] for k, v in src["per_frame"].items()}
+        return Motion(self.positions[sl], self.skeleton, self.fps, self.observed[sl], src)
+
+    def select(self, joint_names: Sequence[str]) -> "Motion":
+        """Keep only the named joints (skeleton re-parented, see :meth:`Skeleton.subset`)."""
+        sk = self.skeleton.subset(joint_names)
+        idx = self.skeleton.indices(sk.names)
+        src = dict(self.source)
+        src.pop("per_frame", None)
+        return Motion(self.positions[:, idx], sk, self.fps, self.observed[:, idx], src)
+
+    def resample(self, fps: float) -> "Motion":
+        """Resample in time to ``fps`` with cubic splines.
+
+        Gaps are bridged linearly before the spline so they do not leak NaN; a new frame
+        is observed only if the source frames on both sides of it are observed, so masks
+        stay consistent and no value is invented where there was none.
+        """
+        fps = float(fps)
+        if not np.isfinite(fps) or fps <= 0:
+            raise MocapValueError(f"fps must be a positive number, got {fps!r}")
+        if np.isclose(fps, self.fps):
+            return self
+        from scipy.interpolate import CubicSpline
+
+        T = self.n_frames
+        t_old = np.arange(T) / self.fps
+        n_new = max(1, int(np.floor((T - 1) * fps / self.fps + 1e-9)) + 1)
+        t_new = np.arange(n_new) / fps
+        X = fill_gaps_linear(self.matrix(), self.matrix_mask())
+        if T >= 4:
+            Y = CubicSpline(t_old, X, axis=0)(t_new)
+        elif T >= 2:
+            Y = np.stack([np.interp(t_new, t_old, X[:, c]) for c in range(X.shape[1])], axis=1)
+        else:
+            Y = np.repeat(X, n_new, axis=0)
+        pos = t_new * self.fps
+        lo = np.clip(np.floor(pos).astype(int), 0, T - 1)
+        hi = np.clip(np.ceil(pos).astype(int), 0, T - 1)
+        obs = self.observed[lo] & self.observed[hi]
+        src = dict(self.source)
+        src.pop("per_frame", None)
+        src["resampled_from_fps"] = self.fps
+        return Motion(Y.reshape(n_new, self.n_joints, 3), self.skeleton, fps, obs, src)
+
+    # -- simple measures -------------------------------------------------------------------
+    def height(self) -> float:
+        """Standing height estimate in cm: the 95th-5th percentile spread of the vertical axis.
+
+        The vertical axis is the one with the largest rest-pose extent of the skeleton
+        (Y for CMU/BVH, Z for C3D/Kinect-style data usually); computed per frame as
+        max - min over joints and summarised by the median over frames.
+        """
+        P = self.positions
+        ext = np.nanmax(P, axis=1) - np.nanmin(P, axis=1)          # (T, 3)
+        ext = ext[np.isfinite(ext).all(axis=1)]
+        if len(ext) == 0:
+            return float("nan")
+        axis = int(np.argmax(np.median(ext, axis=0)))
+        return float(np.percentile(ext[:, axis], 90))
+
+    def bone_lengths(self) -> np.ndarray:
+        """Per-frame bone lengths (T, B) in cm, B = len(skeleton.bones()); NaN where missing."""
+        b = np.array(self.skeleton.bones(), dtype=int).reshape(-1, 2)
+        if len(b) == 0:
+            return np.zeros((self.n_frames, 0))
+        return np.linalg.norm(self.positions[:, b[:, 0]] - self.positions[:, b[:, 1]], axis=2)
+
+
+def fill_gaps_linear(X: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Fill unobserved entries of a (T, C) matrix by linear interpolation in time.
+
+    Leading/trailing gaps take the nearest observed value; a channel with no observed
+    value becomes 0. Vectorised per channel with ``np.interp`` (C is small, T is large).
+    """
+    X = np.array(X, dtype=float, copy=True)
+    mask = np.asarray(mask, dtype=bool) & np.isfinite(X)
+    if mask.all():
+        return X
+    t = np.arange(X.shape[0])
+    for c in np.flatnonzero(~mask.all(axis=0)):
+        m = mask[:, c]
+        X[:, c] = np.interp(t, t[m], X[m, c]) if m.any() else 0.0
+    return X
