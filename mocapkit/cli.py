@@ -1,0 +1,378 @@
+"""The ``mocapkit`` command line.
+
+Every command reads any supported format (see ``mocapkit.io``), writes to a new file,
+prints one-line errors and exits with code 2 on bad input. Positions are in cm.
+"""
+from __future__ import annotations
+
+import argparse
+import ast
+import json
+import sys
+import threading
+import time
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any, Iterator, Sequence
+
+import numpy as np
+
+from .errors import MocapError
+
+EXIT_BAD_INPUT = 2
+
+
+# -- helpers ---------------------------------------------------------------------------
+@contextmanager
+def stage(desc: str, enable: bool = True, after_s: float = 2.0) -> Iterator[None]:
+    """Show an elapsed-time progress line on stderr if the block takes over ``after_s`` seconds."""
+    if not enable:
+        yield
+        return
+    done = threading.Event()
+
+    def _ticker() -> None:
+        if done.wait(after_s):
+            return
+        from tqdm import tqdm
+
+        with tqdm(desc=desc, bar_format="{desc}: {elapsed}", file=sys.stderr, leave=False) as bar:
+            while not done.wait(0.5):
+                bar.refresh()
+
+    th = threading.Thread(target=_ticker, daemon=True)
+    th.start()
+    t0 = time.perf_counter()
+    try:
+        yield
+    finally:
+        done.set()
+        th.join()
+        dt = time.perf_counter() - t0
+        if dt > after_s:
+            print(f"{desc}: done in {dt:.1f} s", file=sys.stderr)
+
+
+def parse_value(text: str) -> Any:
+    """'3' -> 3, '0.5' -> 0.5, 'true' -> True, '[1,2]' -> [1, 2], else the string."""
+    low = text.strip().lower()
+    if low in ("true", "false"):
+        return low == "true"
+    if low in ("none", "null"):
+        return None
+    try:
+        return ast.literal_eval(text)
+    except (ValueError, SyntaxError):
+        return text
+
+
+def parse_params(items: Sequence[str] | None) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for it in items or ():
+        if "=" not in it:
+            raise MocapError(f"--param expects NAME=VALUE, got {it!r}")
+        k, v = it.split("=", 1)
+        out[k.strip().replace("-", "_")] = parse_value(v)
+    return out
+
+
+def _read(path: str, skeleton: str | None = None, fmt: str | None = None):
+    from . import io
+
+    opts = {"skeleton": skeleton} if skeleton else {}
+    return io.read(path, format=fmt, **opts)
+
+
+def _method(name: str, params: dict[str, Any], model: str | None):
+    from . import denoise
+
+    if model:
+        m = denoise.base.Denoiser.load(model)
+        if m.name != name and name != "auto":
+            raise MocapError(f"--model {model} is a {m.name!r} model, not {name!r}")
+        if params:
+            m.set_params(**params)
+        return m
+    m = denoise.get(name, **params)
+    if m.needs_training:
+        raise MocapError(f"method {name!r} needs a trained model: pass --model PATH "
+                         f"(train one with: mocapkit train --method {name} CLIPS... -o model.npz)")
+    return m
+
+
+# -- commands ------------------------------------------------------------------------------
+def cmd_info(a: argparse.Namespace) -> int:
+    m = _read(a.file, a.skeleton, a.format)
+    info = {
+        "file": str(a.file),
+        "format": m.source.get("format", ""),
+        "frames": m.n_frames,
+        "fps": m.fps,
+        "duration_s": round(m.duration, 3),
+        "joints": m.n_joints,
+        "height_cm": round(m.height(), 1),
+        "missing_percent": round(100 * m.missing_fraction, 2),
+        "units": m.source.get("units", ""),
+    }
+    if a.json:
+        info["joint_names"] = list(m.skeleton.names)
+        print(json.dumps(info, indent=1, default=str))
+    else:
+        for k, v in info.items():
+            print(f"{k:>16}: {v}")
+        print(f"{'joint names':>16}: {', '.join(m.skeleton.names)}")
+    return 0
+
+
+def cmd_corrupt(a: argparse.Namespace) -> int:
+    from . import corrupt, io
+
+    m = _read(a.input, a.skeleton)
+    steps: list[tuple[str, dict[str, Any]]] = []
+    if a.gaussian_cm is not None:
+        steps.append(("gaussian", {"sigma_cm": a.gaussian_cm}))
+    if a.snr_db is not None:
+        steps.append(("gaussian", {"snr_db": a.snr_db}))
+    if a.outliers is not None:
+        steps.append(("outliers", {"ratio": a.outliers, "mode": a.outlier_mode,
+                                   "magnitude_cm": a.outlier_cm}))
+    if a.missing is not None:
+        steps.append(("missing", {"ratio": a.missing}))
+    if a.gaps is not None:
+        n, length = a.gaps
+        steps.append(("block_gaps", {"n_markers": int(n), "length": int(length)}))
+    if a.spec:
+        steps += corrupt.parse_spec(a.spec)
+    if not steps:
+        raise MocapError("nothing to do: give --gaussian-cm, --snr-db, --outliers, --missing, --gaps or --spec")
+    out, mask = corrupt.combine(m, steps, seed=a.seed)
+    io.write(out, a.output, overwrite=a.force)
+    if a.mask:
+        from .io._atomic import atomic_write
+
+        atomic_write(a.mask, lambda f: np.save(f, mask), binary=True)
+    print(f"wrote {a.output}: {int(mask.sum())} of {mask.size} joint entries corrupted "
+          f"({100 * mask.mean():.1f}%), {100 * out.missing_fraction:.1f}% missing")
+    return 0
+
+
+def cmd_denoise(a: argparse.Namespace) -> int:
+    from . import denoise, io
+
+    name = a.method or denoise.DEFAULT_METHOD
+    method = _method(name, parse_params(a.param), a.model)
+    m = _read(a.input, a.skeleton)
+    io._atomic.check_output_path(a.output, (a.input,), overwrite=a.force)
+    with stage(f"denoising {m.n_frames} frames with {method.name}", enable=not a.quiet):
+        t0 = time.perf_counter()
+        out = method.denoise(m)
+        dt = time.perf_counter() - t0
+    io.write(out, a.output, overwrite=a.force)
+    if not a.quiet:
+        print(f"wrote {a.output} ({method.name}, {m.n_frames} frames in {dt:.2f} s, "
+              f"{m.n_frames / max(dt, 1e-9):.0f} frames/s; filled {int((~m.observed).sum())} missing entries)")
+    return 0
+
+
+def cmd_train(a: argparse.Namespace) -> int:
+    from . import denoise
+
+    method = denoise.get(a.method, **parse_params(a.param))
+    motions = []
+    for p in a.clips:
+        motions.append(_read(p, a.skeleton))
+    with stage(f"training {a.method} on {len(motions)} clips", enable=not a.quiet):
+        method.fit(motions)
+    from .io._atomic import check_output_path
+
+    check_output_path(a.output, tuple(a.clips), overwrite=a.force)
+    method.save(a.output)
+    print(f"wrote {a.output} ({a.method} trained on {len(motions)} clips, "
+          f"{sum(m.n_frames for m in motions)} frames)")
+    return 0
+
+
+def cmd_eval(a: argparse.Namespace) -> int:
+    from . import metrics
+
+    truth = _read(a.truth, a.skeleton)
+    est = _read(a.estimate, a.skeleton)
+    mask = np.load(a.mask) if a.mask else None
+    res = metrics.all_metrics(truth, est, mask)
+    if a.json:
+        print(json.dumps({k: {"value": v, "unit": u} for k, (v, u) in res.items()}, indent=1))
+    else:
+        for k, (v, u) in res.items():
+            print(f"{k:>28}: {v:10.4f} {u}")
+    return 0
+
+
+def cmd_methods(a: argparse.Namespace) -> int:
+    from . import denoise
+
+    for name, cls in denoise.available().items():
+        flag = "train" if cls.needs_training else "     "
+        default = " (default)" if name == denoise.DEFAULT_METHOD else ""
+        print(f"{name:<22} {flag}  {cls.description}{default}")
+    return 0
+
+
+def cmd_bench(a: argparse.Namespace) -> int:
+    from . import bench
+    from .datasets import shared_data_dir
+
+    if a.list:
+        for name, p in bench.available().items():
+            print(f"{name:<24} {p.description}")
+        return 0
+    if not a.protocol:
+        raise MocapError("name a protocol (mocapkit bench --list shows them)")
+    ctx = bench.Context(data_dir=shared_data_dir(a.data), quick=a.quick, seed=a.seed,
+                        progress=not a.quiet)
+    t0 = time.perf_counter()
+    rows = bench.run(a.protocol, ctx)
+    out = Path(a.out or f"{a.protocol}.json")
+    bench.to_json(rows, out)
+    md = bench.to_markdown(rows, title=f"{a.protocol}{' (quick)' if a.quick else ''}")
+    out.with_suffix(".md").write_text(md)
+    if not a.quiet:
+        print(md)
+    print(f"wrote {out} and {out.with_suffix('.md')} ({len(rows)} rows, {time.perf_counter() - t0:.1f} s)")
+    return 0
+
+
+def cmd_detect(a: argparse.Namespace) -> int:
+    from . import detect
+
+    m = _read(a.input, a.skeleton)
+    rep = detect.detect_report(m, threshold_cm=a.threshold_cm) if a.threshold_cm else detect.detect_report(m)
+    text = json.dumps(rep, indent=1, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o))
+    if a.output:
+        from .io._atomic import atomic_write, check_output_path
+
+        check_output_path(a.output, (a.input,), overwrite=a.force)
+        atomic_write(a.output, lambda f: f.write(text))
+        print(f"wrote {a.output}")
+    else:
+        print(text)
+    return 0
+
+
+def cmd_report(a: argparse.Namespace) -> int:
+    from .viz.report import write_report
+
+    motions = [_read(p, a.skeleton) for p in a.files]
+    write_report(a.output, motions, labels=[Path(p).name for p in a.files],
+                 truth_first=not a.no_truth, overwrite=a.force)
+    print(f"wrote {a.output}")
+    return 0
+
+
+# -- parser ----------------------------------------------------------------------------------
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="mocapkit",
+        description="Clean, evaluate and inspect motion-capture files (BVH, ASF/AMC, C3D, TRC, "
+                    "Kinect text). Positions are in centimetres; outputs are always new files.")
+    p.add_argument("--version", action="version", version=f"mocapkit {__import__('mocapkit').__version__}")
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    def common(sp: argparse.ArgumentParser) -> None:
+        sp.add_argument("--skeleton", help="ASF skeleton for AMC input (default: found beside the AMC)")
+        sp.add_argument("--force", action="store_true", help="replace an existing output (never the input)")
+        sp.add_argument("-q", "--quiet", action="store_true", help="no progress output")
+
+    s = sub.add_parser("info", help="format, frames, fps, joints, height (cm), %% missing")
+    s.add_argument("file")
+    s.add_argument("--format", help="override the format chosen by extension")
+    s.add_argument("--json", action="store_true")
+    s.add_argument("--skeleton")
+    s.set_defaults(func=cmd_info)
+
+    s = sub.add_parser("corrupt", help="add controlled noise/outliers/gaps (seeded) for experiments")
+    s.add_argument("input")
+    s.add_argument("output")
+    s.add_argument("--gaussian-cm", type=float, help="Gaussian noise sigma in cm per coordinate")
+    s.add_argument("--snr-db", type=float, help="Gaussian noise by SNR in dB (root-relative signal power)")
+    s.add_argument("--outliers", type=float, help="fraction of joint entries made outliers (0-1)")
+    s.add_argument("--outlier-mode", default="spike", choices=["spike", "scale"],
+                   help="spike: additive spike of --outlier-cm; scale: Xiao's x1.4 in the root frame")
+    s.add_argument("--outlier-cm", type=float, default=15.0, help="spike magnitude in cm (default 15)")
+    s.add_argument("--missing", type=float, help="fraction of markers removed per frame (0-1)")
+    s.add_argument("--gaps", nargs=2, type=float, metavar=("N_MARKERS", "FRAMES"),
+                   help="block gap: N markers missing for FRAMES consecutive frames")
+    s.add_argument("--spec", help="corruption steps, e.g. 'gaussian:sigma_cm=2,missing:ratio=0.1'")
+    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--mask", help="also save the corrupted-entry mask (T, J) as .npy")
+    common(s)
+    s.set_defaults(func=cmd_corrupt)
+
+    s = sub.add_parser("denoise", help="clean a file with a method (default: see 'mocapkit methods')")
+    s.add_argument("input")
+    s.add_argument("output")
+    s.add_argument("--method", help="method name (mocapkit methods lists them)")
+    s.add_argument("--param", action="append", metavar="NAME=VALUE", help="method parameter (repeatable)")
+    s.add_argument("--model", help="trained model file for data-driven methods")
+    common(s)
+    s.set_defaults(func=cmd_denoise)
+
+    s = sub.add_parser("train", help="train a data-driven method on clean clips and save the model")
+    s.add_argument("clips", nargs="+")
+    s.add_argument("--method", required=True)
+    s.add_argument("--param", action="append", metavar="NAME=VALUE")
+    s.add_argument("-o", "--output", required=True)
+    common(s)
+    s.set_defaults(func=cmd_train)
+
+    s = sub.add_parser("eval", help="compare an estimate with the truth: all metrics")
+    s.add_argument("truth")
+    s.add_argument("estimate")
+    s.add_argument("--mask", help="corrupted-entry mask .npy from 'mocapkit corrupt --mask'")
+    s.add_argument("--json", action="store_true")
+    s.add_argument("--skeleton")
+    s.set_defaults(func=cmd_eval)
+
+    s = sub.add_parser("methods", help="list methods, whether they need training")
+    s.set_defaults(func=cmd_methods)
+
+    s = sub.add_parser("bench", help="run a benchmark protocol, write JSON + Markdown")
+    s.add_argument("protocol", nargs="?")
+    s.add_argument("--data", help="data folder (default: $MOCAPKIT_DATA or ../shared/data)")
+    s.add_argument("--out", help="output JSON (default PROTOCOL.json)")
+    s.add_argument("--quick", action="store_true", help="reduced run (seconds to a minute)")
+    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--list", action="store_true", help="list protocols")
+    s.add_argument("-q", "--quiet", action="store_true")
+    s.set_defaults(func=cmd_bench)
+
+    s = sub.add_parser("detect", help="flag untrusted entries (trust-data detection)")
+    s.add_argument("input")
+    s.add_argument("-o", "--output", help="write the report as JSON")
+    s.add_argument("--threshold-cm", type=float, help="distance from the robust fit (default 6 cm)")
+    common(s)
+    s.set_defaults(func=cmd_detect)
+
+    s = sub.add_parser("report", help="self-contained HTML report: input, cleaned (and truth)")
+    s.add_argument("files", nargs="+", help="TRUTH_OR_INPUT [CLEANED ...]")
+    s.add_argument("-o", "--output", required=True)
+    s.add_argument("--no-truth", action="store_true", help="the first file is an input, not the truth")
+    common(s)
+    s.set_defaults(func=cmd_report)
+    return p
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    a = parser.parse_args(argv)
+    try:
+        return int(a.func(a) or 0)
+    except MocapError as e:
+        print(f"mocapkit {a.command}: error: {e}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except KeyboardInterrupt:
+        print(f"mocapkit {a.command}: interrupted (no partial output written)", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())
