@@ -268,6 +268,22 @@ def cmd_report(a: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_batch(a: argparse.Namespace) -> int:
+    from .batch import DEFAULT_PATTERNS, run_batch
+
+    summ = run_batch(a.in_dir, a.out_dir, method=a.method or __import__("mocapkit.denoise").denoise.DEFAULT_METHOD,
+                     params=parse_params(a.param), model=a.model, workers=a.workers,
+                     scheduler=a.scheduler, patterns=a.include or DEFAULT_PATTERNS,
+                     progress=not a.quiet)
+    for r in summ.results:
+        if r.status == "failed":
+            print(f"FAILED {r.input}: {r.reason}")
+    print(f"{summ.ok} ok, {summ.failed} failed, {summ.skipped} already done; "
+          f"{summ.frames} frames in {summ.seconds:.1f} s ({summ.files_per_s:.2f} files/s, "
+          f"{summ.frames_per_s:.0f} frames/s); log: {Path(a.out_dir) / 'batch.log'}")
+    return 0 if summ.failed == 0 else 1
+
+
 # -- parser ----------------------------------------------------------------------------------
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
@@ -351,6 +367,19 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--threshold-cm", type=float, help="distance from the robust fit (default 6 cm)")
     common(s)
     s.set_defaults(func=cmd_detect)
+
+    s = sub.add_parser("batch", help="clean every supported file under IN_DIR into OUT_DIR (resumable)")
+    s.add_argument("in_dir")
+    s.add_argument("out_dir")
+    s.add_argument("--method", help="method name (default: the default method)")
+    s.add_argument("--param", action="append", metavar="NAME=VALUE")
+    s.add_argument("--model", help="trained model for data-driven methods")
+    s.add_argument("--workers", type=int, default=1, help="local worker processes (default 1)")
+    s.add_argument("--scheduler", help="Dask scheduler address tcp://host:port (runs on that cluster)")
+    s.add_argument("--include", action="append", metavar="GLOB",
+                   help="file patterns (default: *.bvh *.amc *.c3d *.trc *skeleton*.txt)")
+    s.add_argument("-q", "--quiet", action="store_true")
+    s.set_defaults(func=cmd_batch)
 
     s = sub.add_parser("report", help="self-contained HTML report: input, cleaned (and truth)")
     s.add_argument("files", nargs="+", help="TRUTH_OR_INPUT [CLEANED ...]")
