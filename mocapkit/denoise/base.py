@@ -75,6 +75,14 @@ class Denoiser:
     #: whether observed, trusted entries are returned unchanged (property tests check it)
     keeps_observed: ClassVar[bool] = False
 
+    #: RMSE (cm) within which a clean real clip must come back (property tests)
+    clean_tolerance_cm: ClassVar[float] = 1.0
+
+    @classmethod
+    def quick_params(cls) -> dict[str, Any]:
+        """Cheap settings (small dictionaries, few iterations) for property tests and demos."""
+        return {}
+
     # -- parameters (scikit-learn style) -------------------------------------------------
     @classmethod
     def _param_names(cls) -> list[str]:
