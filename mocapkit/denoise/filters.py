@@ -1,0 +1,307 @@
+"""Classical per-channel filters and gap fillers: gaussian, spline, linear, butterworth,
+savgol, median, hampel.
+
+Every method here treats each coordinate (x, y, z of each joint; the columns of
+:meth:`Motion.matrix`, cm) as an independent time series. Thin wrappers around the plain
+array functions of :mod:`mocapkit.signal`, which hold the maths and are tested alone.
+
+Missing data: smoothing filters first fill gaps by a cubic spline through each channel's
+observed samples (:func:`mocapkit.signal.fill_gaps`, ends held at the nearest observed
+value), then filter. A joint that is never observed in the clip cannot be filled by a
+per-channel method: :class:`~mocapkit.errors.MocapValueError` names it (use a data-driven
+method such as ``kalman-learned`` or ``lou-chai``, or drop it with ``Motion.select``).
+
+Window lengths are in frames (as in Lou & Chai 2010, whose data were at 30 fps), not
+seconds: at 120 fps the same window smooths four times less in time. ``butterworth``
+alone works in Hz and uses ``motion.fps``.
+"""
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from .. import signal
+from ..errors import MocapValueError
+from ..motion import Motion
+from .base import Denoiser, register
+
+__all__ = ["GaussianFilter", "SplineFill", "LinearFill", "ButterworthFilter",
+           "SavgolFilter", "MedianFilter", "HampelFilter", "require_observed_joints",
+           "filled_matrix"]
+
+
+def require_observed_joints(motion: Motion, method: str) -> None:
+    """Raise MocapValueError naming the joints that have no observed frame at all."""
+    never = ~motion.observed.any(axis=0)
+    if never.any():
+        names = [motion.skeleton.names[j] for j in np.flatnonzero(never)]
+        raise MocapValueError(
+            f"{method}: joint(s) {', '.join(names)} are never observed in this clip, so a "
+            f"per-channel method cannot fill them; use a data-driven method (e.g. "
+            f"kalman-learned, lou-chai) or drop them with Motion.select()")
+
+
+def filled_matrix(motion: Motion, method: str, kind: str = "cubic", ends: str = "nearest") -> np.ndarray:
+    """(T, 3J) matrix of ``motion`` with gaps filled by :func:`mocapkit.signal.fill_gaps`."""
+    require_observed_joints(motion, method)
+    return signal.fill_gaps(motion.matrix(), motion.matrix_mask(), kind=kind, ends=ends)
+
+
+def _odd_int(v: Any, what: str, minimum: int = 1) -> int:
+    try:
+        i = int(v)
+    except (TypeError, ValueError):
+        raise MocapValueError(f"{what} must be an odd integer number of frames, got {v!r}") from None
+    if i != v or i < minimum or i % 2 == 0:
+        raise MocapValueError(f"{what} must be an odd integer >= {minimum} (frames), got {v!r}")
+    return i
+
+
+# ---------------------------------------------------------------------------------------
+@register
+class GaussianFilter(Denoiser):
+    """Per-channel Gaussian low-pass filter -- the Gaussian baseline of Lou & Chai 2010
+    (seed 001, Sec. 6.2: "a standard Gaussian filter [applied] to every degree of freedom
+    independently", window size 11).
+
+    Parameters
+    ----------
+    window : kernel length in frames (odd). Default 11 (Lou & Chai).
+    sigma_frames : kernel standard deviation in frames.
+        Decision (the paper gives only the window): with ``window`` alone,
+        sigma = (window-1)/5 -- MATLAB ``gausswin`` default alpha = 2.5, i.e. sigma = 2
+        frames for window 11 (kernel truncated at 2.5 sigma). With ``sigma_frames``
+        alone, the window is 2*ceil(4 sigma)+1 (scipy's truncation). Both may be given.
+    median : 0 (off), 3 or 5 (any odd window): running-median pre-pass against spikes.
+        A median(3-5)+Gaussian cascade is a strong tuned baseline under outliers
+        (METHODS.md Sec. 1).
+    mode : end handling, see :func:`mocapkit.signal.gaussian` (default ``'odd'``:
+        trend-preserving reflection, so a marker moving at constant speed is not pulled
+        back at the clip ends).
+
+    Missing entries are filled by a cubic spline before filtering (ends held); the
+    output is fully observed. Observed entries are smoothed too (keeps_observed=False).
+    """
+
+    name = "gaussian"
+    description = "per-channel Gaussian smoothing (Lou & Chai baseline, window 11 frames); gaps spline-filled first"
+    needs_training = False
+    keeps_observed = False
+
+    def __init__(self, window: int | None = None, sigma_frames: float | None = None,
+                 median: int = 0, mode: str = "odd"):
+        self.window = window
+        self.sigma_frames = sigma_frames
+        self.median = median
+        self.mode = mode
+
+    def kernel(self) -> tuple[float, int]:
+        """(sigma, radius) in frames implied by the parameters."""
+        if self.window is None and self.sigma_frames is None:
+            return 2.0, 5
+        if self.sigma_frames is not None:
+            s = float(self.sigma_frames)
+            if not (np.isfinite(s) and s > 0):
+                raise MocapValueError(f"gaussian: sigma_frames must be positive, got {self.sigma_frames!r}")
+        if self.window is None:
+            return s, int(math.ceil(4 * s))
+        w = _odd_int(self.window, "gaussian: window", 3)
+        return ((w - 1) / 5.0 if self.sigma_frames is None else s), (w - 1) // 2
+
+    def denoise(self, motion: Motion) -> Motion:
+        sigma, radius = self.kernel()
+        X = filled_matrix(motion, self.name)
+        if self.median:
+            X = signal.median(X, window=_odd_int(self.median, "gaussian: median", 1))
+        return motion.with_matrix(signal.gaussian(X, sigma=sigma, radius=radius, mode=self.mode))
+
+
+@register
+class SplineFill(Denoiser):
+    """Cubic-spline gap filling per channel; observed entries are returned bit-identical.
+
+    Each channel is interpolated by a not-a-knot cubic spline through its observed
+    frames (:func:`mocapkit.signal.fill_gaps`). Gaps before the first / after the last
+    observed frame are filled according to ``ends``: ``'nearest'`` (default) holds the
+    end value -- safe for long end gaps; ``'linear'`` continues the spline's end slope.
+    No denoising: observed values, noisy or not, are kept. A joint never observed in the
+    clip raises MocapValueError naming it.
+    """
+
+    name = "spline"
+    description = "cubic-spline gap fill per channel; observed entries unchanged"
+    needs_training = False
+    keeps_observed = True
+    clean_tolerance_cm = 1e-9
+    _kind = "cubic"
+
+    def __init__(self, ends: str = "nearest"):
+        self.ends = ends
+
+    def denoise(self, motion: Motion) -> Motion:
+        X = filled_matrix(motion, self.name, kind=self._kind, ends=self.ends)
+        return motion.with_matrix(X)
+
+
+@register
+class LinearFill(SplineFill):
+    """Linear gap filling per channel (piecewise-linear in time between the observed
+    frames around each gap); observed entries are returned bit-identical. ``ends`` as
+    for :class:`SplineFill`."""
+
+    name = "linear"
+    description = "linear gap fill per channel; observed entries unchanged"
+    _kind = "linear"
+
+
+@register
+class ButterworthFilter(Denoiser):
+    """Zero-phase Butterworth low-pass (forward-backward ``sosfiltfilt``) per channel.
+
+    Parameters
+    ----------
+    cutoff_hz : single-pass -3 dB frequency in Hz (default 6 Hz, a common choice for
+        whole-body marker data); must be below half ``motion.fps``.
+    order : single-pass order (default 4; the zero-phase result has order 8).
+
+    Gaps are cubic-spline filled first. Clip ends use trend-preserving reflection
+    (:func:`mocapkit.signal.butterworth`). Clips of at most 3*(2*ceil(order/2)+1) frames
+    (15 for order 4) raise MocapValueError with that explanation.
+    """
+
+    name = "butterworth"
+    description = "zero-phase Butterworth low-pass per channel (6 Hz, order 4); gaps spline-filled first"
+    needs_training = False
+    keeps_observed = False
+
+    def __init__(self, cutoff_hz: float = 6.0, order: int = 4):
+        self.cutoff_hz = cutoff_hz
+        self.order = order
+
+    def denoise(self, motion: Motion) -> Motion:
+        X = filled_matrix(motion, self.name)
+        Y = signal.butterworth(X, fs=motion.fps, cutoff_hz=self.cutoff_hz, order=self.order)
+        return motion.with_matrix(Y)
+
+
+@register
+class SavgolFilter(Denoiser):
+    """Savitzky-Golay smoothing per channel (local least-squares polynomial of degree
+    ``polyorder`` over ``window`` frames; ends from the edge windows' polynomials).
+
+    Defaults: window 11 frames, polyorder 3. The window shrinks to the clip length for
+    short clips; fewer than polyorder+2 frames raise MocapValueError. Gaps are
+    cubic-spline filled first.
+    """
+
+    name = "savgol"
+    description = "Savitzky-Golay smoothing per channel (window 11, cubic); gaps spline-filled first"
+    needs_training = False
+    keeps_observed = False
+
+    def __init__(self, window: int = 11, polyorder: int = 3):
+        self.window = window
+        self.polyorder = polyorder
+
+    def denoise(self, motion: Motion) -> Motion:
+        X = filled_matrix(motion, self.name)
+        return motion.with_matrix(signal.savgol(X, window=self.window, polyorder=self.polyorder))
+
+
+@register
+class MedianFilter(Denoiser):
+    """Running median per channel over ``window`` frames (default 5; windows mirrored at
+    the clip ends). Removes isolated spikes up to (window-1)/2 frames long. Gaps are
+    cubic-spline filled first."""
+
+    name = "median"
+    description = "running median per channel (5 frames) against spikes; gaps spline-filled first"
+    needs_training = False
+    keeps_observed = False
+
+    def __init__(self, window: int = 5):
+        self.window = window
+
+    def denoise(self, motion: Motion) -> Motion:
+        X = filled_matrix(motion, self.name)
+        return motion.with_matrix(signal.median(X, window=_odd_int(self.window, "median: window")))
+
+
+@register
+class HampelFilter(Denoiser):
+    """Hampel-type outlier rejection + cubic-spline refill.
+
+    Residuals from the running median of the ``window - 1`` neighbours of each frame
+    (the frame itself left out, which calibrates the MAD-based sigma) are computed per
+    coordinate and scaled by a robust sigma (:func:`mocapkit.signal.hampel_residuals`; default
+    ``scale='global'``: one 1.4826 x MAD per coordinate over the whole clip, floored at
+    ``min_sigma_cm``). A joint is flagged in a frame when its three scaled residuals
+    together are too large: ``Σ_xyz (res/sigma)² > chi2_3`` threshold exceeded with the
+    probability of a two-sided ``n_sigmas`` Gaussian event
+    (:func:`mocapkit.signal.gate_threshold`; 3 sigmas -> 14.2). A marker spike moves the
+    whole marker, and this 3-dof test detects a 3-D spike of given size whatever its
+    direction, unlike three per-coordinate tests. ``scale='local'`` with ``joint_test=False``
+    is close to the classic per-coordinate Hampel identifier (a joint is then flagged when any of
+    its coordinates is).
+
+    Flagged joints are treated as missing and every gap (flagged or originally missing)
+    is filled by a cubic spline through the remaining observed frames. Unflagged
+    observed entries are returned unchanged (their noise is not smoothed: use
+    ``gaussian`` with ``median`` for a smoothing cascade).
+
+    Output: the returned motion's ``source['flagged']`` is a (T, J) bool array, True
+    where an observed joint was rejected as an outlier (it is not a ``per_frame`` entry,
+    so ``Motion.slice`` does not carry it along).
+
+    Parameters
+    ----------
+    window : odd number of frames of the running median (default 7).
+    n_sigmas : threshold (default 3).
+    scale : ``'global'`` (default) or ``'local'`` (see above).
+    joint_test : True (default) for the 3-dof joint test, False for per-coordinate tests.
+    min_sigma_cm : floor of the robust sigma in cm (default 0.1), so nearly constant
+        stretches (MAD ~ 0) do not flag sub-millimetre wiggles.
+    """
+
+    name = "hampel"
+    description = "Hampel outlier rejection (running median, robust sigma, 3-D test per joint) then cubic-spline refill"
+    needs_training = False
+    keeps_observed = False
+
+    def __init__(self, window: int = 7, n_sigmas: float = 3.0, scale: str = "global",
+                 joint_test: bool = True, min_sigma_cm: float = 0.1):
+        self.window = window
+        self.n_sigmas = n_sigmas
+        self.scale = scale
+        self.joint_test = joint_test
+        self.min_sigma_cm = min_sigma_cm
+
+    def flags(self, motion: Motion) -> np.ndarray:
+        """(T, J) bool: observed joints the test rejects."""
+        X = filled_matrix(motion, self.name)
+        T, J = motion.observed.shape
+        if T < 3:
+            return np.zeros((T, J), dtype=bool)
+        ns = float(self.n_sigmas)
+        if not ns > 0:
+            raise MocapValueError(f"hampel: n_sigmas must be positive, got {self.n_sigmas!r}")
+        _, res, sig = signal.hampel_residuals(
+            X, window=_odd_int(self.window, "hampel: window", 3), scale=self.scale,
+            min_sigma=self.min_sigma_cm, exclude_center=True)
+        z2 = (res / sig).reshape(T, J, 3) ** 2
+        if self.joint_test:
+            flagged = z2.sum(axis=2) > float(signal.gate_threshold(ns, 3))
+        else:
+            flagged = (z2 > ns * ns).any(axis=2)
+        return flagged & motion.observed
+
+    def denoise(self, motion: Motion) -> Motion:
+        flagged = self.flags(motion)
+        keep = motion.observed & ~flagged
+        lost = ~keep.any(axis=0) & motion.observed.any(axis=0)
+        keep[:, lost] = motion.observed[:, lost]        # never reject every frame of a joint
+        flagged &= ~keep
+        Y = filled_matrix(motion.with_observed(keep), self.name)
+        return motion.with_matrix(Y).with_source(flagged=flagged)

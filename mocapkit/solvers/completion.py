@@ -1,0 +1,582 @@
+"""Motion-matrix completion solvers of the thesis (seed 003, Ch. 4) and DynaMMo.
+
+Plain functions on arrays.  Layout: ``X`` is the (T, C) frame-by-coordinate matrix
+(T frames, C = 3J coordinates, cm in mocapkit; the thesis writes its transpose, d x n or
+m x n), ``mask`` a bool array of the same shape (True = observed).  Unobserved entries
+may hold anything (NaN included); they are ignored and filled by the model.  Time runs
+down the rows, so the thesis' right-multiplication by the second-difference matrix O
+(``Y O``, ``L R^T O``) becomes the left-multiplication ``O X`` here.
+
+Solvers
+-------
+* :func:`tsmc` -- bilinear factorisation with sparse error and second-difference
+  smoothness (thesis Sec. 4.1, eqs. 4.6-4.14, Algorithm 2), solved by ALM with the slack
+  variable M = U V^T.  The model is the TSMC model of Feng et al. (2014b), solved with the
+  thesis' bilinear factorisation (``rank`` columns) instead of Feng's partial SVD.
+* :func:`trnn` -- truncated nuclear norm (sum of all but the r largest singular values)
+  with sparse error and smoothness (thesis Sec. 4.2, eqs. 4.21-4.26, Algorithm 3),
+  single-loop ALM whose M-step is diagonalised by the DCT-II (:func:`smooth_solve`).
+* :func:`estimate_rank` -- the last-significant-jump rule (Sec. 4.1.2 / 4.2.3).
+* :func:`lds_em_complete` -- DynaMMo (Li, McCann, Pollard & Faloutsos, KDD 2009): a linear
+  dynamical system fitted by EM with the missing values re-estimated from the smoothed
+  latent states at every iteration (the strongest classical gap-filling baseline the
+  thesis compares with, Fig. 3.7 / 4.11).
+
+Misprints of the thesis fixed here (see ../shared/specs/METHODS.md Sec. 4)
+---------------------------------------------------------------------------
+* eq. 4.10: ``V = Z_v^T U (I + (l1 + l2) U^T U)^-1`` -- Z_v needs a transpose;
+* eq. 4.11 / 4.12: the E-step is *element-wise* soft thresholding (eq. 4.12 defines the
+  singular value one);
+* eq. 4.14: each multiplier goes with its own constraint: Y1 with ``M - U V^T``, Y2 with
+  ``X - U V^T - E`` (the thesis swaps them);
+* eq. 4.2: O is symmetric, its last row is ``[..., 1, -1]`` (as in eq. 4.22), so that
+  ``O = -L`` with L the Neumann (reflecting-end) path Laplacian, whose eigenvectors are the
+  DCT-II basis and eigenvalues ``-xi_i = 2 - 2 cos((i-1) pi / n)``;
+* Sec. 4.2.2: ``Gamma_ii = 1 / (eta + mu xi_i^2)`` (the thesis prints ``Y_1^k`` for eta).
+
+Speed: every step is a handful of (T x C)(C x k) products, one DCT of a (T x C) array
+and an SVD of a (T x r) matrix, so the cost per iteration is O(T C k + T C log T) --
+linear in the number of frames.  No step loops over frames in Python except the
+Kalman/RTS recursions of DynaMMo, which are sequential by nature and handle only k x k
+matrices (the data-dependent parts are batched).
+"""
+from __future__ import annotations
+
+import warnings
+from typing import Any
+
+import numpy as np
+from scipy import fft as _fft
+
+from ..errors import MocapValueError
+
+__all__ = ["second_difference_matrix", "smooth_solve", "estimate_rank", "soft_threshold",
+           "tsmc", "trnn", "lds_em_complete"]
+
+
+# --------------------------------------------------------------------------------------
+# helpers
+# --------------------------------------------------------------------------------------
+def _prepare(X: Any, mask: Any) -> tuple[np.ndarray, np.ndarray]:
+    """Float copy of X with unobserved entries zeroed, and a full bool mask."""
+    X = np.array(X, dtype=np.float64, copy=True)
+    if X.ndim != 2:
+        raise MocapValueError(f"X must be a 2-D (frames x coordinates) matrix, got shape {X.shape}")
+    if X.shape[0] < 1 or X.shape[1] < 1:
+        raise MocapValueError(f"X is empty (shape {X.shape})")
+    if mask is None:
+        m = np.isfinite(X)
+    else:
+        m = np.asarray(mask)
+        if m.shape != X.shape:
+            raise MocapValueError(f"mask must have the shape of X {X.shape}, got {m.shape}")
+        m = m.astype(bool)
+        bad = m & ~np.isfinite(X)
+        if bad.any():
+            raise MocapValueError(f"X has {int(bad.sum())} non-finite entries marked as observed")
+    if not m.any():
+        raise MocapValueError("X has no observed entries")
+    X[~m] = 0.0
+    return X, m
+
+
+def _linear_fill(X: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    from ..motion import fill_gaps_linear
+
+    return fill_gaps_linear(X, mask)
+
+
+def second_difference_matrix(n: int) -> np.ndarray:
+    """The symmetric (n, n) matrix O of thesis eqs. 4.2 / 4.22 (last row fixed to [1, -1]).
+
+    Rows: ``[-1, 1, 0...]``, ``[.., 1, -2, 1, ..]``, ``[..., 0, 1, -1]``.  ``O x`` is the
+    second difference of x with reflecting ends; O = -L with L the Neumann path Laplacian.
+    For n = 1 it is [[0]].
+    """
+    n = int(n)
+    if n < 1:
+        raise MocapValueError(f"n must be >= 1, got {n}")
+    O = np.zeros((n, n))
+    if n == 1:
+        return O
+    i = np.arange(n)
+    O[i, i] = -2.0
+    O[i[:-1], i[:-1] + 1] = 1.0
+    O[i[1:], i[1:] - 1] = 1.0
+    O[0, 0] = O[-1, -1] = -1.0
+    return O
+
+
+def dct_eigenvalues(n: int) -> np.ndarray:
+    """Eigenvalues xi_i = -2 + 2 cos((i-1) pi / n), i = 1..n, of O (DCT-II order)."""
+    return -2.0 + 2.0 * np.cos(np.arange(n) * np.pi / n)
+
+
+def smooth_solve(rhs: np.ndarray, eta: float, mu: float) -> np.ndarray:
+    """Solve ``(eta I + mu O^T O) M = rhs`` along axis 0 by the DCT-II (thesis eq. 4.25).
+
+    O (:func:`second_difference_matrix`) is diagonalised by the orthonormal DCT-II:
+    ``O = C^T diag(xi) C``, so ``M = IDCT(Gamma DCT(rhs))`` with
+    ``Gamma_ii = 1 / (eta + mu xi_i^2)``.  Cost O(T log T) per column.
+
+    Parameters
+    ----------
+    rhs : (T,) or (T, C) array; every column is solved independently.
+    eta : > 0 (the ALM penalty); mu : >= 0 (smoothness weight).
+    """
+    rhs = np.asarray(rhs, dtype=np.float64)
+    n = rhs.shape[0]
+    xi = dct_eigenvalues(n)
+    gamma = 1.0 / (eta + mu * xi ** 2)
+    shape = (n,) + (1,) * (rhs.ndim - 1)
+    return _fft.idct(gamma.reshape(shape) * _fft.dct(rhs, type=2, axis=0, norm="ortho"),
+                     type=2, axis=0, norm="ortho")
+
+
+def soft_threshold(A: np.ndarray, tau: float) -> np.ndarray:
+    """Element-wise soft thresholding sign(a) max(|a| - tau, 0) (the prox of tau ||.||_1)."""
+    return np.sign(A) * np.maximum(np.abs(A) - tau, 0.0)
+
+
+def _singular_values(X: np.ndarray) -> np.ndarray:
+    """Singular values (descending) of a (T, C) matrix via its small Gram matrix."""
+    T, C = X.shape
+    G = X.T @ X if T >= C else X @ X.T
+    w = np.linalg.eigvalsh(G)[::-1]
+    return np.sqrt(np.clip(w, 0.0, None))
+
+
+def estimate_rank(X: Any, mask: Any = None, threshold: float = 0.1) -> int:
+    """Rank by the last significant jump of the normalised singular values.
+
+    Thesis Sec. 4.1.2 / 4.2.3 (Wang & Yin 2010): missing entries are first filled by linear
+    interpolation in time; with ``s_i = sigma_i / sigma_1`` (normalised to [0, 1],
+    descending) the rank is the largest i (1-based) with ``s_i - s_{i+1} >= threshold``
+    (0.1 in the thesis); at least 1.
+
+    Parameters
+    ----------
+    X : (T, C) matrix; mask : optional bool (T, C), True = observed.
+    threshold : jump threshold on the normalised singular values.
+    """
+    X, m = _prepare(X, mask)
+    if not m.all():
+        X = _linear_fill(np.where(m, X, np.nan), m)
+    s = _singular_values(X)
+    if s[0] <= 0:
+        return 1
+    s = s / s[0]
+    jumps = s[:-1] - s[1:]
+    big = np.flatnonzero(jumps >= threshold)
+    return int(big[-1] + 1) if big.size else 1
+
+
+def _rel(a: float, b: float) -> float:
+    return a / b if b > 0 else a
+
+
+def _not_converged(name: str, it: int, crit: float, tol: float) -> None:
+    warnings.warn(f"{name}: not converged after {it} iterations (criterion {crit:.2e} > "
+                  f"tol {tol:.1e}); raise max_iter or tol", RuntimeWarning, stacklevel=3)
+
+
+# --------------------------------------------------------------------------------------
+# bilinear factorisation + sparse error + smoothness (thesis Sec. 4.1)
+# --------------------------------------------------------------------------------------
+def tsmc(X: Any, mask: Any = None, *, rank: int | None = None, alpha: float = 1.0,
+         beta: float = 100.0, lam1: float = 1e-5, lam2: float = 1e-5, gamma: float = 1.4,
+         lam_max: float = 1e10, tol: float = 1e-4, max_iter: int = 500,
+         rank_threshold: float = 0.1, seed: int = 0, return_info: bool = False):
+    """Low-rank + sparse + smooth completion by bilinear factorisation (thesis Sec. 4.1).
+
+    Solves (thesis eq. 4.7, our (T, C) layout)::
+
+        min_{U,V,E,M}  1/2 (||U||_F^2 + ||V||_F^2) + alpha ||Omega o E||_1 + beta/2 ||O M||_F^2
+        s.t.  X = U V^T + E,   M = U V^T
+
+    with U (T, k), V (C, k), by ALM (eqs. 4.8-4.14, Algorithm 2; misprints fixed as in the
+    module docstring)::
+
+        Z   = Y1 + Y2 + l1 M + l2 (X - E)
+        U   = Z V (I + (l1 + l2) V^T V)^-1                          (4.9)
+        V   = Z^T U (I + (l1 + l2) U^T U)^-1                        (4.10)
+        E   = Omega o S_{alpha/l2}(Ze) + (1 - Omega) o Ze,  Ze = X - U V^T + Y2 / l2   (4.11)
+        M   = (l1 I + beta O^T O)^-1 (l1 U V^T - Y1)    [DCT, eq. 4.25]  (4.13)
+        Y1 += l1 (M - U V^T);  Y2 += l2 (X - U V^T - E)              (4.14)
+        l1, l2 <- min(gamma l, lam_max)
+
+    ``1/2 (||U||^2 + ||V||^2)`` equals the nuclear norm of U V^T at the optimum (eq. 4.4).
+    Stopping (the thesis' criterion of Sec. 4.2.3): ``max(||X - UV^T - E|| / ||X||,
+    ||M - UV^T|| / ||X||, ||UV^T - previous|| / ||UV^T||) < tol`` (Frobenius norms,
+    observed part of X).
+
+    Parameters
+    ----------
+    X : (T, C) data (cm); mask : bool (T, C), True = observed (None: finite entries).
+    rank : k, columns of U and V; default ``min(ceil(1.1 r), C, T)`` with r from
+        :func:`estimate_rank` (eq. 4.15).
+    alpha, beta, lam1, lam2, gamma, lam_max : thesis settings (Sec. 4.1.3): 1, 100, 1e-5,
+        1e-5, 1.4, 1e10.  beta multiplies a squared second difference, so it depends on the
+        unit (cm here, as the thesis' RMSE).
+    tol, max_iter : stopping tolerance and iteration cap.
+    seed : for the random initial V (Algorithm 2, step 1).
+
+    Returns
+    -------
+    Y : (T, C) low-rank estimate U V^T (the thesis' output); with ``return_info`` also a
+    dict (iterations, converged, criterion, rank, E (T, C) sparse error).
+    """
+    X, m = _prepare(X, mask)
+    T, C = X.shape
+    if rank is None:
+        r = estimate_rank(X, m, rank_threshold)
+        k = int(min(np.ceil(1.1 * r), C, T))
+    else:
+        k = int(rank)
+        if k < 1:
+            raise MocapValueError(f"rank must be >= 1, got {rank}")
+        k = min(k, C, T)
+    for nm, v in (("alpha", alpha), ("beta", beta)):
+        if v < 0:
+            raise MocapValueError(f"{nm} must be >= 0, got {v}")
+    if lam1 <= 0 or lam2 <= 0 or gamma < 1:
+        raise MocapValueError("lam1, lam2 must be > 0 and gamma >= 1")
+    rng = np.random.default_rng(seed)
+    V = rng.random((C, k))
+    V /= np.linalg.norm(V)
+    U = np.zeros((T, k))
+    E = np.zeros((T, C))
+    M = np.zeros((T, C))
+    nx = np.linalg.norm(X)
+    if nx == 0:
+        Y = np.zeros((T, C))
+        info = {"iterations": 0, "converged": True, "criterion": 0.0, "rank": k, "E": E}
+        return (Y, info) if return_info else Y
+    spec = _singular_values(X)[0]
+    Y1 = X / max(spec, np.abs(X).max() / max(alpha, 1e-12))
+    Y2 = Y1.copy()
+    Ik = np.eye(k)
+    miss = ~m
+    l1, l2 = float(lam1), float(lam2)
+    UV_prev = np.zeros((T, C))
+    crit = np.inf
+    it = 0
+    converged = False
+    for it in range(1, int(max_iter) + 1):
+        Z = Y1 + Y2 + l1 * M + l2 * (X - E)
+        U = np.linalg.solve(Ik + (l1 + l2) * (V.T @ V), (Z @ V).T).T
+        V = np.linalg.solve(Ik + (l1 + l2) * (U.T @ U), (Z.T @ U).T).T
+        UV = U @ V.T
+        Ze = X - UV + Y2 / l2
+        E = soft_threshold(Ze, alpha / l2)
+        E[miss] = Ze[miss]
+        M = smooth_solve(l1 * UV - Y1, l1, beta)
+        R1 = M - UV
+        R2 = X - UV - E
+        Y1 += l1 * R1
+        Y2 += l2 * R2
+        nuv = np.linalg.norm(UV)
+        crit = max(_rel(np.linalg.norm(R2), nx), _rel(np.linalg.norm(R1), nx),
+                   _rel(np.linalg.norm(UV - UV_prev), nuv))
+        UV_prev = UV
+        l1 = min(gamma * l1, lam_max)
+        l2 = min(gamma * l2, lam_max)
+        if crit < tol:
+            converged = True
+            break
+    if not converged:
+        _not_converged("tsmc", it, crit, tol)
+    Y = U @ V.T
+    if return_info:
+        return Y, {"iterations": it, "converged": converged, "criterion": float(crit),
+                   "rank": k, "E": E}
+    return Y
+
+
+# --------------------------------------------------------------------------------------
+# truncated nuclear norm (thesis Sec. 4.2)
+# --------------------------------------------------------------------------------------
+def _orth_max(N: np.ndarray) -> np.ndarray:
+    """argmax_W tr(W N) s.t. W W^T = I (thesis Appendix Lemma 1): W = Q P^T, N = P S Q^T."""
+    P, _, Qt = np.linalg.svd(N, full_matrices=False)
+    return Qt.T @ P.T
+
+
+def trnn(X: Any, mask: Any = None, *, r: int = 15, d: int | None = None, lam: float | None = None,
+         mu: float = 100.0, rho: float = 1.4, eta: float = 1e-5, eta_max: float = 1e6,
+         tol: float = 1e-4, max_iter: int = 500, rank_threshold: float = 0.1, seed: int = 0,
+         return_info: bool = False):
+    """Truncated-nuclear-norm completion with sparse error and smoothness (thesis Sec. 4.2).
+
+    Solves (thesis eq. 4.23, our (T, C) layout: A = R, B = L of the thesis)::
+
+        min  1/2 (||A||^2 + ||B||^2) - tr(P A B^T Q^T) + lam ||P_Omega(S)||_1 + mu/2 ||O M||^2
+        s.t. M + S = P_Omega(X),  M = A B^T,  P P^T = I_r,  Q Q^T = I_r
+
+    A (T, d), B (C, d), P (r, T), Q (r, C).  The first two terms equal the truncated nuclear
+    norm ``sum_{i > r} sigma_i(A B^T)`` at the optimum (eq. 4.20).  Single-loop ALM
+    (Algorithm 3) with closed-form steps::
+
+        T1 = P^T Q + Y1 + Y2 + eta (M + P_Omega(X) - S)
+        A  = T1 B (I + 2 eta B^T B)^-1;   B = T1^T A (I + 2 eta A^T A)^-1          (4.24)
+        S  = P_Omega^c(Ts) + P_Omega(soft(Ts, lam/eta)),  Ts = P_Omega(X) - A B^T + Y2/eta
+        M  = IDCT(Gamma DCT(eta A B^T - Y1)),  Gamma_ii = 1/(eta + mu xi_i^2)     (4.25)
+        P  = argmax tr(P A B^T Q^T);  Q = argmax tr(Q B A^T P^T)   (Lemma 1)     (4.26)
+        Y1 += eta (M - A B^T);  Y2 += eta (P_Omega(X) - A B^T - S);  eta <- min(rho eta, eta_max)
+
+    Stopping (Sec. 4.2.3): ``max(||P_Omega(X) - AB^T - S|| / ||P_Omega(X)||,
+    ||M - AB^T|| / ||P_Omega(X)||, ||AB^T - previous|| / ||AB^T||) < tol``.
+
+    Parameters
+    ----------
+    X : (T, C) data (cm); mask : bool (T, C), True = observed.
+    r : truncation (singular values left unpenalised); thesis: 15.
+    d : factor width; default ``min(round(1.2 rank), C, T)`` (Sec. 4.2.3) with the rank of
+        :func:`estimate_rank`, raised to at least ``r + 1`` (the model needs r <= rank <= d;
+        our decision, since the last-jump rank of raw mocap matrices is often below 15).
+    lam : sparse weight, default ``100 / sqrt(max(T, C))`` (Sec. 4.2.3, real data).
+    mu, rho, eta, eta_max, tol : thesis settings 100, 1.4, 1e-5, 1e6, 1e-4.
+    P and Q start from the top-r singular vectors of the linearly interpolated data (the
+    thesis does not say; Algorithm 3 only initialises R at random, as we do with ``seed``).
+
+    Returns
+    -------
+    Xhat : (T, C) = A B^T; with ``return_info`` also a dict (iterations, converged,
+    criterion, r, d, S).
+    """
+    X, m = _prepare(X, mask)
+    T, C = X.shape
+    n_small = min(T, C)
+    r = int(min(max(int(r), 0), n_small))
+    Xlin = X if m.all() else _linear_fill(np.where(m, X, np.nan), m)
+    if d is None:
+        rk = estimate_rank(Xlin, None, rank_threshold)
+        d = int(min(round(1.2 * rk), C, T))
+        d = max(d, min(r + 1, n_small))
+    d = int(min(max(int(d), 1), n_small))
+    r = min(r, d)
+    if lam is None:
+        lam = 100.0 / np.sqrt(max(T, C))
+    if lam < 0 or mu < 0 or eta <= 0 or rho < 1:
+        raise MocapValueError("trnn needs lam >= 0, mu >= 0, eta > 0 and rho >= 1")
+    D = X                                                # P_Omega(X): zeros off Omega
+    nd = np.linalg.norm(D)
+    if nd == 0:
+        Z = np.zeros((T, C))
+        info = {"iterations": 0, "converged": True, "criterion": 0.0, "r": r, "d": d,
+                "S": np.zeros((T, C))}
+        return (Z, info) if return_info else Z
+    rng = np.random.default_rng(seed)
+    A = np.zeros((T, d))
+    B = rng.standard_normal((C, d))
+    B /= np.linalg.norm(B)
+    S = np.zeros((T, C))
+    M = np.zeros((T, C))
+    spec = _singular_values(D)[0]
+    Y1 = D / max(spec, np.abs(D).max() / max(lam, 1e-12))
+    Y2 = Y1.copy()
+    # P, Q from the top-r singular vectors of the interpolated data
+    if r > 0:
+        G = Xlin.T @ Xlin
+        w, Vg = np.linalg.eigh(G)
+        Vr = Vg[:, ::-1][:, :r]                               # (C, r)
+        Ur = Xlin @ Vr
+        Ur /= np.maximum(np.linalg.norm(Ur, axis=0, keepdims=True), 1e-300)
+        P, Q = Ur.T, Vr.T                                     # (r, T), (r, C)
+    else:
+        P, Q = np.zeros((0, T)), np.zeros((0, C))
+    Id = np.eye(d)
+    miss = ~m
+    AB_prev = np.zeros((T, C))
+    crit = np.inf
+    it = 0
+    converged = False
+    for it in range(1, int(max_iter) + 1):
+        Trest = Y1 + Y2 + eta * (M + D - S)
+        # T1 B and T1^T A with T1 = P^T Q + Trest, without forming P^T Q
+        A = np.linalg.solve(Id + 2 * eta * (B.T @ B), (Trest @ B + P.T @ (Q @ B)).T).T
+        B = np.linalg.solve(Id + 2 * eta * (A.T @ A), (Trest.T @ A + Q.T @ (P @ A)).T).T
+        AB = A @ B.T
+        Ts = D - AB + Y2 / eta
+        S = soft_threshold(Ts, lam / eta)
+        S[miss] = Ts[miss]
+        M = smooth_solve(eta * AB - Y1, eta, mu)
+        if r > 0:
+            P = _orth_max(A @ (Q @ B).T)                      # (T, r) -> P (r, T)
+            Q = _orth_max(B @ (P @ A).T)                      # (C, r) -> Q (r, C)
+        R1 = M - AB
+        R2 = D - AB - S
+        Y1 += eta * R1
+        Y2 += eta * R2
+        nab = np.linalg.norm(AB)
+        crit = max(_rel(np.linalg.norm(R2), nd), _rel(np.linalg.norm(R1), nd),
+                   _rel(np.linalg.norm(AB - AB_prev), nab))
+        AB_prev = AB
+        eta = min(rho * eta, eta_max)
+        if crit < tol:
+            converged = True
+            break
+    if not converged:
+        _not_converged("trnn", it, crit, tol)
+    Xhat = A @ B.T
+    if return_info:
+        return Xhat, {"iterations": it, "converged": converged, "criterion": float(crit),
+                      "r": r, "d": d, "S": S}
+    return Xhat
+
+
+# --------------------------------------------------------------------------------------
+# DynaMMo: linear dynamical system with missing values, fitted by EM
+# --------------------------------------------------------------------------------------
+def _psd_floor(S: np.ndarray, floor: float) -> np.ndarray:
+    """Symmetrise and lift the eigenvalues of a covariance to at least ``floor``."""
+    S = 0.5 * (S + S.T)
+    w, V = np.linalg.eigh(S)
+    return (V * np.maximum(w, floor)) @ V.T
+
+
+def _kalman_rts(Xc: np.ndarray, A: np.ndarray, Cm: np.ndarray, Q: np.ndarray, Rd: np.ndarray,
+                u0: np.ndarray, V0: np.ndarray):
+    """Kalman filter + RTS smoother for fully filled data (DynaMMo's E-step).
+
+    Observation noise is diagonal (``Rd`` (C,)), so the update works in information form
+    on k x k matrices.  With every frame (filled) observed, the covariances do not depend
+    on the data: they are iterated until they reach their steady state and then reused,
+    so the Python loops over frames only do k-vector recursions.
+
+    Returns smoothed means (T, k), the sum of smoothed covariances over all frames, over
+    frames 1..T-1 and 2..T, the sum of lag-one cross covariances Cov(z_t, z_{t-1}),
+    and the first frame's covariance.
+    """
+    T, k = Xc.shape[0], A.shape[0]
+    CtRinv = Cm.T / Rd                                   # (k, C)
+    info = CtRinv @ Cm                                    # C^T R^-1 C (k, k)
+    # forward covariance recursion (data independent), to steady state
+    Pp = np.empty((T, k, k))                              # predicted
+    Pf = np.empty((T, k, k))                              # filtered
+    steady_f = T
+    prev = None
+    for t in range(T):
+        Pp[t] = V0 if t == 0 else A @ Pf[t - 1] @ A.T + Q
+        Pf[t] = np.linalg.inv(np.linalg.inv(Pp[t]) + info)
+        Pf[t] = 0.5 * (Pf[t] + Pf[t].T)
+        if prev is not None and t > 2 and np.abs(Pf[t] - prev).max() <= 1e-10 * max(np.abs(prev).max(), 1e-300):
+            steady_f = t + 1
+            break
+        prev = Pf[t]
+    if steady_f < T:
+        Pp[steady_f:] = Pp[steady_f - 1]
+        Pf[steady_f:] = Pf[steady_f - 1]
+    # filter means: mu_t = G_t A mu_{t-1} + b_t with b_t = K_t x_t, K_t = Pf_t C^T R^-1 and
+    # G_t = I - K_t C = Pf_t Pp_t^-1 (information form)
+    Ppinv = np.linalg.inv(Pp)
+    b = np.einsum("tij,tj->ti", Pf, Xc @ CtRinv.T)
+    GA = (Pf @ Ppinv) @ A                                 # (T, k, k)
+    mu = np.empty((T, k))
+    mu[0] = Pf[0] @ Ppinv[0] @ u0 + b[0]
+    for t in range(1, T):
+        mu[t] = GA[t] @ mu[t - 1] + b[t]
+    # backward RTS: J_t = Pf_t A^T Pp_{t+1}^-1 (batched), then the two recursions
+    J = Pf[:-1] @ A.T @ Ppinv[1:]                         # (T-1, k, k)
+    Vs = np.empty((T, k, k))
+    Vs[-1] = Pf[-1]
+    ms = np.empty((T, k))
+    ms[-1] = mu[-1]
+    Amu = mu @ A.T
+    for t in range(T - 2, -1, -1):
+        Vs[t] = Pf[t] + J[t] @ (Vs[t + 1] - Pp[t + 1]) @ J[t].T
+        ms[t] = mu[t] + J[t] @ (ms[t + 1] - Amu[t])
+    Vsum = Vs.sum(axis=0)
+    cross = np.einsum("tij,tkj->ik", Vs[1:], J) if T > 1 else np.zeros((k, k))
+    return ms, Vsum, Vsum - Vs[-1], Vsum - Vs[0], cross, Vs[0]
+
+
+def lds_em_complete(X: Any, mask: Any = None, *, k: int | None = None, max_iter: int = 100,
+                    tol: float = 1e-4, min_var: float = 1e-6, return_info: bool = False):
+    """Fill missing entries with a linear dynamical system learnt by EM (DynaMMo).
+
+    Li, McCann, Pollard & Faloutsos (2009), "DynaMMo: mining and summarization of
+    coevolving sequences with missing values", KDD, Sec. 3 (model eq. 1, Algorithm 1):
+
+        z_1 ~ N(u0, V0),   z_{t+1} = A z_t + w_t, w ~ N(0, Q),   x_t = C z_t + v_t, v ~ N(0, R)
+
+    with latent z_t in R^k and x_t the (centred) frame.  Every EM iteration runs the Kalman
+    filter and the Rauch-Tung-Striebel smoother on the current filled data (E-step), updates
+    (u0, V0, A, Q, C, R) in closed form (M-step; Ghahramani & Hinton 1996) and re-estimates
+    the missing entries as ``C E[z_t]`` (DynaMMo's step 4).  Decisions: R is diagonal (one
+    variance per coordinate, as DynaMMo's implementation) with variances floored at
+    ``min_var`` times the data variance; the parameters start from PCA of the linearly
+    interpolated data (C = top-k principal directions, A by least squares on the latent
+    sequence) rather than at random, which needs far fewer EM iterations; observed entries
+    are returned unchanged.
+
+    Parameters
+    ----------
+    X : (T, C) data (cm); mask : bool (T, C), True = observed.
+    k : latent dimension (default ``min(16, C)``).
+    max_iter, tol : EM iterations; stop when the filled values change by less than ``tol``
+        relative to the data norm.
+
+    Returns
+    -------
+    Xhat : (T, C) completed matrix; with ``return_info`` also a dict (iterations,
+    converged, change, k).
+    """
+    X, m = _prepare(X, mask)
+    T, Cn = X.shape
+    k = int(min(16, Cn) if k is None else k)
+    if k < 1:
+        raise MocapValueError(f"k must be >= 1, got {k}")
+    k = min(k, Cn, max(T - 1, 1))
+    Xf = X if m.all() else _linear_fill(np.where(m, X, np.nan), m)
+    miss = ~m
+    mean = Xf.mean(axis=0)
+    if T < 3:
+        out = Xf
+        info = {"iterations": 0, "converged": True, "change": 0.0, "k": k}
+        return (out, info) if return_info else out
+    Xc = Xf - mean
+    scale = max(float(Xc.var()), 1e-12)
+    floor = min_var * scale
+    # PCA initialisation
+    _, Vg = np.linalg.eigh(Xc.T @ Xc)
+    Cm = Vg[:, ::-1][:, :k].copy()                        # (C, k)
+    Zs = Xc @ Cm
+    A = np.linalg.lstsq(Zs[:-1], Zs[1:], rcond=None)[0].T
+    Q = _psd_floor(np.cov((Zs[1:] - Zs[:-1] @ A.T).T).reshape(k, k), floor)
+    Rd = np.maximum(((Xc - Zs @ Cm.T) ** 2).mean(axis=0), floor)
+    u0, V0 = Zs[0].copy(), _psd_floor(np.cov(Zs.T).reshape(k, k), floor)
+    nx = max(np.linalg.norm(Xc), 1e-300)
+    change = np.inf
+    converged = not miss.any()
+    it = 0
+    for it in range(1, int(max_iter) + 1):
+        ms, Vsum, Vsum_prev, Vsum_next, cross, V1 = _kalman_rts(Xc, A, Cm, Q, Rd, u0, V0)
+        # sufficient statistics
+        S11 = Vsum + ms.T @ ms                            # sum_t E[z_t z_t^T]
+        Sprev = Vsum_prev + ms[:-1].T @ ms[:-1]           # t = 1..T-1
+        Snext = Vsum_next + ms[1:].T @ ms[1:]             # t = 2..T
+        S10 = cross + ms[1:].T @ ms[:-1]                  # sum E[z_t z_{t-1}^T]
+        # M-step
+        A = np.linalg.solve(Sprev.T, S10.T).T
+        Q = _psd_floor((Snext - A @ S10.T) / (T - 1), floor)
+        XZ = Xc.T @ ms                                    # (C, k)
+        Cm = np.linalg.solve(S11.T, XZ.T).T
+        Rd = np.maximum(((Xc ** 2).sum(axis=0) - np.einsum("ck,ck->c", Cm, XZ)) / T, floor)
+        u0 = ms[0].copy()
+        V0 = _psd_floor(V1, floor)
+        if not miss.any():
+            break
+        new = (ms @ Cm.T)[miss]
+        change = float(np.linalg.norm(new - Xc[miss]) / nx)
+        Xc[miss] = new
+        if change < tol:
+            converged = True
+            break
+    if not converged:
+        _not_converged("dynammo", it, change, tol)
+    out = Xc + mean
+    out[m] = X[m]
+    if return_info:
+        return out, {"iterations": it, "converged": converged, "change": change, "k": k}
+    return out

@@ -1,0 +1,603 @@
+"""Low-rank matrix solvers on plain arrays: TSVD, SVT, RPCA (inexact ALM) and SLRA.
+
+All functions take a real matrix ``X`` of shape (m, n) -- for motion capture one row per
+frame and one column per coordinate (m = T frames, n = 3J = 93 for the CMU skeleton; the
+papers write the transpose) -- in whatever unit the caller uses (cm in mocapkit), and an
+optional boolean ``mask`` of the same shape (True = observed).  Unobserved entries are
+ignored (their values may be NaN) and filled by the low-rank model.  Observed entries must
+be finite, otherwise :class:`~mocapkit.errors.MocapValueError` is raised.
+
+Speed: mocap matrices are tall and thin, so every singular value shrinkage works on the
+small side: the n x n Gram matrix ``M^T M`` is eigendecomposed (n = 93: ~0.8 ms) and the
+shrunk matrix is ``M @ (V diag(max(1 - tau/sigma, 0)) V^T)`` -- one (m x n)(n x n) product.
+The Gram route squares the condition number, which only affects singular values below
+~1e-8 sigma_max; matrices that are not at least twice as long as wide use LAPACK's economy
+SVD instead (``svd="auto"``).  Segments of SLRA are stacked into a (p, L, n) batch and
+solved together (batched ``eigh`` / ``matmul``, no Python loop over segments).
+Randomised / partial SVDs do not pay off at n = 93: a full 93 x 93 ``eigh`` costs less than
+a randomised range finder plus its small SVD at the ranks IALM reaches (20-60).
+
+References
+----------
+* Cai, Candes & Shen (2010), "A singular value thresholding algorithm for matrix
+  completion", SIAM J. Optim. 20(4): eqs. (1.3)-(1.5) (SVT iteration), (3.13) (noisy
+  variant with a second-order-cone constraint), Sec. 5.1.1 (tau, delta, kicking).
+* Lai, Yuen & Lee (2011), "Motion capture data completion and denoising by singular value
+  thresholding", Eurographics short papers (SVT on mocap matrices).
+* Lin, Chen & Ma (2010), "The augmented Lagrange multiplier method for exact recovery of
+  corrupted low-rank matrices", arXiv:1009.5055, Algorithm 5 (inexact ALM for RPCA).
+* Candes, Li, Ma & Wright (2011), "Robust principal component analysis?", J. ACM 58(3):
+  lambda = 1/sqrt(max(m, n)).
+* Peng, Liu, Cui & Zheng, "Segmented low rank approximation approach for motion capture
+  data denoising" (SLRA, seed 004): eq. (2) (RPCA), eqs. (3)-(6) and Table 1 (IALM),
+  Sec. 3.2 (consecutive segments, IALM per segment, concatenation).
+"""
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from ..errors import MocapValueError
+
+__all__ = ["shrink_singular_values", "tsvd", "svt", "rpca_ialm", "slra", "segment_layout",
+           "noise_level"]
+
+
+# --------------------------------------------------------------------------------------
+# input checks
+# --------------------------------------------------------------------------------------
+def _prepare(X: Any, mask: Any, name: str = "X", batch: bool = False
+             ) -> tuple[np.ndarray, np.ndarray | None]:
+    """Validated float copy of X with unobserved entries set to 0, and the mask (or None)."""
+    X = np.array(X, dtype=np.float64, copy=True)
+    ndim_ok = (2, 3) if batch else (2,)
+    if X.ndim not in ndim_ok:
+        raise MocapValueError(f"{name} must be a 2-D matrix (frames x coordinates), got shape {X.shape}")
+    if X.shape[-1] == 0 or X.shape[-2] == 0:
+        raise MocapValueError(f"{name} is empty (shape {X.shape})")
+    if mask is None:
+        if not np.isfinite(X).all():
+            raise MocapValueError(
+                f"{name} has {int((~np.isfinite(X)).sum())} non-finite entries but no mask; "
+                f"pass mask= (True = observed) to treat them as missing")
+        return X, None
+    m = np.asarray(mask)
+    if m.shape != X.shape:
+        raise MocapValueError(f"mask must have the shape of {name} {X.shape}, got {m.shape}")
+    m = m.astype(bool)
+    bad = m & ~np.isfinite(X)
+    if bad.any():
+        raise MocapValueError(f"{name} has {int(bad.sum())} non-finite entries marked as observed")
+    X[~m] = 0.0
+    if m.all():
+        return X, None
+    return X, m
+
+
+# --------------------------------------------------------------------------------------
+# singular value shrinkage
+# --------------------------------------------------------------------------------------
+def _use_gram(m: int, n: int, svd: str) -> bool:
+    if svd not in ("auto", "gram", "lapack"):
+        raise MocapValueError(f"svd must be 'auto', 'gram' or 'lapack', got {svd!r}")
+    if svd == "auto":
+        return max(m, n) >= 2 * min(m, n)
+    return svd == "gram"
+
+
+def _small_eigh(M: np.ndarray) -> tuple[np.ndarray, np.ndarray, bool]:
+    """Eigen-decomposition of the small Gram matrix of a batch (..., m, n).
+
+    Returns singular values (..., k) (ascending), the right (or left, when m < n) singular
+    vectors (..., k, k) with k = min(m, n), and whether the vectors are right ones.
+    """
+    m, n = M.shape[-2:]
+    Mt = np.swapaxes(M, -1, -2)
+    right = m >= n
+    G = Mt @ M if right else M @ Mt
+    w, V = np.linalg.eigh(G)
+    return np.sqrt(np.clip(w, 0.0, None)), V, right
+
+
+def shrink_singular_values(M: np.ndarray, tau: float | np.ndarray, svd: str = "auto"
+                           ) -> tuple[np.ndarray, np.ndarray]:
+    """Singular value soft thresholding D_tau(M) = U max(Sigma - tau, 0) V^T.
+
+    The proximal operator of tau ||.||_* (Cai et al. 2010, eq. 2.2; SLRA eq. 4).
+
+    Parameters
+    ----------
+    M : (..., m, n) matrix or stack of matrices.
+    tau : threshold >= 0, scalar or one per matrix (shape ``M.shape[:-2]``).
+    svd : "gram" (eigh of the small Gram matrix), "lapack" (economy SVD) or "auto"
+        (gram when the matrix is at least twice as long as wide).
+
+    Returns
+    -------
+    A : (..., m, n) shrunk matrix; rank : (...) number of singular values above tau.
+    """
+    M = np.asarray(M, dtype=np.float64)
+    m, n = M.shape[-2:]
+    tau = np.asarray(tau, dtype=np.float64)
+    if _use_gram(m, n, svd):
+        s, V, right = _small_eigh(M)
+        t = tau[..., None]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            f = np.where(s > t, 1.0 - t / np.where(s > 0, s, 1.0), 0.0)
+        K = (V * f[..., None, :]) @ np.swapaxes(V, -1, -2)
+        A = M @ K if right else K @ M
+        return A, (f > 0).sum(axis=-1)
+    U, s, Vt = np.linalg.svd(M, full_matrices=False)
+    s2 = np.clip(s - tau[..., None], 0.0, None)
+    return (U * s2[..., None, :]) @ Vt, (s2 > 0).sum(axis=-1)
+
+
+def _spectral_norm(M: np.ndarray) -> np.ndarray:
+    """Largest singular value of each matrix in a stack (..., m, n)."""
+    m, n = M.shape[-2:]
+    Mt = np.swapaxes(M, -1, -2)
+    G = Mt @ M if m >= n else M @ Mt
+    return np.sqrt(np.clip(np.linalg.eigvalsh(G)[..., -1], 0.0, None))
+
+
+# --------------------------------------------------------------------------------------
+# truncated SVD
+# --------------------------------------------------------------------------------------
+def tsvd(X: Any, k: int = 10, mask: Any = None, *, max_iter: int = 100, tol: float = 1e-6
+         ) -> np.ndarray:
+    """Best rank-k approximation (Eckart-Young), with iterative imputation of missing entries.
+
+    Without a mask: ``X V_k V_k^T`` with V_k the top-k right singular vectors (from the
+    n x n Gram matrix).  Seed 004 keeps k = 10 for its TSVD baseline.  With a mask ("hard
+    impute"): missing entries start at the per-column linear interpolation in time and are
+    replaced by the rank-k reconstruction until they change by less than ``tol`` (relative)
+    or ``max_iter`` iterations.
+
+    Parameters
+    ----------
+    X : (m, n) matrix; mask : optional (m, n) bool, True = observed.
+    k : number of singular values kept (clipped to min(m, n)).
+
+    Returns
+    -------
+    (m, n) rank-<=k matrix (observed entries are *not* forced back).
+    """
+    X, mask = _prepare(X, mask)
+    k = int(k)
+    if k < 1:
+        raise MocapValueError(f"k must be >= 1, got {k}")
+    m, n = X.shape
+    k = min(k, m, n)
+
+    def project(Z: np.ndarray) -> np.ndarray:
+        if k == min(m, n):
+            return Z.copy()
+        _, V, right = _small_eigh(Z)
+        Vk = V[:, -k:]
+        return Z @ Vk @ Vk.T if right else Vk @ (Vk.T @ Z)
+
+    if mask is None:
+        return project(X)
+    from ..motion import fill_gaps_linear
+
+    Z = fill_gaps_linear(X, mask)
+    miss = ~mask
+    A = project(Z)
+    for _ in range(max_iter):
+        new = A[miss]
+        change = np.linalg.norm(new - Z[miss]) / max(np.linalg.norm(Z), 1e-300)
+        Z[miss] = new
+        A = project(Z)
+        if change < tol:
+            break
+    return A
+
+
+# --------------------------------------------------------------------------------------
+# singular value thresholding (Cai, Candes & Shen 2010)
+# --------------------------------------------------------------------------------------
+def noise_level(X: Any, mask: Any = None) -> float:
+    """Rough per-entry noise standard deviation of a smooth time series matrix (same unit as X).
+
+    RMS of the second difference along time (axis 0), divided by sqrt(6) (the gain of the
+    [1, -2, 1] filter on white noise), over triples of consecutive observed frames.  For
+    mocap at >= 30 fps the true motion's second differences are small, so this measures
+    the jitter; outliers raise it.  Returns 0 for fewer than 3 frames.
+    """
+    X, mask = _prepare(X, mask)
+    if X.shape[0] < 3:
+        return 0.0
+    d2 = X[2:] - 2 * X[1:-1] + X[:-2]
+    if mask is not None:
+        ok = mask[2:] & mask[1:-1] & mask[:-2]
+        d2 = d2[ok]
+    if d2.size == 0:
+        return 0.0
+    return float(np.sqrt(np.mean(d2 ** 2) / 6.0))
+
+
+def _proj_soc(y: np.ndarray, s: float) -> tuple[np.ndarray, float]:
+    """Projection of (y, s) on the cone {(y, s): ||y||_F <= s} (Cai et al. 2010, Sec. 3.3)."""
+    ny = float(np.linalg.norm(y))
+    if ny <= s:
+        return y, s
+    if ny <= -s:
+        return np.zeros_like(y), 0.0
+    c = (ny + s) / (2 * ny)
+    return c * y, c * ny
+
+
+def svt(X: Any, mask: Any = None, tau: float | None = None, delta: float | None = None, *,
+        eps: float = 0.0, tol: float = 1e-4, max_iter: int = 500, svd: str = "auto",
+        method: str = "auto", return_info: bool = False):
+    """Singular value thresholding (Cai, Candes & Shen 2010) for matrix completion / denoising.
+
+    Solves ``min tau ||A||_* + 1/2 ||A||_F^2`` subject to ``P_Omega(A) = P_Omega(X)``
+    (eq. 1.3; iteration 1.5: ``A_k = D_tau(Y_{k-1})``, ``Y_k = Y_{k-1} + delta P_Omega(X -
+    A_k)``) or, when ``eps > 0``, subject to ``||P_Omega(A - X)||_F <= eps`` (the noisy
+    variant, eq. 3.13, a projection on a second-order cone).  Lai et al. (2011) apply it to
+    mocap matrices (frames x coordinates) for completion and denoising.
+
+    Parameters
+    ----------
+    X : (m, n) data; mask : (m, n) bool, True = observed (default: all observed).
+    tau : threshold; default ``5 sqrt(m n) * rms(P_Omega X)`` -- Cai et al.'s 5n for their
+        unit-scale n x n test matrices, made scale-equivariant.
+    delta : step; default Cai et al.'s ``1.2 m n / |Omega|``.
+    eps : noise bound on the observed entries (same unit as X, Frobenius norm over Omega);
+        0 = exact constraint.  With every entry observed and eps = 0 the solution is X.
+    tol : stop when ``||P_Omega(A - X)||_F / ||P_Omega X||_F < tol`` (eps = 0) or when the
+        relative change of A is below tol (eps > 0).
+    max_iter : iteration cap (Cai et al.: 500).
+    method : "auto" solves the fully observed case in closed form (below), "iterative"
+        always runs the SVT iteration.
+
+    With every entry observed the program has a closed form (KKT of eq. 3.12): A has the
+    singular vectors of X and singular values ``max(s sigma_i - (1 - s) tau, 0)`` with
+    ``s = nu / (1 + nu)`` in [0, 1] set by bisection so that ``||A - X||_F = eps`` (A = X
+    when eps = 0).  The iteration converges to the same point, only slowly.
+
+    Returns
+    -------
+    A : (m, n) estimate; with ``return_info`` also a dict (iterations, converged, rank).
+    Initial "kicking" ``Y_0 = k_0 delta P_Omega(X)`` with ``k_0 = ceil(tau / (delta
+    ||P_Omega X||_2))`` (Sec. 5.1.1) skips the first iterations that return 0.
+    """
+    X, mask = _prepare(X, mask)
+    m, n = X.shape
+    n_obs = m * n if mask is None else int(mask.sum())
+    if n_obs == 0:
+        raise MocapValueError("svt needs at least one observed entry")
+    normX = float(np.linalg.norm(X))
+    if normX == 0.0:
+        A = np.zeros_like(X)
+        return (A, {"iterations": 0, "converged": True, "rank": 0}) if return_info else A
+    if tau is None:
+        tau = 5.0 * np.sqrt(m * n) * normX / np.sqrt(n_obs)
+    if delta is None:
+        delta = 1.2 * m * n / n_obs
+    tau, delta, eps = float(tau), float(delta), float(eps)
+    if tau < 0 or delta <= 0 or eps < 0:
+        raise MocapValueError(f"need tau >= 0, delta > 0, eps >= 0; got {tau}, {delta}, {eps}")
+
+    if mask is None and method == "auto":
+        A = _svt_full(X, tau, eps)
+        if return_info:
+            return A, {"iterations": 0, "converged": True,
+                       "rank": int(np.linalg.matrix_rank(A)) if A.any() else 0}
+        return A
+    if method not in ("auto", "iterative"):
+        raise MocapValueError(f"method must be 'auto' or 'iterative', got {method!r}")
+
+    def P(Z: np.ndarray) -> np.ndarray:
+        return Z if mask is None else np.where(mask, Z, 0.0)
+
+    k0 = int(np.ceil(tau / (delta * float(_spectral_norm(X))))) if tau > 0 else 1
+    Y = k0 * delta * X
+    s = float(np.linalg.norm(Y)) if eps > 0 else 0.0
+    A = np.zeros_like(X)
+    converged, it, rank = False, 0, 0
+    for it in range(1, max_iter + 1):
+        A_new, rank = shrink_singular_values(Y, tau, svd)
+        R = P(X - A_new)
+        res = float(np.linalg.norm(R))
+        if eps == 0.0:
+            A = A_new
+            if res / normX < tol:
+                converged = True
+                break
+            Y = Y + delta * R
+        else:
+            change = float(np.linalg.norm(A_new - A)) / max(float(np.linalg.norm(A_new)), 1e-300)
+            A = A_new
+            if it > 1 and change < tol and res <= eps * (1 + 1e-3):
+                converged = True
+                break
+            Y, s = _proj_soc(Y + delta * R, s - delta * eps)
+            Y = P(Y)
+    if return_info:
+        return A, {"iterations": it, "converged": converged, "rank": int(rank)}
+    return A
+
+
+def _svt_full(X: np.ndarray, tau: float, eps: float) -> np.ndarray:
+    """Closed-form solution of ``min tau||A||_* + 1/2||A||_F^2 s.t. ||A - X||_F <= eps``."""
+    if eps <= 0:
+        return X.copy()
+    U, sig, Vt = np.linalg.svd(X, full_matrices=False)
+    if float(np.linalg.norm(sig)) <= eps:
+        return np.zeros_like(X)
+
+    def vals(s: float) -> np.ndarray:
+        return np.maximum(s * sig - (1 - s) * tau, 0.0)
+
+    lo, hi = 0.0, 1.0                        # distance decreases in s: ||X|| at 0, 0 at 1
+    for _ in range(100):
+        mid = 0.5 * (lo + hi)
+        if np.linalg.norm(sig - vals(mid)) > eps:
+            lo = mid
+        else:
+            hi = mid
+    return (U * vals(hi)) @ Vt
+
+
+# --------------------------------------------------------------------------------------
+# robust PCA by inexact ALM (Lin, Chen & Ma 2010)
+# --------------------------------------------------------------------------------------
+def _ialm_batch(D: np.ndarray, mask: np.ndarray | None, lam: np.ndarray, tol: float,
+                max_iter: int, rho: float, svd: str
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Inexact ALM (Lin et al. 2010, Alg. 5) on a stack D (p, m, n); unobserved D entries are 0.
+
+    Per matrix: Y_0 = D / max(||D||_2, ||D||_inf / lambda), mu_0 = 1.25 / ||D||_2,
+    mu_bar = 1e7 mu_0, mu_{k+1} = min(rho mu_k, mu_bar).  With a mask, E is unconstrained
+    (not penalised) on unobserved entries, i.e. the constraint is P_Omega(A + E) = P_Omega(D)
+    and Y stays 0 there.  A matrix stops updating once ``||D - A - E||_F / ||D||_F < tol``;
+    the batch is compacted when fewer than half of its matrices are still running.
+    """
+    p = D.shape[0]
+    normF = np.linalg.norm(D, axis=(1, 2))
+    norm2 = _spectral_norm(D)
+    safe2 = np.where(norm2 > 0, norm2, 1.0)
+    norm_inf = np.abs(D).max(axis=(1, 2)) / lam
+    Y = D / np.maximum(safe2, norm_inf)[:, None, None]
+    mu = 1.25 / safe2
+    mu_bar = mu * 1e7
+    A = np.zeros_like(D)
+    E = np.zeros_like(D)
+    iters = np.zeros(p, dtype=int)
+    converged = normF == 0
+    run = ~converged                       # still iterating (within the current working set)
+    idx = np.arange(p)                     # working set: indices into the full batch
+    Dw, Mw, Aw, Ew, Yw = D, mask, A, E, Y
+    lam_w, mu_w, bar_w, nF_w = lam, mu, mu_bar, np.where(normF > 0, normF, 1.0)
+    for _ in range(max_iter):
+        if not run.any():
+            break
+        if run.sum() * 2 < len(idx):       # compact: write back, keep the running ones
+            A[idx], E[idx], Y[idx], mu[idx] = Aw, Ew, Yw, mu_w
+            keep = np.flatnonzero(run)
+            idx = idx[keep]
+            Dw, Aw, Ew, Yw = D[idx], Aw[keep], Ew[keep], Yw[keep]
+            Mw = None if mask is None else mask[idx]
+            lam_w, mu_w, bar_w, nF_w = lam[idx], mu_w[keep], mu_bar[idx], nF_w[keep]
+            run = np.ones(len(idx), dtype=bool)
+        inv_mu = (1.0 / mu_w)[:, None, None]
+        Ym = Yw * inv_mu                                   # Y / mu
+        M = Dw - Ew
+        M += Ym
+        A_new, _ = shrink_singular_values(M, inv_mu[:, 0, 0], svd)     # eq. 4
+        R = Dw - A_new
+        R += Ym
+        thr = lam_w[:, None, None] * inv_mu
+        E_new = R - np.clip(R, -thr, thr)                  # soft threshold, eqs. 5-6
+        if Mw is not None:
+            np.copyto(E_new, R, where=~Mw)                 # unobserved: E absorbs all
+        Z = R                                              # D - A - E = R - E - Y/mu
+        Z -= E_new
+        Z -= Ym
+        crit = np.sqrt(np.einsum("ijk,ijk->i", Z, Z)) / nF_w
+        Z *= mu_w[:, None, None]
+        if run.all():
+            Aw, Ew = A_new, E_new
+            Yw += Z
+        else:
+            r = run
+            Aw[r], Ew[r] = A_new[r], E_new[r]
+            Yw[r] += Z[r]
+        mu_w = np.where(run, np.minimum(mu_w * rho, bar_w), mu_w)
+        iters[idx[run]] += 1
+        done = run & (crit < tol)
+        converged[idx[done]] = True
+        run &= ~done
+    A[idx], E[idx], Y[idx] = Aw, Ew, Yw
+    return A, E, iters, converged
+
+
+def rpca_ialm(D: Any, lam: float | None = None, mask: Any = None, tol: float = 1e-7,
+              max_iter: int = 500, *, rho: float = 1.5, svd: str = "auto",
+              return_info: bool = False):
+    """Robust PCA ``min ||A||_* + lam ||E||_1  s.t.  A + E = D`` by inexact ALM.
+
+    Candes et al. (2011) principal component pursuit, solved with Lin, Chen & Ma (2010)
+    Algorithm 5 (= SLRA Table 1, eqs. 4-6).  With ``mask`` the constraint only holds on
+    observed entries (``P_Omega(A + E) = P_Omega(D)``), so A also completes missing data.
+
+    Parameters
+    ----------
+    D : (m, n) matrix, or a stack (p, m, n) of matrices solved independently in one batch.
+    lam : sparsity weight; default 1/sqrt(max(m, n)) (Candes et al. 2011, Thm 1.1).
+    mask : optional bool like D, True = observed.
+    tol : stop when ``||D - A - E||_F / ||D||_F < tol`` (Lin et al.: 1e-7).
+    max_iter : iteration cap; rho : growth factor of the penalty mu (Lin et al.'s code: 1.5).
+    svd : singular value route, see :func:`shrink_singular_values`.
+
+    Returns
+    -------
+    A, E : low-rank and sparse parts (same shape as D; on unobserved entries E = -A is
+    meaningless and A is the completion).  With ``return_info`` also a dict with
+    ``iterations`` and ``converged`` (arrays of length p for a stack, else scalars).
+    """
+    D, mask = _prepare(D, mask, "D", batch=True)
+    single = D.ndim == 2
+    if single:
+        D = D[None]
+        mask = None if mask is None else mask[None]
+    m, n = D.shape[-2:]
+    if lam is None:
+        lam = 1.0 / np.sqrt(max(m, n))
+    lam = float(lam)
+    if not lam > 0:
+        raise MocapValueError(f"lam must be > 0, got {lam}")
+    if not (rho > 1):
+        raise MocapValueError(f"rho must be > 1, got {rho}")
+    A, E, iters, conv = _ialm_batch(D, mask, np.full(D.shape[0], lam), float(tol), int(max_iter),
+                                    float(rho), svd)
+    if single:
+        A, E, iters, conv = A[0], E[0], int(iters[0]), bool(conv[0])
+    if return_info:
+        return A, E, {"iterations": iters, "converged": conv}
+    return A, E
+
+
+# --------------------------------------------------------------------------------------
+# segmented low-rank approximation (SLRA, seed 004)
+# --------------------------------------------------------------------------------------
+def segment_layout(T: int, segment: int = 200, overlap: int = 0,
+                   n_segments: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Start and stop frames of the SLRA segments.
+
+    Without overlap the T frames are split into ``p = max(1, round(T / segment))``
+    consecutive near-equal parts (SLRA's "平均划分", equal division: 1200 frames / 200 ->
+    6 x 200); lengths differ by at most one frame.  With ``overlap = o > 0``, ``p =
+    max(1, round((T - o) / (segment - o)))`` segments of equal length
+    ``L = ceil((T + (p - 1) o) / p)`` start at evenly spaced frames, so neighbours share
+    at least o frames.  ``n_segments`` fixes p instead.  A clip shorter than one segment
+    is a single segment (plain RPCA).
+    """
+    T, overlap = int(T), int(overlap)
+    if T < 1:
+        raise MocapValueError("need at least one frame")
+    if n_segments is not None:
+        p = int(n_segments)
+        if p < 1:
+            raise MocapValueError(f"n_segments must be >= 1, got {n_segments}")
+    else:
+        segment = int(segment)
+        if segment < 1:
+            raise MocapValueError(f"segment must be >= 1 frame, got {segment}")
+        if not 0 <= overlap < segment:
+            raise MocapValueError(f"overlap must be in [0, segment) = [0, {segment}), got {overlap}")
+        p = max(1, int(round((T - overlap) / (segment - overlap))))
+    if overlap < 0:
+        raise MocapValueError(f"overlap must be >= 0, got {overlap}")
+    p = min(p, T)
+    if overlap == 0 or p == 1:
+        b = np.round(np.linspace(0, T, p + 1)).astype(int)
+        return b[:-1], b[1:]
+    L = min(T, int(np.ceil((T + (p - 1) * overlap) / p)))
+    starts = np.round(np.linspace(0, T - L, p)).astype(int)
+    return starts, starts + L
+
+
+def _blend_weights(starts: np.ndarray, stops: np.ndarray) -> list[np.ndarray]:
+    """Per-segment weights: linear ramps over the frames shared with each neighbour."""
+    ws = []
+    p = len(starts)
+    for i in range(p):
+        L = stops[i] - starts[i]
+        t = np.arange(L) + 0.5
+        w = np.ones(L)
+        if i > 0 and stops[i - 1] > starts[i]:
+            o = stops[i - 1] - starts[i]
+            w = np.minimum(w, t / o)
+        if i < p - 1 and stops[i] > starts[i + 1]:
+            o = stops[i] - starts[i + 1]
+            w = np.minimum(w, (L - t) / o)
+        ws.append(w)
+    return ws
+
+
+def slra(D: Any, segment: int = 200, overlap: int = 0, *, n_segments: int | None = None,
+         mask: Any = None, lam: float | None = None, center: str = "none", tol: float = 1e-7,
+         max_iter: int = 500, rho: float = 1.5, svd: str = "auto", return_info: bool = False):
+    """Segmented low-rank approximation (SLRA, seed 004 Sec. 3.2).
+
+    1. split the m frames into p consecutive segments (:func:`segment_layout`);
+    2. per segment solve RPCA ``min ||A_i||_* + lam ||E_i||_1 s.t. A_i + E_i = D_i`` by inexact
+       ALM with ``lam = 1/sqrt(max(m_i, n))`` (eqs. 2-6, Table 1) -- all segments of one
+       length are solved together as a batch;
+    3. concatenate the A_i in time order.  With ``overlap > 0`` (our extension) the frames
+       shared by two segments are blended with linear cross-fade weights, so the result does
+       not jump at segment borders.
+
+    Parameters
+    ----------
+    D : (m, n) noisy matrix (frames x coordinates); mask : optional bool, True = observed.
+    segment : target segment length in frames (default 200, the paper's best, Table 3).
+    overlap : frames shared by neighbouring segments (0 = the paper's method).
+    n_segments : fixed segment count (the paper's Tables 2-3 give counts), overrides segment.
+    lam : fixed sparsity weight for every segment (default per segment, see above).
+    center : "none" (paper), "mean" or "median": subtract each segment's per-column
+        mean/median of observed entries before RPCA and add it back to A.
+    tol, max_iter, rho, svd : IALM settings, see :func:`rpca_ialm`.
+
+    Returns
+    -------
+    A, E : (m, n) low-rank estimate and sparse part (E = D - A on observed entries).
+    With ``return_info`` also a dict: starts, stops, iterations, converged.
+    """
+    D, mask = _prepare(D, mask, "D")
+    m, n = D.shape
+    if center not in ("none", "mean", "median"):
+        raise MocapValueError(f"center must be 'none', 'mean' or 'median', got {center!r}")
+    if not (rho > 1):
+        raise MocapValueError(f"rho must be > 1, got {rho}")
+    starts, stops = segment_layout(m, segment, overlap, n_segments)
+    lengths = stops - starts
+    weights = _blend_weights(starts, stops)
+    A = np.zeros_like(D)
+    wsum = np.zeros(m)
+    iters = np.zeros(len(starts), dtype=int)
+    conv = np.zeros(len(starts), dtype=bool)
+    for L in np.unique(lengths):
+        seg = np.flatnonzero(lengths == L)
+        rows = starts[seg][:, None] + np.arange(L)            # (g, L)
+        Db = D[rows]                                          # (g, L, n)
+        Mb = None if mask is None else mask[rows]
+        if center != "none":
+            c = _segment_centre(Db, Mb, center)               # (g, 1, n)
+            Db = Db - c
+            if Mb is not None:
+                Db = np.where(Mb, Db, 0.0)
+        seg_lam = np.full(len(seg), 1.0 / np.sqrt(max(L, n)) if lam is None else float(lam))
+        Ab, _, it, cv = _ialm_batch(Db, Mb, seg_lam, float(tol), int(max_iter), float(rho), svd)
+        if center != "none":
+            Ab = Ab + c
+        w = np.stack([weights[i] for i in seg])               # (g, L)
+        np.add.at(A, rows.ravel(), (Ab * w[..., None]).reshape(-1, n))
+        np.add.at(wsum, rows.ravel(), w.ravel())
+        iters[seg], conv[seg] = it, cv
+    A /= wsum[:, None]
+    E = D - A
+    if mask is not None:
+        E[~mask] = 0.0
+    if return_info:
+        return A, E, {"starts": starts, "stops": stops, "iterations": iters, "converged": conv}
+    return A, E
+
+
+def _segment_centre(Db: np.ndarray, Mb: np.ndarray | None, how: str) -> np.ndarray:
+    """Per-segment, per-column mean/median of observed entries (g, 1, n); 0 where none."""
+    if Mb is None:
+        f = np.mean if how == "mean" else np.median
+        return f(Db, axis=1, keepdims=True)
+    X = np.where(Mb, Db, np.nan)
+    f = np.nanmean if how == "mean" else np.nanmedian
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        c = f(X, axis=1, keepdims=True)
+    return np.nan_to_num(c, nan=0.0)

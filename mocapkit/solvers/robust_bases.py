@@ -1,0 +1,388 @@
+"""Example-based robust filter bases (Lou & Chai 2010, seed 001): plain array maths.
+
+Notation (paper Sec. 3): a clip is a (T, L) array, one row per frame, L channels
+(degrees of freedom). A *window* of length M starting at frame s is the vector
+``z_s = Z[s:s+M].ravel()`` of length M*L.
+
+Layout decision: windows are stacked **frame-major** (index ``m*L + l``: all channels of
+the window's first frame, then its second frame, ...), which is the memory layout of a
+C-ordered (T, L) array and lets every window be a zero-copy slice. The paper's eq. 2
+stacks channel-major (``l*M + m``); the two differ by a fixed permutation of the basis
+rows, so eigenvalues, coefficients and results are identical.
+
+Training (Sec. 3.1, eqs. 1-5): the grand lag-covariance ``C_D = DᵀD / S_N`` of all
+windows of all training clips (eq. 3; several clips: their windows are stacked), its
+eigenvectors are the filter bases ``E`` (ML x K), K kept by an energy fraction (99% in
+the paper) or fixed. :func:`lag_covariance` accumulates DᵀD without forming D (see its
+notes); :func:`learn_bases` diagonalises it.
+
+Denoising (Secs. 3.3-3.5, eqs. 10-16): minimise over the motion z and the coefficients
+c_s
+
+    J(z, c) = sum_{t,l} alpha_{t,l} rho(z_l(t) - y_l(t)) + lam sum_s ||z_s - E c_s||²   (11, 16)
+
+with the Welsch function ``rho(r) = p²/2 (1 - exp(-r²/p²))`` (eq. 9) and binary weights
+alpha (0 = missing, eq. 16). :func:`robust_filter` alternates (Sec. 3.4.3):
+
+* coefficient step (eqs. 12-13): ``c_s = Eᵀ z_s`` for every window -- M matrix products
+  ``Z[m:m+S] @ E_m`` (E_m = the L rows of E for window frame m), no window copies;
+* motion step (eqs. 14-15): one IRLS step per outer iteration. Welsch is concave in r²,
+  so ``rho(r) <= const + ½ w r²`` with ``w = exp(-r0²/p²) = rho'(r0)/r0`` at the current
+  residual r0 (half-quadratic majoriser); minimising the majoriser is, per frame and
+  channel, the closed-form weighted average
+
+      z_l(t) = (½ alpha w y_l(t) + 2 lam acc_l(t)) / (½ alpha w + 2 lam n_t)     ... (*)
+
+  where ``acc(t) = sum_m E_m c_{t-m}`` sums the n_t overlapping window reconstructions
+  of frame t (overlap-add, again M products). Each step cannot increase J, so the cost
+  decreases monotonically.
+
+  Note on eq. 15: printed as ``sum_l w_l (z_l - y_l)²`` it drops the factor ½ that the
+  IRLS majoriser of ``rho ~ r²/2`` carries; that equals running the exact objective with
+  lam/2. We implement the exact objective (11)/(16); pass ``lam`` halved to mimic the
+  printed eq. 15.
+
+Stopping: relative change of J below ``tol`` or ``max_iter`` iterations (paper: 10-20).
+``p = inf`` gives rho(r) = r²/2 (plain least squares, the non-robust reference).
+"""
+from __future__ import annotations
+
+from typing import Iterable, Sequence
+
+import numpy as np
+
+from ..errors import MocapValueError
+
+__all__ = ["window_matrix", "lag_covariance", "learn_bases", "choose_k", "welsch",
+           "welsch_weight", "window_counts", "coefficients", "overlap_add",
+           "robust_filter", "objective", "dense_quadratic_reference"]
+
+
+# ---------------------------------------------------------------------------------------
+# windows
+# ---------------------------------------------------------------------------------------
+def window_matrix(X: np.ndarray, M: int) -> np.ndarray:
+    """Trajectory matrix D (S, M*L) of one clip X (T, L), frame-major rows
+    ``D[s] = X[s:s+M].ravel()`` (eqs. 1-2 up to a column permutation); S = T - M + 1.
+
+    Returns a read-only zero-copy strided view when X is C-contiguous.
+    """
+    X = np.ascontiguousarray(X, dtype=float)
+    T, L = X.shape
+    S = T - M + 1
+    if S <= 0:
+        return np.zeros((0, M * L))
+    v = np.lib.stride_tricks.as_strided(X, shape=(S, M * L), strides=(X.strides[0], X.strides[1]),
+                                        writeable=False)
+    return v
+
+
+def window_counts(T: int, M: int) -> np.ndarray:
+    """n_t (T,): how many length-M windows (starts 0..T-M) contain frame t."""
+    S = T - M + 1
+    t = np.arange(T)
+    return (np.minimum(t, S - 1) - np.maximum(t - M + 1, 0) + 1).astype(float)
+
+
+# ---------------------------------------------------------------------------------------
+# training
+# ---------------------------------------------------------------------------------------
+def _check_clips(clips: Iterable[np.ndarray], M: int) -> tuple[list[np.ndarray], int]:
+    out, L = [], None
+    for X in clips:
+        X = np.ascontiguousarray(X, dtype=float)
+        if X.ndim != 2:
+            raise MocapValueError(f"training clips must be (T, L) arrays, got shape {X.shape}")
+        if L is None:
+            L = X.shape[1]
+        elif X.shape[1] != L:
+            raise MocapValueError(f"training clips have different channel counts ({L} vs {X.shape[1]})")
+        if not np.isfinite(X).all():
+            raise MocapValueError("training clips must be complete (finite); fill gaps first")
+        out.append(X)
+    if L is None:
+        raise MocapValueError("learning filter bases needs at least one training clip")
+    return out, L
+
+
+def lag_covariance(clips: Iterable[np.ndarray], M: int, *, method: str = "lag",
+                   chunk: int = 2048) -> tuple[np.ndarray, int]:
+    """Unnormalised grand lag-covariance ``G = DᵀD`` (ML x ML, frame-major) summed over
+    clips, and the number of windows S (so ``C_D = G / S``, eqs. 3-5).
+
+    Parameters
+    ----------
+    clips : (T_i, L) arrays (complete). Clips shorter than M contribute nothing.
+    M : window length in frames.
+    method : how DᵀD is accumulated (all give the same matrix up to rounding):
+
+        * ``'lag'`` (default) -- never forms D. Block (m, m+d) of DᵀD is
+          ``sum_{t=m}^{m+S-1} x_t x_{t+d}ᵀ``: for each lag d = 0..M-1 one product
+          ``X[:S]ᵀ X[d:d+S]`` gives block (0, d); the other blocks on that block
+          diagonal differ from it only by the first m terms removed and m terms past S
+          added, obtained from cumulative sums of the M-1 outer products at each end.
+          Cost ``M S L²`` flops (M times less than DᵀD) and O((ML)²) memory.
+        * ``'chunked'`` -- forms ``chunk`` rows of D at a time (a zero-copy view) and adds
+          their Gram matrix: ``S (ML)²`` flops, O(chunk ML) extra memory.
+        * ``'dense'`` -- forms D for the whole clip (reference; O(S ML) memory).
+
+    Returns
+    -------
+    G : (M*L, M*L) float64, symmetric.
+    S : total number of windows.
+    """
+    clips, L = _check_clips(clips, M)
+    M = int(M)
+    if M < 1:
+        raise MocapValueError(f"window length M must be >= 1, got {M}")
+    n = M * L
+    G = np.zeros((n, n))
+    S_tot = 0
+    for X in clips:
+        T = X.shape[0]
+        S = T - M + 1
+        if S <= 0:
+            continue
+        S_tot += S
+        if method == "dense":
+            D = np.array(window_matrix(X, M))
+            G += D.T @ D
+        elif method == "chunked":
+            D = window_matrix(X, M)
+            for a in range(0, S, chunk):
+                B = np.array(D[a:a + chunk])
+                G += B.T @ B
+        elif method == "lag":
+            Gv = G.reshape(M, L, M, L)
+            for d in range(M):
+                B0 = X[:S].T @ X[d:d + S]                       # block (0, d)
+                k = M - d - 1                                   # blocks (m, m+d), m = 0..k
+                if k > 0:
+                    head = np.einsum("ti,tj->tij", X[:k], X[d:d + k])          # x_t x_{t+d}ᵀ, t < k
+                    tail = np.einsum("ti,tj->tij", X[S:S + k], X[S + d:S + d + k])
+                    corr = np.concatenate([np.zeros((1, L, L)),
+                                           np.cumsum(tail - head, axis=0)])   # (k+1, L, L)
+                else:
+                    corr = np.zeros((1, L, L))
+                m = np.arange(k + 1)
+                blocks = B0[None] + corr
+                Gv[m, :, m + d, :] += blocks
+                if d > 0:
+                    Gv[m + d, :, m, :] += blocks.transpose(0, 2, 1)
+        else:
+            raise MocapValueError(f"method must be 'lag', 'chunked' or 'dense', got {method!r}")
+    if S_tot == 0:
+        raise MocapValueError(f"no training clip is at least M = {M} frames long")
+    return G, S_tot
+
+
+def choose_k(eigvals: np.ndarray, energy: float | None = 0.99, n_bases: int | None = None) -> int:
+    """Number of bases: ``n_bases`` if given, else the smallest K whose top-K eigenvalues
+    hold at least ``energy`` of the total (sum of all eigenvalues = trace of C_D)."""
+    ev = np.clip(np.asarray(eigvals, dtype=float), 0, None)
+    n = len(ev)
+    if n_bases is not None:
+        k = int(n_bases)
+        if not 1 <= k <= n:
+            raise MocapValueError(f"n_bases must be in 1..{n} (window x channels), got {n_bases!r}")
+        return k
+    e = float(energy)
+    if not 0 < e <= 1:
+        raise MocapValueError(f"energy must be a fraction in (0, 1], got {energy!r}")
+    tot = ev.sum()
+    if tot <= 0:
+        return 1
+    if e >= 1:
+        return int(max(1, (ev > tot * 1e-12).sum()))
+    return int(min(n, np.searchsorted(np.cumsum(ev) / tot, e - 1e-12) + 1))
+
+
+def learn_bases(clips: Iterable[np.ndarray], M: int, *, energy: float | None = 0.99,
+                n_bases: int | None = None, method: str = "lag") -> tuple[np.ndarray, np.ndarray, int]:
+    """M-SSA filter bases (Sec. 3.1): eigenvectors of the grand lag-covariance.
+
+    Parameters
+    ----------
+    clips : (T_i, L) training arrays (already centred/scaled as the caller wants).
+    M : window length (frames).
+    energy : keep the smallest K holding this fraction of the eigenvalue sum (paper:
+        0.99); ignored when ``n_bases`` is given.
+    n_bases : fixed K.
+    method : accumulation of DᵀD, see :func:`lag_covariance`.
+
+    Returns
+    -------
+    E : (M*L, K) orthonormal columns, frame-major rows, by decreasing eigenvalue.
+    eigvals : (M*L,) all eigenvalues of C_D = DᵀD / S, decreasing (units²).
+    S : number of training windows.
+    """
+    G, S = lag_covariance(clips, M, method=method)
+    C = G / S
+    w, V = np.linalg.eigh(C)
+    w, V = w[::-1], V[:, ::-1]
+    k = choose_k(w, energy, n_bases)
+    E = np.ascontiguousarray(V[:, :k])
+    # deterministic sign: largest-magnitude entry of each basis positive
+    sgn = np.sign(E[np.argmax(np.abs(E), axis=0), np.arange(k)])
+    E *= np.where(sgn == 0, 1.0, sgn)
+    return E, np.clip(w, 0, None), S
+
+
+# ---------------------------------------------------------------------------------------
+# robust estimator
+# ---------------------------------------------------------------------------------------
+def welsch(r: np.ndarray, p: float) -> np.ndarray:
+    """Welsch function (eq. 9) ``p²/2 (1 - exp(-r²/p²))``; ``p = inf`` gives r²/2."""
+    r = np.asarray(r, dtype=float)
+    if np.isinf(p):
+        return 0.5 * r * r
+    return 0.5 * p * p * -np.expm1(-(r * r) / (p * p))
+
+
+def welsch_weight(r: np.ndarray, p: float) -> np.ndarray:
+    """IRLS weight ``rho'(r)/r = exp(-r²/p²)`` (Fig. 2c); 1 for ``p = inf``."""
+    r = np.asarray(r, dtype=float)
+    if np.isinf(p):
+        return np.ones_like(r)
+    return np.exp(-(r * r) / (p * p))
+
+
+# ---------------------------------------------------------------------------------------
+# the alternating solver
+# ---------------------------------------------------------------------------------------
+def _split_bases(E: np.ndarray, M: int, L: int) -> np.ndarray:
+    """E (M*L, K) -> (M, L, K): E_m = rows of window frame m (the paper's E_m, eq. 14)."""
+    if E.shape[0] != M * L:
+        raise MocapValueError(f"bases have {E.shape[0]} rows but window {M} x {L} channels = {M * L}")
+    return np.ascontiguousarray(E.reshape(M, L, -1))
+
+
+def coefficients(Z: np.ndarray, Em: np.ndarray) -> np.ndarray:
+    """c_s = Eᵀ z_s for every window s (eq. 13), as M products ``Z[m:m+S] @ E_m``.
+
+    Z (T, L), Em (M, L, K) -> C (S, K)."""
+    M = Em.shape[0]
+    S = Z.shape[0] - M + 1
+    C = Z[:S] @ Em[0]
+    for m in range(1, M):
+        C += Z[m:m + S] @ Em[m]
+    return C
+
+
+def overlap_add(C: np.ndarray, Em: np.ndarray, T: int) -> np.ndarray:
+    """acc(t) = sum over windows s containing t of (E c_s) at frame t (eq. 14's sum).
+
+    C (S, K), Em (M, L, K) -> (T, L)."""
+    M, L, _ = Em.shape
+    S = C.shape[0]
+    acc = np.zeros((T, L))
+    for m in range(M):
+        acc[m:m + S] += C @ Em[m].T
+    return acc
+
+
+def objective(Z, Y, alpha, C, n_t, lam: float, p: float) -> float:
+    """J(z, c) of eq. 11/16 at coefficients ``C = Eᵀ z_s`` (the optimal c for z):
+    ``sum alpha rho(z-y) + lam sum_s (||z_s||² - ||c_s||²)`` (E orthonormal)."""
+    data = float(np.sum(welsch(np.where(alpha, Z - Y, 0.0), p)))
+    prior = float(n_t @ np.einsum("tl,tl->t", Z, Z) - np.einsum("sk,sk->", C, C))
+    return data + lam * max(prior, 0.0)
+
+
+def robust_filter(Y: np.ndarray, E: np.ndarray, M: int, *, mask: np.ndarray | None = None,
+                  lam: float = 0.1, p: float = 3.0, max_iter: int = 20, tol: float = 1e-4,
+                  Z0: np.ndarray | None = None, return_info: bool = False):
+    """Robust filtering with filter bases (Lou & Chai 2010, eqs. 11-16; module doc).
+
+    Parameters
+    ----------
+    Y : (T, L) noisy data (same units and centring as the bases were learned in); entries
+        where ``mask`` is False are ignored (may be NaN).
+    E : (M*L, K) orthonormal filter bases, frame-major (:func:`learn_bases`).
+    M : window length; T must be >= M.
+    mask : (T, L) bool, True = observed (alpha = 1); default ``isfinite(Y)``.
+    lam : weight of the filter-bases term (paper: 0.1).
+    p : Welsch scale in the units of Y (paper: 3); ``np.inf`` = least squares.
+    max_iter, tol : at most ``max_iter`` outer iterations; stop when the relative change
+        of J is below ``tol``.
+    Z0 : (T, L) initial motion; default Y with missing entries linearly interpolated
+        in time (channels never observed start at 0, i.e. the training mean if Y is
+        centred).
+    return_info : also return a dict with ``cost`` (J per iteration, non-increasing),
+        ``n_iter`` and ``weights`` (final alpha * w, (T, L)).
+
+    Returns
+    -------
+    Z : (T, L) filtered motion (every entry finite), [info].
+    """
+    from ..motion import fill_gaps_linear
+
+    Y = np.asarray(Y, dtype=float)
+    if Y.ndim != 2:
+        raise MocapValueError(f"Y must be a (T, L) array, got shape {Y.shape}")
+    T, L = Y.shape
+    M = int(M)
+    if T < M:
+        raise MocapValueError(f"the clip has {T} frames, fewer than the window length M = {M}")
+    alpha = np.isfinite(Y) if mask is None else (np.asarray(mask, dtype=bool) & np.isfinite(Y))
+    if alpha.shape != (T, L):
+        raise MocapValueError(f"mask must have shape {(T, L)}, got {alpha.shape}")
+    lam = float(lam)
+    p = float(p)
+    if not lam > 0:
+        raise MocapValueError(f"lam must be positive, got {lam!r}")
+    if not p > 0:
+        raise MocapValueError(f"Welsch p must be positive (or inf), got {p!r}")
+    Em = _split_bases(np.asarray(E, dtype=float), M, L)
+    Yf = np.where(alpha, Y, 0.0)
+    if Z0 is None:
+        Z = fill_gaps_linear(Y, alpha) if not alpha.all() else Yf.copy()
+    else:
+        Z = np.array(Z0, dtype=float)
+        if Z.shape != (T, L) or not np.isfinite(Z).all():
+            raise MocapValueError("Z0 must be a finite (T, L) array")
+    n_t = window_counts(T, M)
+    two_lam_n = (2.0 * lam * n_t)[:, None]
+    a = alpha.astype(float)
+    costs: list[float] = []
+    w = np.ones((T, L))
+    for it in range(max(1, int(max_iter))):
+        C = coefficients(Z, Em)                                   # eq. 13
+        J = objective(Z, Yf, alpha, C, n_t, lam, p)
+        if costs and abs(costs[-1] - J) <= tol * max(abs(costs[-1]), 1e-300):
+            costs.append(J)
+            break
+        costs.append(J)
+        acc = overlap_add(C, Em, T)                               # eq. 14
+        w = 0.5 * a * welsch_weight(Z - Yf, p)                    # eq. 15 (IRLS weights)
+        Z = (w * Yf + 2.0 * lam * acc) / (w + two_lam_n)          # (*)
+    else:
+        C = coefficients(Z, Em)
+        costs.append(objective(Z, Yf, alpha, C, n_t, lam, p))
+    if return_info:
+        return Z, {"cost": np.array(costs), "n_iter": len(costs) - 1, "weights": 2.0 * w}
+    return Z
+
+
+def dense_quadratic_reference(Y: np.ndarray, E: np.ndarray, M: int, *, mask: np.ndarray | None = None,
+                              lam: float = 0.1) -> np.ndarray:
+    """Exact minimiser of eq. 16 with rho(r) = r²/2 (p = inf), by one dense solve.
+
+    With c eliminated (c_s = Eᵀ z_s), J = ½ sum alpha (z-y)² + lam sum_s ||(I - EEᵀ) S_s z||²
+    where S_s selects window s; the normal equations are
+    ``(diag(alpha) + 2 lam sum_s S_sᵀ (I - EEᵀ) S_s) z = alpha y``. For tests on tiny
+    problems only (O((TL)²) memory).
+    """
+    Y = np.asarray(Y, dtype=float)
+    T, L = Y.shape
+    alpha = np.isfinite(Y) if mask is None else (np.asarray(mask, dtype=bool) & np.isfinite(Y))
+    n = M * L
+    Q = np.eye(n) - E @ E.T
+    H = np.zeros((T * L, T * L))
+    for s in range(T - M + 1):
+        sl = slice(s * L, s * L + n)
+        H[sl, sl] += Q
+    a = alpha.ravel().astype(float)
+    A = np.diag(a) + 2.0 * lam * H
+    b = a * np.where(alpha, Y, 0.0).ravel()
+    return np.linalg.solve(A, b).reshape(T, L)
