@@ -4,6 +4,8 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 PIP    := $(VENV)/bin/pip
 STAMP  := $(VENV)/.installed
+# torch (optional, neural methods): only a local CPU wheel is used, never a multi-GB CUDA build
+TORCH_WHEEL := $(firstword $(wildcard /opt/wheels/torch-2.13.0*cpu*.whl))
 
 .PHONY: demo test fuzz bench clean venv
 
@@ -13,6 +15,7 @@ $(PY):
 
 $(STAMP): pyproject.toml | $(PY)
 	$(PIP) install -q -e ".[test]"
+	$(if $(TORCH_WHEEL),$(PIP) install -q "$(TORCH_WHEEL)",@echo "no local torch CPU wheel: neural methods (bra, bra-p) and their tests are skipped; see README")
 	touch $(STAMP)
 
 venv: $(STAMP)

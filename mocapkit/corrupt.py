@@ -431,7 +431,7 @@ def block_gaps(motion: Motion, /, *, n_markers: int | None = None, length: int |
     return _result(motion, motion.positions, motion.observed & ~sel, step), sel
 
 
-def slra_noise(motion: Motion, /, *, n_frames: int, mean: float | None = None, sigma: float = 1.2,
+def slra_noise(motion: Motion, /, *, n_frames: int, mean: float = 1.0, sigma: float = 1.2,
                seed: Any, scale: float | None = None, eps: float | None = None) -> tuple[Motion, np.ndarray]:
     """SLRA partial-frame noise, Peng et al. (seed 004), Sec. 4.1, eq. (7).
 
@@ -455,7 +455,7 @@ def slra_noise(motion: Motion, /, *, n_frames: int, mean: float | None = None, s
     ----------
     motion : Motion (T, J).
     n_frames : number of noisy frames p (0 <= p <= T).
-    mean : ε, default 1.0 (``eps`` is an accepted alias).
+    mean : ε, default 1.0 (``eps=`` is an accepted alias, as in the paper's notation).
     sigma : σ (standard deviation), default 1.2.
     seed : int, Generator or SeedSequence.
     scale : optional factor applied to the noise (see Units).
@@ -466,9 +466,12 @@ def slra_noise(motion: Motion, /, *, n_frames: int, mean: float | None = None, s
         coordinate (so only the ``n_frames`` selected frames have True entries).
     """
     motion = _check_motion(motion)
-    if mean is not None and eps is not None and float(mean) != float(eps):
+    try:
+        mu = float(mean) if eps is None else float(eps)
+    except (TypeError, ValueError):
+        raise MocapValueError(f"the noise mean must be a number, got {eps if eps is not None else mean!r}") from None
+    if eps is not None and float(mean) not in (1.0, mu):
         raise MocapValueError("give the noise mean as mean= or eps=, not both")
-    mu = 1.0 if mean is None and eps is None else float(mean if mean is not None else eps)
     if not np.isfinite(mu):
         raise MocapValueError(f"mean must be finite, got {mu!r}")
     sd = _nonneg(sigma, "sigma")

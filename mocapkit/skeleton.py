@@ -23,7 +23,7 @@ _ARM_WORDS = ("clavicle", "shoulder", "collar", "shldr", "humerus", "arm", "elbo
               "radius", "wrist", "hand", "finger", "thumb", "index", "middle", "ring",
               "pinky", "carpal", "mid", "pinky")
 _LEG_WORDS = ("hipjoint", "hip", "femur", "thigh", "upleg", "leg", "knee", "tibia",
-              "shin", "ankle", "foot", "toe", "heel")
+              "shin", "ankle", "foot", "toe", "heel", "buttock")
 # Names of joints on the body midline that contain a limb keyword ("Hips", "hip").
 _MIDLINE = {"hips", "hip", "hipcenter", "hip_center", "pelvis", "root"}
 
@@ -46,7 +46,7 @@ def _side(name: str) -> str | None:
 
 def _limb(name: str) -> str | None:
     low = re.sub(r"left|right", "", name.lower())
-    if low in _MIDLINE:
+    if low in _MIDLINE and low == name.lower():   # 'HipLeft'/'LeftHip' keep their side: a leg joint
         return None
     if any(w in low for w in _LEG_WORDS if w not in ("hip",)) or low.endswith("hip") or low.startswith(("hip", "lhip", "rhip")):
         # 'hip' alone counts only with a side (HipLeft, lhipjoint, LHip)

@@ -264,7 +264,8 @@ def test_dynammo_beats_linear_interpolation_on_gap():
     m = np.ones(X.shape, bool)
     m[150:210, :4] = False                                    # 60-frame gap in 4 channels
     Xin = np.where(m, X, np.nan)
-    A, info = cp.lds_em_complete(Xin, m, k=4, return_info=True)
+    A, info = cp.lds_em_complete(Xin, m, k=4, max_iter=400, return_info=True)
+    assert info["converged"]
     lin = fill_gaps_linear(Xin, m)
     e_lds, e_lin = rmse_missing(A, X, m), rmse_missing(lin, X, m)
     assert e_lds < 0.5 * e_lin, (e_lds, e_lin)

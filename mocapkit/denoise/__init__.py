@@ -16,7 +16,7 @@ from .base import Denoiser, available, get, register  # noqa: F401
 DEFAULT_METHOD = "gaussian"
 """Method used by ``mocapkit denoise`` when none is named (see docs/methods.md)."""
 
-_FAMILIES = ("filters", "kalman", "lowrank", "bases", "sparse", "thesis", "neural")
+_FAMILIES = ("filters", "kalman", "lowrank", "bases", "sparse", "wavelet", "thesis", "neural")
 
 
 def _import_families() -> None:

@@ -39,7 +39,7 @@ from ..motion import Motion
 from .base import Denoiser, register, training_matrices
 from .filters import require_observed_joints
 
-__all__ = ["KalmanCV", "KalmanIdentity", "KalmanLearned", "body_frame", "to_body", "from_body"]
+__all__ = ["KalmanCV", "KalmanIdentity", "KalmanLearned"]
 
 _MIN_NOISE_CM = 0.01
 
@@ -200,120 +200,51 @@ class KalmanIdentity(Denoiser):
 
 
 # ---------------------------------------------------------------------------------------
-# body-centred frame
-# ---------------------------------------------------------------------------------------
-def _smooth_track(V: np.ndarray, fps: float, smooth_s: float) -> np.ndarray:
-    """Robustly smooth (T, k) tracks: running median (~smooth_s) then Gaussian (sigma smooth_s)."""
-    T = V.shape[0]
-    if T < 3 or smooth_s <= 0:
-        return V
-    w = max(3, int(round(smooth_s * fps)) | 1)
-    w = min(w, T if T % 2 else T - 1)
-    if w >= 3:
-        V = signal.median(V, window=w)
-    return signal.gaussian(V, sigma=max(smooth_s * fps, 0.5))
+class _GlobalFrame:
+    """Identity 'body frame' (``frame='global'``)."""
+
+    def to_local(self, P):
+        return np.asarray(P, dtype=float)
+
+    def to_world(self, Z):
+        return np.asarray(Z, dtype=float)
 
 
-def up_axis_of(P: np.ndarray) -> int:
-    """Vertical axis of positions (T, J, 3): the axis of largest median per-frame extent
-    over joints (as :meth:`Motion.height`)."""
-    ext = np.nanmax(P, axis=1) - np.nanmin(P, axis=1)
-    ext = ext[np.isfinite(ext).all(axis=1)]
-    return int(np.argmax(np.median(ext, axis=0))) if len(ext) else 1
-
-
-def body_frame(motion: Motion, up_axis: int, smooth_s: float = 0.1) -> tuple[np.ndarray, np.ndarray]:
-    """Per-frame body-centred frame estimated robustly from a (possibly noisy) motion.
-
-    Origin: the root joint's track (joint with parent -1; the centroid of the observed
-    joints if the root is never observed), gaps filled linearly, then a running median
-    and a Gaussian of ``smooth_s`` seconds. Heading: rotation about ``up_axis`` aligning
-    the body's lateral direction -- centroid of the left-leg joints minus centroid of the
-    right-leg joints (by joint name, :meth:`Skeleton.body_parts`), projected on the
-    horizontal plane -- with the first horizontal axis; the angle is unwrapped and
-    smoothed the same way. Without both legs the heading is 0 (translation only).
-    Smoothing the frame keeps spikes and noise out of it (METHODS.md Sec. 1).
-
-    Returns origin (T, 3) cm and R (T, 3, 3) with ``world = R @ body + origin``.
-    """
-    P = np.array(motion.positions)
-    obs = motion.observed
-    T, J, _ = P.shape
-    fps = motion.fps
-    roots = np.flatnonzero(motion.skeleton.parents < 0)
-    r = int(roots[0])
-    if obs[:, r].any():
-        O = signal.fill_gaps(P[:, r], np.repeat(obs[:, r:r + 1], 3, axis=1), kind="linear")
-    else:
-        w = obs[:, :, None].astype(float)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            C = np.nansum(np.where(obs[:, :, None], P, 0.0), axis=1) / w.sum(axis=1)
-        O = signal.fill_gaps(C, np.isfinite(C), kind="linear")
-    O = _smooth_track(O, fps, smooth_s)
-    a, b = (up_axis + 1) % 3, (up_axis + 2) % 3
-    parts = motion.skeleton.body_parts()
-    left = [j for j in parts.get("left_leg", []) if j not in parts.get("right_leg", [])]
-    right = [j for j in parts.get("right_leg", []) if j not in parts.get("left_leg", [])]
-    theta = np.zeros(T)
-    if left and right:
-        def centroid(js):
-            w = obs[:, js].astype(float)
-            s = np.where(obs[:, js, None], P[:, js], 0.0).sum(axis=1)
-            n = w.sum(axis=1)[:, None]
-            with np.errstate(invalid="ignore", divide="ignore"):
-                return s / n
-        L = centroid(left) - centroid(right)
-        ok = np.isfinite(L).all(axis=1) & (np.hypot(L[:, a], L[:, b]) > 1e-6)
-        if ok.any():
-            th = np.full(T, np.nan)
-            th[ok] = np.unwrap(np.arctan2(L[ok, b], L[ok, a]))
-            th = signal.fill_gaps(th[:, None], ok[:, None], kind="linear")
-            theta = _smooth_track(th, fps, smooth_s)[:, 0]
-    c, s = np.cos(theta), np.sin(theta)
-    R = np.zeros((T, 3, 3))
-    R[:, up_axis, up_axis] = 1.0
-    R[:, a, a] = c
-    R[:, b, a] = s
-    R[:, a, b] = -s
-    R[:, b, b] = c
-    return O, R
-
-
-def to_body(P: np.ndarray, origin: np.ndarray, R: np.ndarray) -> np.ndarray:
-    """World positions (T, J, 3) -> body frame: ``Rᵀ (p - origin)`` (NaN stays NaN)."""
-    return np.einsum("tji,tkj->tki", R, P - origin[:, None, :])
-
-
-def from_body(Z: np.ndarray, origin: np.ndarray, R: np.ndarray) -> np.ndarray:
-    """Body frame (T, J, 3) -> world: ``R z + origin``."""
-    return np.einsum("tij,tkj->tki", R, Z) + origin[:, None, :]
-
-
-# ---------------------------------------------------------------------------------------
 @register
 class KalmanLearned(Denoiser):
-    """Data-driven Kalman filter (Lou & Chai 2010, seed 001, Sec. 6.2: "learns the system
-    matrices from the same set of training data"), with an RTS smoother.
+    """Data-driven Kalman filter (Lou & Chai 2010, seed 001, Sec. 6.2: a Kalman filter
+    "which learns the system matrices from the same set of training data"), with an RTS
+    smoother.
 
-    Representation (decisions): each frame's joint positions are expressed in a
-    body-centred frame (:func:`body_frame`: smoothed root as origin, smoothed heading
-    from the hips rotated out; ``frame='global'`` skips this) and flattened to z (3J).
-    PCA on the training frames gives mean mu and an orthonormal basis U (3J x k), k
-    keeping ``energy`` of the variance (default 99%; or ``n_components``), so the
-    dynamics stay well-conditioned; latent s = Uᵀ (z - mu).
+    Representation (decisions): each frame's joint positions are expressed in the
+    body-centred frame of :mod:`mocapkit.bodyframe` (smoothed root as origin, smoothed
+    heading rotated out, time scale ``smooth_s``; ``frame='global'`` keeps world
+    coordinates) and flattened to z (3J). PCA on the training frames gives the mean mu
+    and an orthonormal basis U (3J x k); latent s = Uᵀ (z - mu). ``energy`` (default 1.0)
+    keeps the k leading components holding that fraction of the variance; 1.0 keeps the
+    numerical rank (drops only directions with no training variance, e.g. CMU joints
+    that coincide), ``n_components`` sets k directly.
 
-    Dynamics (least squares over consecutive training frames, ridge ``ridge`` relative
-    to the mean Gram diagonal): order 1 (default, as the paper) ``s[t+1] = A s[t] + b + w``;
-    order 2 ``s[t+1] = A1 s[t] + A2 s[t-1] + b + w`` (state [s[t], s[t-1]]). Process noise
-    Q = covariance of the least-squares residuals w.
+    Dynamics, fitted by ridge least squares over consecutive training frames:
+    order 1 (default, as the paper) ``s[t+1] = A s[t] + b + w``; order 2
+    ``s[t+1] = A1 s[t] + A2 s[t-1] + b + w`` (state [s[t], s[t-1]]). Decision: the ridge
+    (strength ``ridge`` x the mean diagonal of the Gram matrix) shrinks the dynamics
+    towards the kinematic prior -- identity (order 1) or constant velocity
+    A1 = 2I, A2 = -I (order 2) -- not towards zero: the regression is done on the
+    differences s[t+1] - s[t] (resp. s[t+1] - 2 s[t] + s[t-1]). At 30-120 fps A is close
+    to that prior and an unregularised fit on a few clips generalises worse than the
+    prior itself (measured on CMU walks: the one-step prediction error of the order-1
+    least-squares A on a held-out walk was 18 x the plain frame-to-frame change).
+    Process noise Q = ``q_scale`` x the covariance of the training residuals w
+    (``q_scale`` > 1 allows for new clips being less predictable than training ones).
 
     Observation: ``z = mu + U s + e + v`` with e ~ N(0, diag(D)) the per-coordinate
-    out-of-subspace residual variance measured on the training frames and v ~ N(0, r I)
-    the measurement noise (r = ``measurement_sigma_cm``², estimated from the clip by
-    default). Missing coordinates drop their rows of the observation matrix. After RTS
-    smoothing of s, observed coordinates get the posterior mean of e added,
-    ``D / (D + r) * (y - mu - U s)``, so content outside the PCA subspace is not lost
-    on clean data; missing ones get ``mu + U s``. Cost per frame O(k³) (k x k inverses).
+    out-of-subspace variance of the training frames and v ~ N(0, r I) the measurement
+    noise (r = ``measurement_sigma_cm``², estimated from the clip by default). Missing
+    coordinates drop their rows of the observation matrix. After RTS smoothing of s,
+    observed coordinates get the posterior mean of e added,
+    ``D / (D + r) * (y - mu - U s)``; missing ones get ``mu + U s``.
+    Cost per frame O(n³) with n = order x k state dimensions.
 
     A joint never observed in the clip is filled from the others through the learned
     latent model. The clip must have the training frame rate and skeleton.
@@ -324,36 +255,40 @@ class KalmanLearned(Denoiser):
     """
 
     name = "kalman-learned"
-    description = "Kalman + RTS with linear dynamics learned from training clips (Lou & Chai baseline; PCA latent, body frame)"
+    description = "Kalman + RTS with linear dynamics learned from training clips (Lou & Chai baseline; body frame, PCA latent)"
     needs_training = True
     keeps_observed = False
 
-    def __init__(self, energy: float = 0.99, n_components: int | None = None, order: int = 1,
-                 frame: str = "body", measurement_sigma_cm: float | None = None,
-                 ridge: float = 1e-6, smooth_s: float = 0.1):
+    def __init__(self, order: int = 1, energy: float = 1.0, n_components: int | None = None,
+                 ridge: float = 1.0, q_scale: float = 1.0, frame: str = "body",
+                 smooth_s: float = 0.5, measurement_sigma_cm: float | None = None):
+        self.order = order
         self.energy = energy
         self.n_components = n_components
-        self.order = order
-        self.frame = frame
-        self.measurement_sigma_cm = measurement_sigma_cm
         self.ridge = ridge
+        self.q_scale = q_scale
+        self.frame = frame
         self.smooth_s = smooth_s
+        self.measurement_sigma_cm = measurement_sigma_cm
 
     @classmethod
     def quick_params(cls) -> dict[str, Any]:
         return {}
 
     # -- coordinates ------------------------------------------------------------------
-    def _frame(self, motion: Motion, up_axis: int):
+    def _transform(self, motion: Motion, up_axis: int | None):
         if self.frame == "global":
-            T = motion.n_frames
-            return np.zeros((T, 3)), np.broadcast_to(np.eye(3), (T, 3, 3))
+            return _GlobalFrame()
         if self.frame != "body":
             raise MocapValueError(f"kalman-learned: frame must be 'body' or 'global', got {self.frame!r}")
-        return body_frame(motion, up_axis, self.smooth_s)
+        from ..bodyframe import body_transform
+
+        return body_transform(motion, smooth_s=self.smooth_s, up_axis=up_axis)
 
     # -- training -----------------------------------------------------------------------
     def fit(self, motions: Sequence[Motion]) -> "KalmanLearned":
+        from ..bodyframe import up_axis_of
+
         motions = list(motions)
         training_matrices(motions)                      # validates: non-empty, complete
         if self.order not in (1, 2):
@@ -367,16 +302,14 @@ class KalmanLearned(Denoiser):
                     f"kalman-learned: training motions must share one frame rate "
                     f"({first.fps:g} vs {m.fps:g} fps); resample them first")
         up = up_axis_of(np.concatenate([m.positions for m in motions]))
-        Zs = []
-        for m in motions:
-            O, R = self._frame(m, up)
-            Zs.append(to_body(m.positions, O, R).reshape(m.n_frames, -1))
+        Zs = [self._transform(m, up).to_local(m.positions).reshape(m.n_frames, -1) for m in motions]
         Zall = np.concatenate(Zs)
         D = Zall.shape[1]
         mu = Zall.mean(axis=0)
-        C = np.cov(Zall - mu, rowvar=False, bias=True).reshape(D, D)
+        C = np.atleast_2d(np.cov(Zall - mu, rowvar=False, bias=True))
         evals, evecs = np.linalg.eigh(C)
         evals, evecs = np.clip(evals[::-1], 0, None), evecs[:, ::-1]
+        tot = float(evals.sum())
         if self.n_components is not None:
             k = int(self.n_components)
             if not 1 <= k <= D:
@@ -385,45 +318,43 @@ class KalmanLearned(Denoiser):
             e = float(self.energy)
             if not 0 < e <= 1:
                 raise MocapValueError(f"kalman-learned: energy must be in (0, 1], got {self.energy!r}")
-            tot = evals.sum()
-            if tot <= 0:
-                k = 1
-            elif e >= 1:
-                k = int(max(1, (evals > tot * 1e-12).sum()))
-            else:
-                k = int(np.searchsorted(np.cumsum(evals) / tot, e) + 1)
-            k = min(k, D)
+            rank = int(max(1, (evals > max(tot, 1e-300) * 1e-10).sum()))
+            k = rank if (e >= 1 or tot <= 0) else min(rank, int(np.searchsorted(np.cumsum(evals) / tot, e) + 1))
         U = evecs[:, :k]
         order = int(self.order)
+        prior = np.zeros((k, order * k))                # kinematic prior the ridge shrinks to
+        if order == 1:
+            prior[:, :k] = np.eye(k)
+        else:
+            prior[:, :k] = 2 * np.eye(k)
+            prior[:, k:] = -np.eye(k)
         Xin, Yout = [], []
         for Z in Zs:
             S = (Z - mu) @ U
             if len(S) <= order:
                 continue
-            lagged = [S[order - 1 - i:len(S) - 1 - i] for i in range(order)]   # s[t], s[t-1], ...
-            Xin.append(np.hstack(lagged + [np.ones((len(S) - order, 1))]))
-            Yout.append(S[order:])
+            lagged = np.hstack([S[order - 1 - i:len(S) - 1 - i] for i in range(order)])   # s[t], s[t-1]
+            Xin.append(np.hstack([lagged, np.ones((len(S) - order, 1))]))
+            Yout.append(S[order:] - lagged @ prior.T)
         if not Xin:
             raise MocapValueError(f"kalman-learned: training clips need more than {order} frames")
         Xin, Yout = np.concatenate(Xin), np.concatenate(Yout)
         G = Xin.T @ Xin
-        lam = float(self.ridge) * float(np.mean(np.diag(G)[:-1])) if k else 0.0
+        lam = float(self.ridge) * float(np.mean(np.diag(G)[:-1]))
         reg = lam * np.eye(G.shape[0])
         reg[-1, -1] = 0.0                               # do not shrink the offset
-        W = np.linalg.solve(G + reg, Xin.T @ Yout)      # (order*k + 1, k)
-        A = W[:-1].T                                    # (k, order*k)
-        b = W[-1]
+        W = np.linalg.lstsq(G + reg, Xin.T @ Yout, rcond=None)[0]      # (order*k + 1, k)
         res = Yout - Xin @ W
         Q = res.T @ res / max(1, len(res))
         Q = 0.5 * (Q + Q.T) + 1e-9 * max(float(np.trace(Q)) / k, 1e-12) * np.eye(k)
-        resid = Zall - mu - (Zall - mu) @ U @ U.T
+        resid = (Zall - mu) - (Zall - mu) @ U @ U.T
+        S_all = (Zall - mu) @ U
         self.mean_ = mu
         self.components_ = U
-        self.A_ = A
-        self.b_ = b
+        self.A_ = prior + W[:-1].T                      # (k, order*k)
+        self.b_ = W[-1]
         self.Q_ = Q
         self.resid_var_ = np.mean(resid ** 2, axis=0)
-        S_all = (Zall - mu) @ U
         self.state_mean_ = S_all.mean(axis=0)
         self.state_cov_ = np.atleast_2d(np.cov(S_all, rowvar=False, bias=True)) + 1e-6 * np.eye(k)
         self.fps_ = float(first.fps)
@@ -459,8 +390,8 @@ class KalmanLearned(Denoiser):
         T, J = motion.observed.shape
         X, M = motion.matrix(), motion.matrix_mask()
         sigma = _noise_sigma(X, M, self.measurement_sigma_cm)
-        O, R = self._frame(motion, int(self.up_axis_))
-        Z = to_body(motion.positions, O, R).reshape(T, -1)
+        tr = self._transform(motion, int(self.up_axis_))
+        Z = tr.to_local(motion.positions).reshape(T, -1)
         mu, U = np.asarray(self.mean_), np.asarray(self.components_)
         k = U.shape[1]
         order = self.A_.shape[1] // k
@@ -469,22 +400,23 @@ class KalmanLearned(Denoiser):
         F[:k] = self.A_
         if order > 1:
             F[k:, :-k] = np.eye(n - k)
+        qs = float(self.q_scale)
+        if not (np.isfinite(qs) and qs > 0):
+            raise MocapValueError(f"kalman-learned: q_scale must be positive, got {self.q_scale!r}")
         Qf = np.zeros((n, n))
-        Qf[:k, :k] = self.Q_
+        Qf[:k, :k] = qs * np.asarray(self.Q_)
         if order > 1:                                   # keep the lag block invertible
-            Qf[k:, k:] = 1e-9 * max(float(np.trace(self.Q_)) / k, 1e-12) * np.eye(n - k)
+            Qf[k:, k:] = 1e-9 * max(float(np.trace(Qf[:k, :k])) / k, 1e-12) * np.eye(n - k)
         bf = np.zeros(n)
         bf[:k] = self.b_
         H = np.zeros((U.shape[0], n))
         H[:, :k] = U
-        Rdiag = sigma ** 2 + np.asarray(self.resid_var_)
+        Dres = np.asarray(self.resid_var_, dtype=float)
+        Rdiag = sigma ** 2 + Dres
         x0 = np.tile(self.state_mean_, order)
         P0 = np.kron(np.eye(order), self.state_cov_)
-        xs, _ = signal.rts_smoother((Z - mu)[:, None, :], M[:, None, :], F=F, Q=Qf,
+        xs, _ = signal.rts_smoother(np.where(M, Z - mu, 0.0)[:, None, :], M[:, None, :], F=F, Q=Qf,
                                     R=Rdiag[None, :], H=H, b=bf, x0=x0[None], P0=P0[None])
         Zhat = mu + xs[:, 0, :k] @ U.T
-        gain = np.asarray(self.resid_var_) / Rdiag
-        with np.errstate(invalid="ignore"):
-            Zhat = np.where(M, Zhat + gain * (Z - Zhat), Zhat)
-        P = from_body(Zhat.reshape(T, J, 3), O, R)
-        return motion.with_positions(P)
+        Zhat = np.where(M, Zhat + (Dres / Rdiag) * (np.where(M, Z, 0.0) - Zhat), Zhat)
+        return motion.with_positions(tr.to_world(Zhat.reshape(T, J, 3)))

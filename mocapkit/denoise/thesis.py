@@ -25,7 +25,6 @@ import warnings
 from typing import Any, Sequence
 
 import numpy as np
-from scipy.ndimage import uniform_filter1d
 
 from ..detect import trust_data
 from ..errors import MocapValueError
@@ -33,9 +32,10 @@ from ..motion import Motion, fill_gaps_linear
 from ..skeleton import BODY_PARTS
 from ..solvers import completion as _cp
 from ..solvers import llc as _llc
+from ..solvers.completion import _one_blas_thread
 from .base import Denoiser, register
 
-__all__ = ["PSC", "TSMC", "TrNN", "DynaMMo", "local_frame", "to_local", "to_global"]
+__all__ = ["PSC", "TSMC", "TrNN", "DynaMMo"]
 
 
 # --------------------------------------------------------------------------------------
@@ -88,86 +88,25 @@ def _info(name: str, info: dict[str, Any]) -> dict[str, Any]:
 
 
 # --------------------------------------------------------------------------------------
-# local (body-centred) frame for PSC
+# local frame for PSC (thesis Sec. 3.2 = Xiao et al.'s frame, mocapkit.localframe)
 # --------------------------------------------------------------------------------------
-def _up_axis(motion: Motion) -> int:
-    """Vertical axis: largest median per-frame extent over joints (Y for CMU, Z for C3D)."""
-    P = motion.positions
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        ext = np.nanmax(P, axis=1) - np.nanmin(P, axis=1)
-        med = np.nanmedian(ext, axis=0)
-    if not np.isfinite(med).all():
-        return 1
-    return int(np.argmax(med))
+def _local_frame(motion: Motion, known: np.ndarray | None = None):
+    """The thesis' per-pose frame (root at 0, femur/upper-neck plane parallel to XY).
 
-
-def _hip_joints(skeleton) -> tuple[int, int] | None:
-    """(left, right) hip joints: the first joint of each leg part that is not at the root."""
-    parts = skeleton.body_parts()
-    rest = skeleton.rest_positions()
-    out = []
-    for side in ("left_leg", "right_leg"):
-        members = parts.get(side, [])
-        if not members:
-            return None
-        attach = members[0]
-        cand = [j for j in members if j != attach and np.linalg.norm(rest[j] - rest[attach]) > 1.0]
-        if not cand:
-            cand = [j for j in members if j != attach]
-        if not cand:
-            return None
-        out.append(min(cand))
-    return out[0], out[1]
-
-
-def local_frame(motion: Motion, known: np.ndarray | None = None, smooth_s: float = 0.25
-                ) -> tuple[np.ndarray, np.ndarray, int]:
-    """Origin (T, 3) and heading angle (T,) of the body-centred frame, and the up axis.
-
-    Thesis Sec. 3.2 translates every pose to the root and rotates the hip/neck plane to a
-    fixed orientation.  Decision: we remove the root translation and the *heading* (yaw
-    about the vertical axis, from the left-hip -> right-hip vector projected on the
-    horizontal plane), estimated from the linearly gap-filled trusted samples and smoothed
-    over ``smooth_s`` seconds so outliers and gaps do not tilt the frame; pitch and roll
-    stay in the data.  Skeletons without two legs get translation only.
+    Estimated by :func:`mocapkit.localframe.estimate_frame` from the trusted samples
+    (robustly smoothed tracks, so outliers and gaps do not tilt it).  A skeleton without
+    femurs / upper neck gets translation only (root track, gaps bridged linearly).
     """
+    from .. import localframe as lf
+
     known = motion.observed if known is None else known
-    up = _up_axis(motion)
-    X = fill_gaps_linear(motion.matrix(), np.repeat(known, 3, axis=1)).reshape(motion.positions.shape)
-    root = int(np.flatnonzero(motion.skeleton.parents < 0)[0])
-    origin = X[:, root].copy()
-    hips = _hip_joints(motion.skeleton)
-    T = motion.n_frames
-    if hips is None:
-        return origin, np.zeros(T), up
-    h = X[:, hips[0]] - X[:, hips[1]]
-    a, b = [ax for ax in range(3) if ax != up]
-    theta = np.unwrap(np.arctan2(h[:, b], h[:, a]))
-    win = max(1, int(round(smooth_s * motion.fps)))
-    if win > 1 and T > 1:
-        theta = uniform_filter1d(theta, size=min(win, T), mode="nearest")
-    return origin, theta, up
-
-
-def _rotate(P: np.ndarray, theta: np.ndarray, up: int) -> np.ndarray:
-    """Rotate (T, J, 3) positions by -theta_t about the ``up`` axis."""
-    a, b = [ax for ax in range(3) if ax != up]
-    c, s = np.cos(theta)[:, None], np.sin(theta)[:, None]
-    out = P.copy()
-    out[..., a] = c * P[..., a] + s * P[..., b]
-    out[..., b] = -s * P[..., a] + c * P[..., b]
-    return out
-
-
-def to_local(P: np.ndarray, origin: np.ndarray, theta: np.ndarray, up: int) -> np.ndarray:
-    """Global (T, J, 3) -> body-centred (root at 0, heading along the first horizontal axis)."""
-    return _rotate(P - origin[:, None, :], theta, up)
-
-
-def to_global(L: np.ndarray, origin: np.ndarray, theta: np.ndarray, up: int) -> np.ndarray:
-    """Inverse of :func:`to_local`."""
-    return _rotate(L, -theta, up) + origin[:, None, :]
+    P = np.where(known[..., None], motion.positions, np.nan)
+    try:
+        return lf.estimate_frame(P, motion.skeleton, motion.fps)
+    except MocapValueError:
+        root = int(np.flatnonzero(motion.skeleton.parents < 0)[0])
+        X = fill_gaps_linear(P[:, root], np.repeat(known[:, root:root + 1], 3, axis=1))
+        return lf.LocalFrame(origin=X, R=np.broadcast_to(np.eye(3), (motion.n_frames, 3, 3)).copy())
 
 
 def _windows(A: np.ndarray, M: int) -> np.ndarray:
@@ -215,8 +154,9 @@ def _sample_masks(N: int, M: int, nj: int, ratio: tuple[float, float],
 class PSC(Denoiser):
     """Poselet sparse coding with LLC recovery (thesis Ch. 3; Wang et al. 2016/2017).
 
-    Training (Sec. 3.2-3.3): every clean training motion goes to the body-centred frame
-    (:func:`local_frame`), is split into the five body parts of
+    Training (Sec. 3.2-3.3): every clean training motion goes to the thesis' local frame
+    (root at the origin, femur/upper-neck plane parallel to XY; :mod:`mocapkit.localframe`,
+    estimated from robustly smoothed tracks), is split into the five body parts of
     :meth:`Skeleton.body_parts` (torso, arms, legs; shared joints in several parts) and cut
     into overlapping M-frame windows (stride 1), one vector of ``3 * joints * M`` per
     window.  One dictionary per part is learnt with the masked objective of eqs. 3.7-3.10:
@@ -244,7 +184,7 @@ class PSC(Denoiser):
       training windows (``max_windows`` windows per part are sampled, default 4000, so
       training takes seconds on a CPU);
     * frames whose every window has a part fully missing fall back to linear interpolation
-      in the body frame; the root position is linearly interpolated where it is missing.
+      in the local frame.
 
     Parameters
     ----------
@@ -258,6 +198,10 @@ class PSC(Denoiser):
         eq.-3.12 tolerance.
     train_missing : (low, high) missing ratio of the sampled training masks.
     max_windows : training windows per part (random subset); seed : randomness.
+    refine : our extension (default on; False = the thesis): the coding residual of the
+        known samples is linearly interpolated across each hole and added to the
+        reconstruction, so filled samples join the observed ones continuously and keep the
+        local offset the dictionary cannot represent (measured in docs/results/thesis.md).
     """
 
     name = "psc"
@@ -270,7 +214,8 @@ class PSC(Denoiser):
                  n_neighbors: int = 5, sigma: float | None = None, threshold_cm: float = 6.0,
                  detect: bool = True, n_iter: int = 10, dict_steps: int = 3,
                  tol: float = 1e-3, train_missing: tuple[float, float] = (0.1, 0.6),
-                 max_windows: int = 4000, seed: int = 0):
+                 max_windows: int = 4000, refine: bool = True, seed: int = 0):
+        self.refine = refine
         self.window = window
         self.n_atoms = n_atoms
         self.lam = lam
@@ -307,6 +252,7 @@ class PSC(Denoiser):
         return out
 
     # -- training ---------------------------------------------------------------------------
+    @_one_blas_thread
     def fit(self, motions: Sequence[Motion]) -> "PSC":
         """Learn one dictionary per body part from clean motions (same skeleton)."""
         M, K = self._check_params()
@@ -321,12 +267,13 @@ class PSC(Denoiser):
                 raise MocapValueError("psc.fit(): all training motions need the same joints")
             if not m.observed.all():
                 raise MocapValueError(f"training motion {m!r} has missing entries; fill them first")
+        from .. import localframe as lf
+
         locs = []
         for m in motions:
             if m.n_frames < M:
                 continue
-            o, th, up = local_frame(m)
-            locs.append(to_local(m.positions, o, th, up))
+            locs.append(lf.to_local(m.positions, _local_frame(m)))
         if not locs:
             raise MocapValueError(f"psc.fit(): every training motion is shorter than window={M}")
         rng = np.random.default_rng(self.seed)
@@ -392,6 +339,7 @@ class PSC(Denoiser):
         return best, hist
 
     # -- recovery ---------------------------------------------------------------------------
+    @_one_blas_thread
     def denoise(self, motion: Motion) -> Motion:
         self._check_fitted()
         motion = _check_motion(motion, self.name)
@@ -405,11 +353,13 @@ class PSC(Denoiser):
             raise MocapValueError(f"psc: the clip has {T} frames, fewer than the window ({M})")
         known = _known_mask(motion, bool(self.detect), float(self.threshold_cm))
         _never_observed(known, motion, self.name)
-        origin, theta, up = local_frame(motion, known)
+        from .. import localframe as lf
+
+        frame = _local_frame(motion, known)
         P = np.where(known[..., None], motion.positions, 0.0)
-        L = to_local(P, origin, theta, up)
-        L_lin = to_local(fill_gaps_linear(motion.matrix(), np.repeat(known, 3, axis=1)
-                                          ).reshape(P.shape), origin, theta, up)
+        L = lf.to_local(P, frame)
+        L_lin = lf.to_local(fill_gaps_linear(motion.matrix(), np.repeat(known, 3, axis=1)
+                                             ).reshape(P.shape), frame)
         acc = np.zeros_like(L)
         cnt = np.zeros(L.shape[:2])
         k = int(self.n_neighbors)
@@ -435,9 +385,13 @@ class PSC(Denoiser):
             acc[:, idx] += part_acc
             cnt[:, idx] += part_cnt[:, None]
         est = np.where(cnt[..., None] > 0, acc / np.maximum(cnt, 1)[..., None], L_lin)
-        root = int(np.flatnonzero(motion.skeleton.parents < 0)[0])
-        est[:, root] = 0.0                                  # the origin is the root itself
-        G = to_global(est, origin, theta, up)
+        if self.refine:
+            # our extension: interpolate the coding residual of the known samples across
+            # the holes, so filled samples meet the observed ones without a jump
+            km = np.repeat(known, 3, axis=1)
+            res = np.where(km, (L - est).reshape(T, -1), np.nan)
+            est = est + fill_gaps_linear(res, km).reshape(est.shape)
+        G = lf.to_global(est, frame)
         out = np.where(known[..., None], motion.positions, G)
         res = motion.with_positions(out)
         return res.with_source(solver={"method": self.name, "window": M,
@@ -468,8 +422,21 @@ def _sparse_norm2(W) -> float:
 # --------------------------------------------------------------------------------------
 # low-rank completion (Ch. 4)
 # --------------------------------------------------------------------------------------
+CMU_UNIT_CM = 5.6444
+"""1 CMU ASF length unit in cm ((1/0.45) inch)."""
+
+
 class _MatrixCompletion(Denoiser):
-    """Shared Motion handling of tsmc / trnn: (T, 3J) matrix + mask in, estimate out."""
+    """Shared Motion handling of tsmc / trnn: (T, 3J) matrix + mask in, estimate out.
+
+    The thesis' weights (beta, mu: squared second differences; alpha, lam: l1 of the
+    error) are not scale-free and the thesis does not state its unit.  Decision: they are
+    read in CMU ASF length units (the unit of the CMU ASF/AMC data the thesis uses;
+    1 unit = 5.6444 cm): the (T, 3J) matrix is divided by ``unit_cm`` before solving and the
+    result multiplied back.  Measured on CMU 05_06 and 02_01 (not protocol clips), this
+    beats reading them in cm or in metres in most missing-data conditions
+    (docs/results/thesis.md).
+    """
 
     keeps_observed = False
     clean_tolerance_cm = 1.0
@@ -483,7 +450,11 @@ class _MatrixCompletion(Denoiser):
         _never_observed(known, motion, self.name)
         X = motion.matrix()
         km = np.repeat(known, 3, axis=1)
-        A, info = self._solve(X, km)
+        unit = float(self.unit_cm)
+        if not np.isfinite(unit) or unit <= 0:
+            raise MocapValueError(f"{self.name}: unit_cm must be a positive number, got {self.unit_cm!r}")
+        A, info = self._solve(X / unit, km)
+        A *= unit
         never = ~km.any(axis=0)
         if never.any():
             A[:, never] = 0.0
@@ -503,7 +474,10 @@ class TSMC(_MatrixCompletion):
     Parameters
     ----------
     alpha, beta, lam1, lam2, gamma, lam_max : thesis settings 1, 100, 1e-5, 1e-5, 1.4, 1e10.
-    rank : None = estimated (eq. 4.15).  tol, max_iter : ALM stopping.
+    rank : factor width k; None = full width min(T, 3J) (our default), "lsj" = the thesis'
+        rule (eq. 4.15) with :func:`~mocapkit.solvers.completion.estimate_rank`.
+    tol, max_iter : ALM stopping.
+    unit_cm : length unit the weights are read in (default: CMU ASF unit, see below).
     detect : also treat trust-data outliers (``threshold_cm``) as missing.
     keep_observed : return observed (trusted) entries unchanged (gap filling only).
     """
@@ -513,9 +487,10 @@ class TSMC(_MatrixCompletion):
 
     def __init__(self, alpha: float = 1.0, beta: float = 100.0, lam1: float = 1e-5,
                  lam2: float = 1e-5, gamma: float = 1.4, lam_max: float = 1e10,
-                 rank: int | None = None, tol: float = 1e-4, max_iter: int = 500,
+                 rank: int | str | None = None, tol: float = 1e-4, max_iter: int = 500,
                  detect: bool = False, threshold_cm: float = 6.0, keep_observed: bool = False,
-                 seed: int = 0):
+                 unit_cm: float = CMU_UNIT_CM, seed: int = 0):
+        self.unit_cm = unit_cm
         self.alpha = alpha
         self.beta = beta
         self.lam1 = lam1
@@ -545,22 +520,25 @@ class TrNN(_MatrixCompletion):
     ``min ||X||_r + lam ||P_Omega(S)||_1 + mu/2 ||O M||^2`` (eqs. 4.21-4.23) on the (T, 3J)
     matrix (cm) by a single-loop ALM with a DCT-diagonalised M-step
     (:func:`mocapkit.solvers.completion.trnn`).  Settings of Sec. 4.2.3 (real data):
-    lam = 100/sqrt(max(m, n)), mu = 100, rho = 1.4, eta0 = 1e-5, eps = 1e-4, r = 15,
-    d = round(1.2 rank) (at least r + 1).
+    lam = 100/sqrt(max(m, n)), mu = 100, rho = 1.4, eta0 = 1e-5, eps = 1e-4, r = 15;
+    factor width d = min(T, 3J) by default ("lsj": the thesis' round(1.2 rank), at least
+    r + 1).
 
     Parameters
     ----------
     r, d, lam, mu, rho, eta, eta_max, tol, max_iter : see above (None = thesis rule).
-    detect, threshold_cm, keep_observed : as :class:`TSMC`.
+    detect, threshold_cm, keep_observed, unit_cm : as :class:`TSMC`.
     """
 
     name = "trnn"
     description = "thesis truncated nuclear norm + sparse error + smoothness, single-loop ALM with DCT M-step"
 
-    def __init__(self, r: int = 15, d: int | None = None, lam: float | None = None,
+    def __init__(self, r: int = 15, d: int | str | None = None, lam: float | None = None,
                  mu: float = 100.0, rho: float = 1.4, eta: float = 1e-5, eta_max: float = 1e6,
                  tol: float = 1e-4, max_iter: int = 500, detect: bool = False,
-                 threshold_cm: float = 6.0, keep_observed: bool = False, seed: int = 0):
+                 threshold_cm: float = 6.0, keep_observed: bool = False,
+                 unit_cm: float = CMU_UNIT_CM, seed: int = 0):
+        self.unit_cm = unit_cm
         self.r = r
         self.d = d
         self.lam = lam

@@ -559,8 +559,9 @@ def _twist(Q1: np.ndarray, b_axis: np.ndarray, A: np.ndarray, B: np.ndarray) -> 
     W = B - np.einsum("tki,ti->tk", B, n)[..., None] * n[:, None, :]
     num = np.einsum("tki,ti->t", np.cross(U, W), n)
     den = np.einsum("tki,tki->t", U, W)
-    scale = np.einsum("tk,tk->t", np.linalg.norm(U, axis=2), np.linalg.norm(W, axis=2))
-    weak = np.hypot(num, den) <= 1e-9 * scale + 1e-300    # nothing off the axis: keep Q1
+    scale = np.einsum("tk,tk->t", np.linalg.norm(A, axis=2), np.linalg.norm(B, axis=2))
+    # (products of) off-axis components at round-off level: no twist information, keep Q1
+    weak = np.hypot(num, den) <= 1e-12 * scale + 1e-300
     theta = np.where(weak, 0.0, np.arctan2(num, den))
     return _axis_angle(n, theta) @ Q1
 
@@ -600,18 +601,24 @@ def _is_cyclic(i, j, k):
 
 
 def _euler_from_matrix(R: np.ndarray, axes: list[int]) -> list[np.ndarray]:
-    """Angles (degrees) of R = R_a1 R_a2 R_a3 for distinct axes; first of two branches."""
+    """Angles (degrees) of R = R_a1(alpha) R_a2(beta) R_a3(gamma), three distinct axes.
+
+    beta from the well-conditioned atan2 form, alpha from the last column, then gamma
+    from the residual rotation (R_a1 R_a2)^T R, so the three angles reproduce R to
+    round-off even next to gimbal lock (where alpha alone is ill-determined and set to 0
+    at exact lock).
+    """
     i, j, k = axes
     s = 1.0 if _is_cyclic(i, j, k) else -1.0
     cb = np.hypot(R[:, i, i], R[:, i, j])
     beta = np.arctan2(s * R[:, i, k], cb)
     alpha = np.arctan2(-s * R[:, j, k], R[:, k, k])
-    gamma = np.arctan2(-s * R[:, i, j], R[:, i, i])
-    lock = cb < 1e-10
-    if lock.any():
-        gamma = np.where(lock, 0.0, gamma)
-        alpha = np.where(lock, np.arctan2(s * R[:, k, j], R[:, j, j]), alpha)
-    return [np.rad2deg(alpha), np.rad2deg(beta), np.rad2deg(gamma)]
+    alpha = np.where(cb < 1e-12, 0.0, alpha)
+    a_deg, b_deg = np.rad2deg(alpha), np.rad2deg(beta)
+    M = np.swapaxes(_axis_rot(i, a_deg) @ _axis_rot(j, b_deg), 1, 2) @ R
+    k1, k2 = (k + 1) % 3, (k + 2) % 3
+    gamma = np.arctan2(M[:, k2, k1], M[:, k1, k1])
+    return [a_deg, b_deg, np.rad2deg(gamma)]
 
 
 def _wrap_near(angle: np.ndarray, ref: np.ndarray) -> np.ndarray:

@@ -42,8 +42,10 @@ matrices (the data-dependent parts are batched).
 """
 from __future__ import annotations
 
+import contextlib
+import functools
 import warnings
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 from scipy import fft as _fft
@@ -57,6 +59,32 @@ __all__ = ["second_difference_matrix", "smooth_solve", "estimate_rank", "soft_th
 # --------------------------------------------------------------------------------------
 # helpers
 # --------------------------------------------------------------------------------------
+_CONTROLLER: Any = None
+
+
+def _one_blas_thread(func: Callable) -> Callable:
+    """Run ``func`` with BLAS limited to one thread (no-op without threadpoolctl).
+
+    Every product here is a pass over a T x 93 matrix or smaller; on 2 shared cores
+    OpenBLAS's spinning threads made a 0.2 s solve take 4.5 s (measured), so the public
+    solvers run single-threaded.
+    """
+    @functools.wraps(func)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        global _CONTROLLER
+        try:
+            if _CONTROLLER is None:
+                from threadpoolctl import ThreadpoolController
+
+                _CONTROLLER = ThreadpoolController()
+            ctx = _CONTROLLER.limit(limits=1, user_api="blas")
+        except ImportError:                              # pragma: no cover
+            ctx = contextlib.nullcontext()
+        with ctx:
+            return func(*args, **kwargs)
+    return wrapper
+
+
 def _prepare(X: Any, mask: Any) -> tuple[np.ndarray, np.ndarray]:
     """Float copy of X with unobserved entries zeroed, and a full bool mask."""
     X = np.array(X, dtype=np.float64, copy=True)
@@ -177,13 +205,14 @@ def _rel(a: float, b: float) -> float:
 
 def _not_converged(name: str, it: int, crit: float, tol: float) -> None:
     warnings.warn(f"{name}: not converged after {it} iterations (criterion {crit:.2e} > "
-                  f"tol {tol:.1e}); raise max_iter or tol", RuntimeWarning, stacklevel=3)
+                  f"tol {tol:.1e}); raise max_iter or tol", RuntimeWarning, stacklevel=4)
 
 
 # --------------------------------------------------------------------------------------
 # bilinear factorisation + sparse error + smoothness (thesis Sec. 4.1)
 # --------------------------------------------------------------------------------------
-def tsmc(X: Any, mask: Any = None, *, rank: int | None = None, alpha: float = 1.0,
+@_one_blas_thread
+def tsmc(X: Any, mask: Any = None, *, rank: int | str | None = None, alpha: float = 1.0,
          beta: float = 100.0, lam1: float = 1e-5, lam2: float = 1e-5, gamma: float = 1.4,
          lam_max: float = 1e10, tol: float = 1e-4, max_iter: int = 500,
          rank_threshold: float = 0.1, seed: int = 0, return_info: bool = False):
@@ -213,8 +242,12 @@ def tsmc(X: Any, mask: Any = None, *, rank: int | None = None, alpha: float = 1.
     Parameters
     ----------
     X : (T, C) data (cm); mask : bool (T, C), True = observed (None: finite entries).
-    rank : k, columns of U and V; default ``min(ceil(1.1 r), C, T)`` with r from
-        :func:`estimate_rank` (eq. 4.15).
+    rank : k, columns of U and V.  ``"lsj"``: the thesis' ``min(ceil(1.1 r), C, T)`` with
+        r from :func:`estimate_rank` (eq. 4.15).  None (default): ``min(C, T)``, the full
+        width -- our decision: on raw (uncentred) mocap matrices the last-jump rank is 2-3
+        (the mean pose dominates sigma_1), and a rank-3 factorisation misses the motion by
+        15+ cm, while the full width lets the nuclear norm choose the rank; measured on CMU
+        05_06 / 02_01 (docs/results/thesis.md).
     alpha, beta, lam1, lam2, gamma, lam_max : thesis settings (Sec. 4.1.3): 1, 100, 1e-5,
         1e-5, 1.4, 1e10.  beta multiplies a squared second difference, so it depends on the
         unit (cm here, as the thesis' RMSE).
@@ -228,9 +261,13 @@ def tsmc(X: Any, mask: Any = None, *, rank: int | None = None, alpha: float = 1.
     """
     X, m = _prepare(X, mask)
     T, C = X.shape
-    if rank is None:
+    if isinstance(rank, str):
+        if rank != "lsj":
+            raise MocapValueError(f"rank must be an int, None or 'lsj', got {rank!r}")
         r = estimate_rank(X, m, rank_threshold)
         k = int(min(np.ceil(1.1 * r), C, T))
+    elif rank is None:
+        k = min(C, T)
     else:
         k = int(rank)
         if k < 1:
@@ -302,7 +339,8 @@ def _orth_max(N: np.ndarray) -> np.ndarray:
     return Qt.T @ P.T
 
 
-def trnn(X: Any, mask: Any = None, *, r: int = 15, d: int | None = None, lam: float | None = None,
+@_one_blas_thread
+def trnn(X: Any, mask: Any = None, *, r: int = 15, d: int | str | None = None, lam: float | None = None,
          mu: float = 100.0, rho: float = 1.4, eta: float = 1e-5, eta_max: float = 1e6,
          tol: float = 1e-4, max_iter: int = 500, rank_threshold: float = 0.1, seed: int = 0,
          return_info: bool = False):
@@ -331,9 +369,10 @@ def trnn(X: Any, mask: Any = None, *, r: int = 15, d: int | None = None, lam: fl
     ----------
     X : (T, C) data (cm); mask : bool (T, C), True = observed.
     r : truncation (singular values left unpenalised); thesis: 15.
-    d : factor width; default ``min(round(1.2 rank), C, T)`` (Sec. 4.2.3) with the rank of
-        :func:`estimate_rank`, raised to at least ``r + 1`` (the model needs r <= rank <= d;
-        our decision, since the last-jump rank of raw mocap matrices is often below 15).
+    d : factor width.  ``"lsj"``: the thesis' ``min(round(1.2 rank), C, T)`` (Sec. 4.2.3)
+        with the rank of :func:`estimate_rank`, raised to at least ``r + 1`` (the model needs
+        r <= rank <= d).  None (default): ``min(C, T)`` -- our decision, as for
+        :func:`tsmc`: the last-jump rank of raw mocap matrices is 2-3, far below r = 15.
     lam : sparse weight, default ``100 / sqrt(max(T, C))`` (Sec. 4.2.3, real data).
     mu, rho, eta, eta_max, tol : thesis settings 100, 1.4, 1e-5, 1e6, 1e-4.
     P and Q start from the top-r singular vectors of the linearly interpolated data (the
@@ -349,10 +388,14 @@ def trnn(X: Any, mask: Any = None, *, r: int = 15, d: int | None = None, lam: fl
     n_small = min(T, C)
     r = int(min(max(int(r), 0), n_small))
     Xlin = X if m.all() else _linear_fill(np.where(m, X, np.nan), m)
-    if d is None:
+    if isinstance(d, str):
+        if d != "lsj":
+            raise MocapValueError(f"d must be an int, None or 'lsj', got {d!r}")
         rk = estimate_rank(Xlin, None, rank_threshold)
         d = int(min(round(1.2 * rk), C, T))
         d = max(d, min(r + 1, n_small))
+    elif d is None:
+        d = n_small
     d = int(min(max(int(d), 1), n_small))
     r = min(r, d)
     if lam is None:
@@ -491,6 +534,7 @@ def _kalman_rts(Xc: np.ndarray, A: np.ndarray, Cm: np.ndarray, Q: np.ndarray, Rd
     return ms, Vsum, Vsum - Vs[-1], Vsum - Vs[0], cross, Vs[0]
 
 
+@_one_blas_thread
 def lds_em_complete(X: Any, mask: Any = None, *, k: int | None = None, max_iter: int = 100,
                     tol: float = 1e-4, min_var: float = 1e-6, return_info: bool = False):
     """Fill missing entries with a linear dynamical system learnt by EM (DynaMMo).
@@ -546,7 +590,6 @@ def lds_em_complete(X: Any, mask: Any = None, *, k: int | None = None, max_iter:
     Q = _psd_floor(np.cov((Zs[1:] - Zs[:-1] @ A.T).T).reshape(k, k), floor)
     Rd = np.maximum(((Xc - Zs @ Cm.T) ** 2).mean(axis=0), floor)
     u0, V0 = Zs[0].copy(), _psd_floor(np.cov(Zs.T).reshape(k, k), floor)
-    nx = max(np.linalg.norm(Xc), 1e-300)
     change = np.inf
     converged = not miss.any()
     it = 0
@@ -568,7 +611,7 @@ def lds_em_complete(X: Any, mask: Any = None, *, k: int | None = None, max_iter:
         if not miss.any():
             break
         new = (ms @ Cm.T)[miss]
-        change = float(np.linalg.norm(new - Xc[miss]) / nx)
+        change = float(np.linalg.norm(new - Xc[miss]) / max(np.linalg.norm(Xc[miss]), 1e-300))
         Xc[miss] = new
         if change < tol:
             converged = True

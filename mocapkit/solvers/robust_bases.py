@@ -55,7 +55,7 @@ from ..errors import MocapValueError
 
 __all__ = ["window_matrix", "lag_covariance", "learn_bases", "choose_k", "welsch",
            "welsch_weight", "window_counts", "coefficients", "overlap_add",
-           "robust_filter", "objective", "dense_quadratic_reference"]
+           "robust_filter", "objective", "dense_quadratic_reference", "WindowProjector"]
 
 
 # ---------------------------------------------------------------------------------------
@@ -281,17 +281,84 @@ def overlap_add(C: np.ndarray, Em: np.ndarray, T: int) -> np.ndarray:
     return acc
 
 
-def objective(Z, Y, alpha, C, n_t, lam: float, p: float) -> float:
-    """J(z, c) of eq. 11/16 at coefficients ``C = Eᵀ z_s`` (the optimal c for z):
-    ``sum alpha rho(z-y) + lam sum_s (||z_s||² - ||c_s||²)`` (E orthonormal)."""
+class WindowProjector:
+    """The composed linear map ``A(z) = sum_s S_sᵀ E Eᵀ S_s z`` (T, L) -> (T, L): the
+    coefficient step ``c_s = Eᵀ z_s`` (eq. 13) followed by the overlap-add of the window
+    reconstructions ``E c_s`` onto the frames (the sum in eq. 14).
+
+    Two exact implementations (same result to rounding):
+
+    * ``'direct'`` -- :func:`coefficients` then :func:`overlap_add`: 4 T M L K flops.
+    * ``'fft'`` -- in the interior of the clip A is a multichannel FIR filter
+      ``A(z)(t) = sum_d H_d z(t+d)``, ``H_d = sum_m E_m E_{m+d}ᵀ`` (|d| < M), whose
+      frequency response is ``Ẽ(f) Ẽ(f)ᴴ`` with ``Ẽ(f) = sum_m E_m e^{-2 pi i f m / N}``.
+      It is applied by overlap-save over blocks of N frames (about 8 L² real flops per
+      frame, independent of K); the 2(M-1) "phantom" windows that the zero-padded
+      convolution adds at each end are then subtracted exactly (their coefficients are
+      computed directly). Faster than ``'direct'`` once K is more than a few tens.
+    * ``'auto'`` -- ``'fft'`` when 4 M K > 8 L and the clip is longer than 4 M, else
+      ``'direct'``.
+    """
+
+    def __init__(self, E: np.ndarray, M: int, L: int, T: int, method: str = "auto"):
+        self.M, self.L, self.T = int(M), int(L), int(T)
+        self.E = np.ascontiguousarray(E, dtype=float)
+        self.Em = _split_bases(self.E, self.M, self.L)
+        K = self.E.shape[1]
+        if method == "auto":
+            method = "fft" if (4 * M * K > 8 * L and T > 4 * M) else "direct"
+        if method not in ("direct", "fft"):
+            raise MocapValueError(f"method must be 'auto', 'direct' or 'fft', got {method!r}")
+        self.method = method
+        if method == "fft":
+            pad = 2 * (M - 1)
+            pow2 = lambda n: 1 << int(np.ceil(np.log2(max(n, 1))))   # noqa: E731
+            N = min(pow2(max(8 * pad, 64)), pow2(T + pad))   # ~8x the overlap, no longer than needed
+            N = max(N, pow2(pad + 1))                        # at least one new frame per block
+            self.N, self.B = N, N - pad
+            Et = np.fft.rfft(self.Em, n=N, axis=0)                      # (F, L, K)
+            self.Hf = Et @ np.conj(Et).transpose(0, 2, 1)               # (F, L, L)
+
+    def __call__(self, Z: np.ndarray) -> np.ndarray:
+        if self.method == "direct":
+            return overlap_add(coefficients(Z, self.Em), self.Em, self.T)
+        M, L, T, N, B = self.M, self.L, self.T, self.N, self.B
+        pad = M - 1
+        nb = -(-T // B)
+        Zp = np.zeros((nb * B + 2 * pad, L))
+        Zp[pad:pad + T] = Z
+        blocks = np.lib.stride_tricks.as_strided(
+            Zp, shape=(nb, N, L), strides=(B * Zp.strides[0], Zp.strides[0], Zp.strides[1]),
+            writeable=False)
+        Xf = np.fft.rfft(blocks, axis=1)                                # (nb, F, L)
+        Yf = (self.Hf @ Xf.transpose(1, 2, 0)).transpose(2, 0, 1)       # (nb, F, L)
+        y = np.fft.irfft(Yf, n=N, axis=1)[:, pad:pad + B]               # (nb, B, L)
+        acc = y.reshape(nb * B, L)[:T].copy()
+        if pad:
+            # subtract the phantom windows starting at -(M-1)..-1 and T-M+1..T-1
+            Zq = np.zeros((T + 2 * pad, L))
+            Zq[pad:pad + T] = Z
+            for lo, sl_buf, sl_acc in ((0, slice(pad, 2 * pad), slice(0, pad)),
+                                       (T, slice(0, pad), slice(T - pad, T))):
+                buf = Zq[lo:lo + 2 * pad]
+                Cph = coefficients(buf, self.Em)                        # (M-1, K)
+                acc[sl_acc] -= overlap_add(Cph, self.Em, 2 * pad)[sl_buf]
+        return acc
+
+
+def objective(Z, Y, alpha, A, n_t, lam: float, p: float) -> float:
+    """J(z, c) of eq. 11/16 at the optimal coefficients ``c_s = Eᵀ z_s``, given
+    ``A = WindowProjector(z)``: ``sum alpha rho(z-y) + lam (sum_t n_t ||z_t||² - sum_t z_t·A_t)``
+    (E orthonormal, so ``||z_s - E c_s||² = ||z_s||² - ||c_s||²`` and
+    ``sum_s ||c_s||² = sum_t z_t·A(z)_t``)."""
     data = float(np.sum(welsch(np.where(alpha, Z - Y, 0.0), p)))
-    prior = float(n_t @ np.einsum("tl,tl->t", Z, Z) - np.einsum("sk,sk->", C, C))
+    prior = float(n_t @ np.einsum("tl,tl->t", Z, Z) - np.einsum("tl,tl->", Z, A))
     return data + lam * max(prior, 0.0)
 
 
 def robust_filter(Y: np.ndarray, E: np.ndarray, M: int, *, mask: np.ndarray | None = None,
                   lam: float = 0.1, p: float = 3.0, max_iter: int = 20, tol: float = 1e-4,
-                  Z0: np.ndarray | None = None, return_info: bool = False):
+                  Z0: np.ndarray | None = None, method: str = "auto", return_info: bool = False):
     """Robust filtering with filter bases (Lou & Chai 2010, eqs. 11-16; module doc).
 
     Parameters
@@ -308,8 +375,10 @@ def robust_filter(Y: np.ndarray, E: np.ndarray, M: int, *, mask: np.ndarray | No
     Z0 : (T, L) initial motion; default Y with missing entries linearly interpolated
         in time (channels never observed start at 0, i.e. the training mean if Y is
         centred).
-    return_info : also return a dict with ``cost`` (J per iteration, non-increasing),
-        ``n_iter`` and ``weights`` (final alpha * w, (T, L)).
+    method : implementation of the coefficient + overlap-add step, see
+        :class:`WindowProjector` (``'auto'``, ``'direct'``, ``'fft'``).
+    return_info : also return a dict with ``cost`` (J before each motion step and at
+        the end; non-increasing), ``n_iter`` and ``weights`` (alpha * w of the last step).
 
     Returns
     -------
@@ -333,7 +402,7 @@ def robust_filter(Y: np.ndarray, E: np.ndarray, M: int, *, mask: np.ndarray | No
         raise MocapValueError(f"lam must be positive, got {lam!r}")
     if not p > 0:
         raise MocapValueError(f"Welsch p must be positive (or inf), got {p!r}")
-    Em = _split_bases(np.asarray(E, dtype=float), M, L)
+    proj = WindowProjector(np.asarray(E, dtype=float), M, L, T, method)
     Yf = np.where(alpha, Y, 0.0)
     if Z0 is None:
         Z = fill_gaps_linear(Y, alpha) if not alpha.all() else Yf.copy()
@@ -345,22 +414,18 @@ def robust_filter(Y: np.ndarray, E: np.ndarray, M: int, *, mask: np.ndarray | No
     two_lam_n = (2.0 * lam * n_t)[:, None]
     a = alpha.astype(float)
     costs: list[float] = []
-    w = np.ones((T, L))
-    for it in range(max(1, int(max_iter))):
-        C = coefficients(Z, Em)                                   # eq. 13
-        J = objective(Z, Yf, alpha, C, n_t, lam, p)
-        if costs and abs(costs[-1] - J) <= tol * max(abs(costs[-1]), 1e-300):
-            costs.append(J)
-            break
+    w = a.copy()
+    for it in range(max(1, int(max_iter)) + 1):
+        A = proj(Z)                                               # eqs. 13-14
+        J = objective(Z, Yf, alpha, A, n_t, lam, p)
+        done = bool(costs) and abs(costs[-1] - J) <= tol * max(abs(costs[-1]), 1e-300)
         costs.append(J)
-        acc = overlap_add(C, Em, T)                               # eq. 14
-        w = 0.5 * a * welsch_weight(Z - Yf, p)                    # eq. 15 (IRLS weights)
-        Z = (w * Yf + 2.0 * lam * acc) / (w + two_lam_n)          # (*)
-    else:
-        C = coefficients(Z, Em)
-        costs.append(objective(Z, Yf, alpha, C, n_t, lam, p))
+        if done or it == max(1, int(max_iter)):
+            break
+        w = a * welsch_weight(Z - Yf, p)                          # eq. 15 (IRLS weights)
+        Z = (0.5 * w * Yf + 2.0 * lam * A) / (0.5 * w + two_lam_n)   # (*)
     if return_info:
-        return Z, {"cost": np.array(costs), "n_iter": len(costs) - 1, "weights": 2.0 * w}
+        return Z, {"cost": np.array(costs), "n_iter": len(costs) - 1, "weights": w}
     return Z
 
 

@@ -1,0 +1,474 @@
+"""Example-based robust filter bases: ``lou-chai`` (Lou & Chai 2010, seed 001).
+
+The maths (M-SSA bases, Welsch robust objective, alternating coefficient / IRLS motion
+updates, missing data) lives in :mod:`mocapkit.solvers.robust_bases`; this module turns
+motions into the (T, L) arrays it works on and back.
+"""
+from __future__ import annotations
+
+from typing import Any, Sequence
+
+import numpy as np
+
+from .. import signal
+from ..bodyframe import BodyTransform, body_transform, mirror_local, mirror_permutation, up_axis_of
+from ..errors import MocapValueError
+from ..motion import Motion
+from ..solvers import robust_bases as rb
+from .base import Denoiser, register
+
+__all__ = ["LouChai", "angle_channels", "angle_fk", "decimate"]
+
+REFERENCE_HEIGHT_CM = 170.0
+"""Body-frame positions are scaled to a person of this skeleton height (``normalize``)."""
+
+
+# ---------------------------------------------------------------------------------------
+# helpers usable by protocols
+# ---------------------------------------------------------------------------------------
+def decimate(motion: Motion, factor: int, phase: int = 0) -> Motion:
+    """Every ``factor``-th frame starting at ``phase`` (fps / factor), keeping the
+    per-frame reader data (``source['per_frame']``) aligned -- unlike
+    :meth:`Motion.resample`, which drops it. 120 -> 30 fps is ``decimate(m, 4)``, the
+    paper's down-sampling (Sec. 4)."""
+    factor, phase = int(factor), int(phase)
+    if factor < 1 or not 0 <= phase < factor:
+        raise MocapValueError(f"decimate: need factor >= 1 and 0 <= phase < factor, got {factor}, {phase}")
+    if factor == 1:
+        return motion
+    if phase >= motion.n_frames:
+        raise MocapValueError(f"decimate: phase {phase} beyond a {motion.n_frames}-frame clip")
+    src = dict(motion.source)
+    if "per_frame" in src:
+        src["per_frame"] = {k: np.asarray(v)[phase::factor] for k, v in src["per_frame"].items()}
+    src["decimated_from_fps"] = motion.fps
+    return Motion(motion.positions[phase::factor], motion.skeleton, motion.fps / factor,
+                  motion.observed[phase::factor], src)
+
+
+def angle_channels(motion: Motion) -> tuple[np.ndarray, list[str], dict[str, Any]]:
+    """Joint-angle channels of a motion read from AMC or BVH.
+
+    Returns (values (T, C) in file units -- degrees or radians, and file length units for
+    root translations --, channel names, info) where info holds ``key`` (the
+    ``source['per_frame']`` key: ``'dofs'`` for AMC, ``'channels'`` for BVH),
+    ``rotation`` (bool (C,), rotation channels), ``period`` (360 or 2 pi) and ``root``
+    (bool (C,), channels of the root node).
+    """
+    src = motion.source
+    fmt = src.get("format")
+    pf = src.get("per_frame", {})
+    if fmt in ("amc", "asf") and "dofs" in pf:
+        vals = np.asarray(pf["dofs"], dtype=float)
+        names = [str(n) for n in src.get("dof_names", [])]
+        rad = src.get("amc", {}).get("angle") == "rad"
+        rot = np.array([n.split(".")[-1].upper().startswith("R") for n in names])
+        root = np.array([n.split(".")[0] == "root" for n in names])
+        key = "dofs"
+    elif fmt == "bvh" and "channels" in pf:
+        vals = np.asarray(pf["channels"], dtype=float)
+        nodes = src["bvh"]["nodes"]
+        names, rot, root = [], [], []
+        for nd in nodes:
+            for ch in nd["channels"]:
+                names.append(f"{nd['name']}.{ch}")
+                rot.append(ch.lower().endswith("rotation"))
+                root.append(int(nd["parent"]) < 0)
+        rot, root = np.array(rot, bool), np.array(root, bool)
+        rad = False
+        key = "channels"
+    else:
+        raise MocapValueError(
+            "lou-chai: space='angle' needs a motion read from AMC or BVH that still carries its "
+            "joint-angle channels (source['per_frame']); this one has none (resampling or "
+            "selecting joints drops them) -- use space='position'")
+    if vals.ndim != 2 or vals.shape[0] != motion.n_frames or len(names) != vals.shape[1]:
+        raise MocapValueError("lou-chai: the motion's joint-angle channels do not match its frames")
+    return vals, names, {"key": key, "rotation": rot, "root": root,
+                         "period": 2 * np.pi if rad else 360.0}
+
+
+def angle_fk(motion: Motion, values: np.ndarray) -> np.ndarray:
+    """Joint positions (T, J, 3) cm of ``motion``'s skeleton driven by joint-angle
+    channels ``values`` (T, C) (same layout as :func:`angle_channels`), through the
+    reader's own forward kinematics.
+
+    Uses the readers' FK internals (``asfamc._Compiled`` / ``asfamc.forward_kinematics``,
+    ``bvh._meta_to_nodes`` / ``bvh.forward_kinematics``): the readers expose no public
+    "FK of new channel values" function yet.
+    """
+    src = motion.source
+    fmt = src.get("format")
+    values = np.asarray(values, dtype=float)
+    if fmt in ("amc", "asf"):
+        from ..io import asfamc
+
+        comp = asfamc._Compiled(src["asf"])
+        rad = src.get("amc", {}).get("angle") == "rad"
+        return asfamc.forward_kinematics(comp, values, rad, float(src["units"]["cm_per_unit"]))
+    if fmt == "bvh":
+        from ..io import bvh
+
+        nodes = bvh._meta_to_nodes(src["bvh"]["nodes"])
+        X, _ = bvh.forward_kinematics(nodes, values)
+        keep = list(src["bvh"]["joint_nodes"])
+        return X[:, keep] * float(src["units"]["factor_to_cm"])
+    raise MocapValueError(f"lou-chai: no forward kinematics for format {fmt!r}")
+
+
+def _skeleton_height(motion: Motion, up: int) -> float:
+    """Rest-pose extent of the skeleton along the vertical axis (cm); falls back to the
+    motion's own height estimate."""
+    rest = motion.skeleton.rest_positions()
+    h = float(np.ptp(rest[:, up])) if motion.n_joints > 1 else 0.0
+    if not (np.isfinite(h) and h > 1.0):
+        h = motion.height()
+    return h if (np.isfinite(h) and h > 1.0) else REFERENCE_HEIGHT_CM
+
+
+def _smooth_trend(V: np.ndarray, fps: float, smooth_s: float) -> np.ndarray:
+    """Robust slow trend of (T, k) tracks: running median (smooth_s) then Gaussian
+    (sigma smooth_s / 2), as the body frame's origin (:mod:`mocapkit.bodyframe`)."""
+    T = V.shape[0]
+    if smooth_s <= 0 or T < 3:
+        return V.copy()
+    w = max(3, int(round(smooth_s * fps)) | 1)
+    w = min(w, T if T % 2 else T - 1)
+    if w >= 3:
+        V = signal.median(V, window=w)
+    return signal.gaussian(V, sigma=max(0.5 * smooth_s * fps, 0.5))
+
+
+# ---------------------------------------------------------------------------------------
+@register
+class LouChai(Denoiser):
+    """Example-based robust filter bases (Lou & Chai 2010, IEEE TVCG 16(5), seed 001).
+
+    Training (Sec. 3.1, eqs. 1-7): per channel lagged windows of M frames, grand
+    lag-covariance of all channels over all training clips (eqs. 3-5, accumulated without
+    forming the trajectory matrices, :func:`mocapkit.solvers.robust_bases.lag_covariance`),
+    eigenvectors = filter bases E; K kept for ``energy`` of the eigenvalue sum (99%) or
+    ``n_bases``.
+
+    Denoising (Secs. 3.3-3.5): minimise ``sum alpha rho(z - y) + lam sum_s ||z_s - E c_s||²``
+    (eqs. 11/16) with the Welsch rho (eq. 9), alternating c_s = Eᵀ z_s (eq. 13) and a
+    per-frame closed-form IRLS weighted average (eqs. 14-15) until the relative cost
+    change is below ``tol`` (paper: 10-20 iterations). Missing entries get alpha = 0
+    (eq. 16) and start from linear interpolation in time (a joint never observed starts
+    at the training mean). See :mod:`mocapkit.solvers.robust_bases` (it also explains
+    the factor ½ of eq. 15).
+
+    Representation (decisions; METHODS.md Sec. 1):
+
+    * ``space='position'`` (default): joint positions in the body-centred frame
+      (:mod:`mocapkit.bodyframe`: smoothed root subtracted, smoothed heading from the
+      hips rotated out; ``frame='global'`` skips it -- measured useless), scaled to a
+      170 cm skeleton (``normalize``; different CMU subjects then share one model --
+      trained on several subjects, it is the paper's "large walking database" setting),
+      centred by the training mean (``center``; so that the 99% energy counts motion,
+      not the mean pose). The transform is estimated from the noisy input itself and
+      inverted exactly, so the output has the input's trajectory and heading.
+    * ``space='angle'``: the joint-angle channels of AMC (``source['per_frame']['dofs']``)
+      or BVH (``['channels']``) input, degrees, unwrapped; the root translation and the
+      root rotation about the vertical axis are global, so their robust slow trend
+      (median + Gaussian over ``smooth_s``) is removed before and added back after (the
+      angle-space analogue of the body frame). Positions then come from the reader's
+      forward kinematics and the output carries the denoised channels in
+      ``source['per_frame']`` (so writing it back keeps them). Needs a complete motion.
+
+    Units of ``p``: the paper sets p = 3 for joint angles in degrees and leaves position
+    units unstated. Decision: ``p`` is in cm (position space, of the 170 cm reference
+    body, i.e. scaled with the skeleton like the data) and in degrees (angle space).
+    3 cm sits at about 1.5-3x typical marker noise (1-2 cm), so noise keeps weights near
+    1 and 15 cm spikes get weight exp(-25) ~ 0. ``lam`` is unitless (the data term is
+    rho ~ r²/2 near 0 in the same units as the prior).
+
+    Data rate (decision): the bases are learned at ``fps`` (default 30, the paper's
+    rate: Sec. 4 down-samples 120 -> 30 fps; M = 20 frames = 0.67 s). A clip whose
+    rate is an integer multiple r of ``fps`` (120 = 4 x 30) is split into its r
+    interleaved phases (frames t, t+r, t+2r, ...), each a genuine ``fps`` clip, which are
+    filtered separately and interleaved again -- no interpolation, every input sample is
+    used, and training clips contribute all r phases. Other rates are resampled to
+    ``fps`` (cubic spline) and the result is interpolated back (position space only).
+    ``fps=None`` uses the training clips' own rate as is (then M is in those frames).
+
+    Parameters
+    ----------
+    window : M, frames at ``fps`` (paper: 20).
+    energy : eigenvalue fraction kept (paper: 0.99).
+    n_bases : fixed K instead of ``energy``.
+    lam : weight of the bases term (paper: 0.1).
+    p : Welsch scale (paper: 3), cm or degrees (above); ``float('inf')`` = least squares.
+    max_iter, tol : outer iterations (paper: 10-20) and relative cost change to stop.
+    space : ``'position'`` or ``'angle'``.
+    fps : working frame rate of the bases (above).
+    frame : ``'body'`` or ``'global'`` (position space).
+    smooth_s : time scale (s) of the body frame / root trend smoothing (0.5).
+    normalize : scale body-frame positions by 170 cm / skeleton height.
+    center : subtract the training mean of each channel.
+    method : ``'auto'`` | ``'direct'`` | ``'fft'`` implementation of the coefficient and
+        overlap-add step (identical results; :class:`~mocapkit.solvers.robust_bases.WindowProjector`).
+
+    Fitted attributes: ``bases_`` (M*L, K), ``eigvals_`` (M*L,), ``mean_`` (L,),
+    ``window_``, ``fps_`` (0 = input rate), ``space_``, ``up_axis_``, ``joint_names_``,
+    ``channel_names_`` (angle space), ``n_windows_``, ``n_frames_``.
+    """
+
+    name = "lou-chai"
+    description = ("Lou & Chai 2010 example-based robust filter bases (M-SSA bases learned from clean "
+                   "clips + Welsch IRLS; fills gaps)")
+    needs_training = True
+    keeps_observed = False
+    #: trained on 2 s of one walk, a clean continuation comes back within ~1-2 cm: the
+    #: bases term projects out what the few training windows did not contain
+    clean_tolerance_cm = 2.5
+
+    def __init__(self, window: int = 20, energy: float = 0.99, n_bases: int | None = None,
+                 lam: float = 0.1, p: float = 3.0, max_iter: int = 20, tol: float = 1e-4,
+                 space: str = "position", fps: float | None = 30.0, frame: str = "body",
+                 smooth_s: float = 0.5, normalize: bool = True, center: bool = True,
+                 mirror: bool = False, method: str = "auto"):
+        self.window = window
+        self.energy = energy
+        self.n_bases = n_bases
+        self.lam = lam
+        self.p = p
+        self.max_iter = max_iter
+        self.tol = tol
+        self.space = space
+        self.fps = fps
+        self.frame = frame
+        self.smooth_s = smooth_s
+        self.normalize = normalize
+        self.center = center
+        self.mirror = mirror
+        self.method = method
+
+    @classmethod
+    def quick_params(cls) -> dict[str, Any]:
+        return {"window": 10, "max_iter": 10}
+
+    # -- parameter checks ------------------------------------------------------------------
+    def _check_params(self) -> None:
+        if self.space not in ("position", "angle"):
+            raise MocapValueError(f"lou-chai: space must be 'position' or 'angle', got {self.space!r}")
+        if self.frame not in ("body", "global"):
+            raise MocapValueError(f"lou-chai: frame must be 'body' or 'global', got {self.frame!r}")
+        w = self.window
+        if isinstance(w, bool) or not isinstance(w, (int, np.integer)) or w < 1:
+            raise MocapValueError(f"lou-chai: window must be a positive integer number of frames, got {w!r}")
+        if self.fps is not None and not (np.isfinite(float(self.fps)) and float(self.fps) > 0):
+            raise MocapValueError(f"lou-chai: fps must be positive or None, got {self.fps!r}")
+        for k in ("lam", "p"):
+            v = float(getattr(self, k))
+            if not v > 0:
+                raise MocapValueError(f"lou-chai: {k} must be positive, got {getattr(self, k)!r}")
+        if float(self.smooth_s) < 0:
+            raise MocapValueError(f"lou-chai: smooth_s must be >= 0 seconds, got {self.smooth_s!r}")
+
+    # -- rate handling -------------------------------------------------------------------
+    @staticmethod
+    def _ratio(fps_in: float, fps_model: float) -> int | None:
+        """Integer r with fps_in = r * fps_model, else None."""
+        r = fps_in / fps_model
+        ri = int(round(r))
+        return ri if ri >= 1 and abs(r - ri) <= 1e-3 * max(r, 1.0) else None
+
+    def _phases(self, motion: Motion, model_fps: float) -> list[Motion] | None:
+        r = self._ratio(motion.fps, model_fps)
+        if r is None:
+            return None
+        return [decimate(motion, r, k) for k in range(min(r, motion.n_frames))]
+
+    # -- representation ------------------------------------------------------------------------
+    def _to_array(self, motion: Motion, up: int):
+        """(Y (T, L) uncentred, mask (T, L), context for :meth:`_from_array`)."""
+        if self.space == "position":
+            if self.frame == "body":
+                tr = body_transform(motion, smooth_s=float(self.smooth_s), up_axis=up)
+            else:
+                T = motion.n_frames
+                tr = BodyTransform(np.zeros((T, 3)), np.broadcast_to(np.eye(3), (T, 3, 3)).copy(), up,
+                                   np.zeros(T))
+            s = REFERENCE_HEIGHT_CM / _skeleton_height(motion, up) if self.normalize else 1.0
+            local = tr.to_local(motion.positions) * s
+            return (local.reshape(motion.n_frames, -1), motion.matrix_mask(), (tr, s))
+        vals, names, info = angle_channels(motion)
+        if not motion.observed.all():
+            raise MocapValueError("lou-chai: space='angle' needs a complete motion (joint angles "
+                                  "have no missing-data mask); use space='position' for gaps")
+        V = vals.copy()
+        rot = info["rotation"]
+        V[:, rot] = np.unwrap(V[:, rot], axis=0, period=info["period"])
+        glob = info["root"] & ~rot
+        names_l = [n.lower() for n in names]
+        up_letter = "xyz"[up]
+        for c, n in enumerate(names_l):
+            if info["root"][c] and rot[c] and (n.endswith(f".r{up_letter}") or n.endswith(f".{up_letter}rotation")):
+                glob[c] = True
+        trend = np.zeros_like(V)
+        if glob.any():
+            trend[:, glob] = _smooth_trend(V[:, glob], motion.fps, float(self.smooth_s))
+        return V - trend, np.ones_like(V, dtype=bool), (trend, names, info)
+
+    def _from_array(self, motion: Motion, Z: np.ndarray, ctx) -> Motion:
+        if self.space == "position":
+            tr, s = ctx
+            P = tr.to_world(Z.reshape(motion.n_frames, -1, 3) / s)
+            return motion.with_positions(P)
+        trend, names, info = ctx
+        V = Z + trend
+        P = angle_fk(motion, V)
+        out = motion.with_positions(P)
+        pf = dict(out.source.get("per_frame", {}))
+        pf[info["key"]] = V
+        return out.with_source(per_frame=pf)
+
+    # -- training ----------------------------------------------------------------------------
+    def fit(self, motions: Sequence[Motion]) -> "LouChai":
+        self._check_params()
+        motions = list(motions)
+        if not motions:
+            raise MocapValueError("lou-chai: fit() needs at least one clean training motion")
+        first = motions[0]
+        for m in motions:
+            if not isinstance(m, Motion):
+                raise MocapValueError(f"lou-chai: fit() takes Motion objects, got {type(m).__name__}")
+            if m.skeleton.names != first.skeleton.names:
+                raise MocapValueError(
+                    "lou-chai: training motions must share the joint names "
+                    f"({first.n_joints} joints {', '.join(first.skeleton.names[:3])}, ... vs "
+                    f"{m.n_joints} joints {', '.join(m.skeleton.names[:3])}, ...)")
+            if not m.observed.all():
+                raise MocapValueError(f"lou-chai: training motion {m!r} has missing entries; fill them first")
+        model_fps = float(self.fps) if self.fps is not None else float(first.fps)
+        if self.fps is None and any(not np.isclose(m.fps, first.fps) for m in motions):
+            raise MocapValueError("lou-chai: with fps=None all training motions need one frame rate")
+        up = up_axis_of(np.concatenate([m.positions[:: max(1, m.n_frames // 200)] for m in motions]))
+        arrays, channel_names = [], None
+        for m in motions:
+            parts = self._phases(m, model_fps)
+            if parts is None:
+                if self.space == "angle":
+                    raise MocapValueError(
+                        f"lou-chai: space='angle' needs training clips at a multiple of {model_fps:g} fps "
+                        f"(got {m.fps:g})")
+                parts = [m.resample(model_fps)]
+            for part in parts:
+                Y, _, ctx = self._to_array(part, up)
+                if self.space == "angle":
+                    names = ctx[1]
+                    if channel_names is None:
+                        channel_names = names
+                    elif names != channel_names:
+                        raise MocapValueError("lou-chai: training motions have different joint-angle channels")
+                arrays.append(Y)
+                if self.mirror and self.space == "position":
+                    perm = mirror_permutation(part.skeleton)
+                    if perm is None:
+                        raise MocapValueError("lou-chai: mirror=True needs every left joint to have a "
+                                              "right partner (by name)")
+                    T = Y.shape[0]
+                    arrays.append(mirror_local(Y.reshape(T, -1, 3), perm, up).reshape(T, -1))
+        L = arrays[0].shape[1]
+        M = int(self.window)
+        if max(len(a) for a in arrays) < M:
+            raise MocapValueError(
+                f"lou-chai: training clips are shorter than the window (M = {M} frames at "
+                f"{model_fps:g} fps); give longer clips or a smaller window")
+        mean = np.concatenate(arrays).mean(axis=0) if self.center else np.zeros(L)
+        E, ev, S = rb.learn_bases([a - mean for a in arrays], M, energy=self.energy, n_bases=self.n_bases)
+        self.bases_ = E
+        self.eigvals_ = ev
+        self.mean_ = mean
+        self.window_ = M
+        self.fps_ = model_fps if self.fps is not None else 0.0
+        self.space_ = self.space
+        self.up_axis_ = int(up)
+        self.joint_names_ = list(first.skeleton.names)
+        self.channel_names_ = list(channel_names) if channel_names else []
+        self.n_windows_ = int(S)
+        self.n_frames_ = int(sum(len(a) for a in arrays))
+        return self
+
+    @property
+    def n_bases_(self) -> int:
+        return int(np.asarray(self.bases_).shape[1])
+
+    # -- denoising -----------------------------------------------------------------------------
+    def _solve(self, Y: np.ndarray, mask: np.ndarray, return_info: bool = False):
+        """Robust filter of centred (T, L) data; pads clips shorter than M with missing frames."""
+        M = int(self.window_)
+        T = Y.shape[0]
+        Yc = Y - np.asarray(self.mean_)
+        if T < M:
+            Yc = np.concatenate([Yc, np.full((M - T, Yc.shape[1]), np.nan)])
+            mask = np.concatenate([mask, np.zeros((M - T, mask.shape[1]), bool)])
+        out = rb.robust_filter(Yc, np.asarray(self.bases_), M, mask=mask, lam=float(self.lam),
+                               p=float(self.p), max_iter=int(self.max_iter), tol=float(self.tol),
+                               method=self.method, return_info=return_info)
+        Z, info = out if return_info else (out, None)
+        Z = Z[:T] + np.asarray(self.mean_)
+        return (Z, info) if return_info else Z
+
+    def _denoise_at_rate(self, motion: Motion) -> Motion:
+        Y, mask, ctx = self._to_array(motion, int(self.up_axis_))
+        if not mask.any():
+            raise MocapValueError("lou-chai: the clip has no observed entry at all")
+        return self._from_array(motion, self._solve(Y, mask), ctx)
+
+    def denoise(self, motion: Motion) -> Motion:
+        self._check_fitted()
+        self._check_params()
+        if self.space != self.space_:
+            raise MocapValueError(f"lou-chai: the model was trained in space={self.space_!r}, "
+                                  f"not {self.space!r}")
+        if list(motion.skeleton.names) != list(self.joint_names_):
+            raise MocapValueError(
+                f"lou-chai: the model was trained on a {len(self.joint_names_)}-joint skeleton "
+                f"({', '.join(self.joint_names_[:4])}, ...); this motion has {motion.n_joints} joints "
+                f"({', '.join(motion.skeleton.names[:4])}, ...)")
+        if not motion.observed.any():
+            raise MocapValueError("lou-chai: the clip has no observed joint at all")
+        if self.space_ == "angle":
+            _, names, _ = angle_channels(motion)
+            if names != list(self.channel_names_):
+                raise MocapValueError("lou-chai: the clip's joint-angle channels differ from the model's")
+        model_fps = float(self.fps_) if float(self.fps_) > 0 else motion.fps
+        parts = self._phases(motion, model_fps)
+        if parts is not None and len(parts) == 1:
+            return self._denoise_at_rate(motion)
+        if parts is not None:
+            r = len(parts)
+            outs = [self._denoise_at_rate(pm) for pm in parts]
+            P = np.empty(motion.positions.shape)
+            for k, o in enumerate(outs):
+                P[k::r] = o.positions
+            out = motion.with_positions(P)
+            if self.space_ == "angle":
+                key = outs[0].source["per_frame"]
+                pf = dict(motion.source.get("per_frame", {}))
+                for name in key:
+                    V = np.empty((motion.n_frames,) + np.shape(key[name])[1:])
+                    for k, o in enumerate(outs):
+                        V[k::r] = o.source["per_frame"][name]
+                    pf[name] = V
+                out = out.with_source(per_frame=pf)
+            return out
+        if self.space_ == "angle":
+            raise MocapValueError(
+                f"lou-chai: space='angle' needs a clip at a multiple of the model's {model_fps:g} fps "
+                f"(got {motion.fps:g})")
+        # other rates: resample to the model rate, filter, interpolate back
+        from scipy.interpolate import CubicSpline
+
+        low = motion.resample(model_fps)
+        if low.n_frames < 2:
+            return self._denoise_at_rate(motion.with_source())
+        den = self._denoise_at_rate(low)
+        t_low = np.arange(low.n_frames) / model_fps
+        t = np.clip(np.arange(motion.n_frames) / motion.fps, 0, t_low[-1])
+        Pl = den.positions.reshape(low.n_frames, -1)
+        P = CubicSpline(t_low, Pl, axis=0)(t) if low.n_frames >= 4 else \
+            np.stack([np.interp(t, t_low, Pl[:, c]) for c in range(Pl.shape[1])], axis=1)
+        return motion.with_positions(P.reshape(motion.positions.shape))

@@ -1,0 +1,214 @@
+"""TRC (OpenSim / Motion Analysis marker trajectories) reader and writer.
+
+Layout (tab-separated; comma-separated files such as pyomeca's are read too)::
+
+    PathFileType  4  (X/Y/Z)  <name>
+    DataRate  CameraRate  NumFrames  NumMarkers  Units  OrigDataRate  OrigDataStartFrame  OrigNumFrames
+    100       100         652        51          mm     100           1                   652
+    Frame#  Time  M1        M2 ...            (each name followed by two empty cells)
+                  X1 Y1 Z1  X2 Y2 Z2 ...
+    <blank line>
+    1  0.00  x y z  x y z ...
+
+* Units ``mm``/``cm``/``m`` (also spelled out) are converted to **cm**.
+* A marker whose three cells are empty (or ``NaN``, as OpenSim writes) is missing in
+  that frame (``observed`` False). Rows may omit trailing empty cells only in whole
+  markers; a row cut inside a marker, text that is not a number, or ``inf`` is an
+  error naming the line.
+* ``fps`` is ``DataRate`` (else ``CameraRate``, else derived from the Time column).
+* A ``NumFrames``/``NumMarkers`` header that disagrees with the data is *reported*
+  (``motion.source['warnings']``), not fatal, when every data row is complete: real files
+  do this (``markers/pyomeca/markers.trc`` declares 652 frames and holds 93).
+* Markers have no hierarchy: the skeleton is a marker set (every parent -1, offsets 0).
+* ``Frame#`` and ``Time`` are kept in ``source['per_frame']`` (``frame``, ``time``).
+
+The writer writes OpenSim's layout: tab-separated, millimetres by default
+(``units='mm'|'cm'|'m'``), empty cells for missing markers, 6 decimals in the chosen
+unit (1e-6 mm = 1e-7 cm), atomically.
+"""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import MocapFormatError, MocapValueError
+from ..motion import Motion
+from ..skeleton import Skeleton
+from ._atomic import atomic_write
+from ._text import float_rows, read_text
+
+__all__ = ["read", "write", "UNITS"]
+
+#: unit spelling -> factor to cm
+UNITS = {"mm": 0.1, "millimeters": 0.1, "millimetres": 0.1, "cm": 1.0, "centimeters": 1.0,
+         "centimetres": 1.0, "m": 100.0, "meters": 100.0, "metres": 100.0}
+
+
+def _split(line: str, sep: str) -> list[str]:
+    return [c.strip() for c in line.rstrip("\r\n").split(sep)]
+
+
+def read(path: str | os.PathLike, *, units: str | None = None) -> Motion:
+    """Read a TRC file (positions in cm; see the module docstring).
+
+    ``units`` overrides the file's Units field (e.g. for a file that lacks it).
+    """
+    path = Path(path)
+    lines = read_text(path).splitlines()
+    if not lines or not lines[0].strip():
+        raise MocapFormatError(path, "empty file; expected a TRC header starting with 'PathFileType'", 1)
+    if not lines[0].lstrip().lower().startswith("pathfiletype"):
+        raise MocapFormatError(path, f"expected 'PathFileType' on the first line of a TRC file, found "
+                                     f"{lines[0][:40]!r}", 1)
+    sep = "\t" if "\t" in lines[0] else ","
+    if len(lines) < 5:
+        raise MocapFormatError(path, "truncated TRC header (expected 5 header lines: PathFileType, "
+                                     "keys, values, marker names, X1/Y1/Z1)", len(lines))
+    keys = [k for k in _split(lines[1], sep)]
+    vals = _split(lines[2], sep)
+    header = {k.lower(): v for k, v in zip(keys, vals) if k}
+    if "nummarkers" not in header and "datarate" not in header:
+        raise MocapFormatError(path, f"line 2 should hold the header keys (DataRate ... NumMarkers ... "
+                                     f"Units), found {lines[1][:60]!r}", 2)
+    names_row = _split(lines[3], sep)
+    if len(names_row) < 2 or names_row[0].lower() not in ("frame#", "frame"):
+        raise MocapFormatError(path, f"line 4 should start with 'Frame#' and 'Time', found "
+                                     f"{lines[3][:40]!r}", 4)
+    # marker names: every non-empty cell after Frame#, Time
+    cells = names_row[2:]
+    names, cols = [], []
+    for i, c in enumerate(cells):
+        if c:
+            names.append(c)
+            cols.append(i)
+    if not names:
+        raise MocapFormatError(path, "no marker names on line 4", 4)
+    bad = [n for n, c in zip(names, cols) if c % 3 != 0]
+    if bad:
+        raise MocapFormatError(path, f"marker name {bad[0]!r} is not aligned on an X/Y/Z triple "
+                                     f"(each name must be followed by two empty cells)", 4)
+    if len(set(names)) != len(names):
+        dup = sorted({n for n in names if names.count(n) > 1})
+        raise MocapFormatError(path, f"duplicate marker names: {', '.join(dup)}", 4)
+    M = len(names)
+    order = [c // 3 for c in cols]                    # triple index of each name
+    n_triples = max(order) + 1
+    warnings: list[str] = []
+    # units
+    unit_txt = (units if units is not None else header.get("units", "")).strip().lower()
+    if unit_txt not in UNITS:
+        if units is not None:
+            raise MocapValueError(f"unknown TRC unit {units!r}; use one of mm, cm, m")
+        raise MocapFormatError(path, f"Units {header.get('units', '')!r} not understood; expected mm, cm "
+                                     f"or m (or pass units=)", 3)
+    factor = UNITS[unit_txt]
+    # data rows: skip the X1/Y1/Z1 line and blank lines
+    rows, line_nos = [], []
+    for k in range(5, len(lines)):
+        s = lines[k]
+        if not s.strip() or not s.replace(sep, "").strip():
+            continue
+        rows.append(_split(s, sep))
+        line_nos.append(k + 1)
+    if not rows:
+        raise MocapFormatError(path, "no data rows after the header (empty motion)", len(lines))
+    width = 2 + 3 * n_triples
+    T = len(rows)
+    padded = []
+    for r, ln in zip(rows, line_nos):
+        while len(r) > width and r[-1] == "":
+            r = r[:-1]
+        if len(r) > width:
+            raise MocapFormatError(path, f"expected at most {width} cells (Frame#, Time and {n_triples} "
+                                         f"X/Y/Z triples), found {len(r)}", ln)
+        if len(r) < 2 or (len(r) - 2) % 3 != 0:
+            raise MocapFormatError(path, f"row ends inside a marker triple ({len(r)} cells; expected "
+                                         f"{width}): truncated line?", ln)
+        if r[0] == "" or r[1] == "":
+            raise MocapFormatError(path, "empty Frame# or Time cell", ln)
+        padded.append([c if c else "nan" for c in r] + ["nan"] * (width - len(r)))
+    A = float_rows(padded, line_nos, width, path, "TRC cells (Frame#, Time, X/Y/Z values)",
+                   allow_nan=True)
+    frame_no, times, data = A[:, 0], A[:, 1], A[:, 2:]
+    if not (np.isfinite(frame_no).all() and np.isfinite(times).all()):
+        i = int(np.flatnonzero(~(np.isfinite(frame_no) & np.isfinite(times)))[0])
+        raise MocapFormatError(path, "Frame# and Time must be numbers", line_nos[i])
+    P = data.reshape(T, n_triples, 3)[:, order] * factor
+    observed = np.isfinite(P).all(axis=2)
+    # header checks (reported, not fatal)
+    try:
+        nf = int(float(header.get("numframes", T)))
+        if nf != T:
+            warnings.append(f"header NumFrames={nf} but the file holds {T} complete data rows; "
+                            f"all {T} rows were read")
+    except ValueError:
+        warnings.append(f"header NumFrames {header.get('numframes')!r} is not a number")
+    try:
+        nm = int(float(header.get("nummarkers", M)))
+        if nm != M:
+            warnings.append(f"header NumMarkers={nm} but line 4 names {M} markers")
+    except ValueError:
+        warnings.append(f"header NumMarkers {header.get('nummarkers')!r} is not a number")
+    fps = None
+    for key in ("datarate", "camerarate"):
+        try:
+            v = float(header.get(key, "nan"))
+        except ValueError:
+            v = float("nan")
+        if np.isfinite(v) and v > 0:
+            fps = v
+            break
+    if fps is None:
+        dt = np.diff(times)
+        if len(dt) and np.all(dt > 0):
+            fps = 1.0 / float(np.median(dt))
+            warnings.append("no valid DataRate/CameraRate: fps derived from the Time column")
+        else:
+            raise MocapFormatError(path, "no valid DataRate or CameraRate in the header and no usable "
+                                         "Time column to derive the frame rate", 3)
+    skeleton = Skeleton(tuple(names), -np.ones(M, dtype=int), np.zeros((M, 3)))
+    source = {"path": str(path), "format": "trc",
+              "units": {"name": unit_txt, "factor_to_cm": factor, "chosen_by": "file header" if units is None else "user (units=)"},
+              "header": {k: v for k, v in zip(keys, vals) if k},
+              "per_frame": {"frame": frame_no, "time": times}}
+    if warnings:
+        source["warnings"] = warnings
+    return Motion(P, skeleton, fps, observed, source)
+
+
+def write(motion: Motion, path: str | os.PathLike, *, units: str = "mm") -> None:
+    """Write ``motion`` as a tab-separated TRC file (default millimetres, like OpenSim).
+
+    Missing entries become empty cells. Joint names are used as marker names.
+    """
+    u = str(units).strip().lower()
+    if u not in UNITS:
+        raise MocapValueError(f"unknown TRC unit {units!r}; use mm, cm or m")
+    factor = UNITS[u]
+    label = {0.1: "mm", 1.0: "cm", 100.0: "m"}[factor]
+    bad = [n for n in motion.skeleton.names if any(ch in n for ch in "\t\r\n")]
+    if bad:
+        raise MocapValueError(f"marker names cannot contain tabs or newlines: {bad[:3]}")
+    T, J = motion.n_frames, motion.n_joints
+    X = motion.positions / factor
+    pf = motion.source.get("per_frame", {})
+    times = np.asarray(pf.get("time")) if np.shape(pf.get("time", ())) == (T,) else np.arange(T) / motion.fps
+    frames = np.arange(1, T + 1)
+    p = Path(path)
+
+    def body(f):
+        f.write(f"PathFileType\t4\t(X/Y/Z)\t{p.name}\n")
+        f.write("DataRate\tCameraRate\tNumFrames\tNumMarkers\tUnits\tOrigDataRate\tOrigDataStartFrame\t"
+                "OrigNumFrames\n")
+        f.write(f"{motion.fps:g}\t{motion.fps:g}\t{T}\t{J}\t{label}\t{motion.fps:g}\t1\t{T}\n")
+        f.write("Frame#\tTime\t" + "\t".join(f"{n}\t\t" for n in motion.skeleton.names).rstrip("\t") + "\n")
+        f.write("\t\t" + "\t".join(f"X{j + 1}\tY{j + 1}\tZ{j + 1}" for j in range(J)) + "\n\n")
+        txt = np.char.mod("%.6f", X.reshape(T, 3 * J))
+        miss = ~np.repeat(motion.observed, 3, axis=1)
+        txt[miss] = ""
+        for t in range(T):
+            f.write(f"{frames[t]}\t{times[t]:.6f}\t" + "\t".join(txt[t]) + "\n")
+
+    atomic_write(path, body)
