@@ -14,7 +14,7 @@ Protocol
     random 3-D direction, no other noise;
   - ``gauss2+miss20``: 2 cm noise and 20 % of the (frame, joint) entries missing.
 * Methods: every registered classical baseline with its defaults, plus two tuned
-  variants (gaussian with a 5-frame median pre-pass; kalman-cv with a 4-sigma
+  variants (gaussian with a 5-frame median pre-pass; kalman-cv with a 5-sigma
   innovation gate). kalman-learned is trained once per frame rate on six other clips
   (07_03, 131_01, 131_03, 135_03, 05_03, 01_01), none of them a test clip.
 * Metrics: RMSE in cm over all T x J x 3 entries against the clean clip (missing
@@ -53,7 +53,7 @@ TRAIN = ["07_03", "131_01", "131_03", "135_03", "05_03", "01_01"]
 METHODS = [
     ("gaussian", {}), ("gaussian", {"median": 5}), ("butterworth", {}), ("savgol", {}),
     ("median", {}), ("hampel", {}), ("spline", {}), ("linear", {}),
-    ("kalman-cv", {}), ("kalman-cv", {"gate": 4.0}), ("kalman-identity", {}), ("kalman-learned", {}),
+    ("kalman-cv", {}), ("kalman-cv", {"gate": 5.0}), ("kalman-identity", {}), ("kalman-learned", {}),
 ]
 CONDITIONS = ("gauss2", "spikes10", "gauss2+miss20")
 

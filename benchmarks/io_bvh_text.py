@@ -8,7 +8,6 @@ Takes about a minute on 2 cores. Every number in the section comes from this run
 from __future__ import annotations
 
 import argparse
-import glob
 import os
 import platform
 import re
@@ -118,10 +117,14 @@ def bvh_section(data: Path, tmp: Path) -> list[str]:
     out += ["", "IK write-back of `02_01.bvh` after smooth Gaussian noise (sigma per coordinate, "
                 "temporal smoothing 3 frames); RMS joint distance in cm:", "",
             "| sigma | noise | written vs noisy target | written vs clean |", "|---|---|---|---|"] + rows
-    out += ["", "Heights: with the DESIGN's CMU unit (5.6444 cm) the cgspeed subjects stand 140-160 cm "
-                "(subject 131's own ASF rest pose is 148 cm tall, 02_01 walks at ~143 cm), below the "
-                "150-200 cm adult band; `Motion.height()` without End Sites is a further ~10 cm lower "
-                "(no head top, no toe tip). The Daz-friendly files use one common ~153 cm figure.", ""]
+    cg = [standing_height(bvh.read(f, end_sites=True)) for f in files if "cgspeed" in str(f)]
+    daz = [f for f in files if "daz" in str(f)]
+    daz_rest = bvh.read(daz[0]).source["units"].get("rest_extent_file_units", float("nan")) if daz else float("nan")
+    out += ["", f"Heights: with the DESIGN's CMU unit (5.6444 cm) the cgspeed subjects stand "
+                f"{min(cg):.0f}-{max(cg):.0f} cm (head-top End Site to toe tip), partly below the 150-200 cm "
+                f"adult band; `Motion.height()` of the default read (no End Sites: no head top, no toe "
+                f"tip) is lower still. The Daz-friendly files share one figure whose rest pose spans "
+                f"{daz_rest:.1f} cm.", ""]
     return out
 
 
@@ -218,8 +221,8 @@ def kinect_section(data: Path, tmp: Path) -> list[str]:
             f"{partial} partially zero frames; files with no tracked frame: {', '.join(empty) or 'none'}.",
             f"- Per-axis scale (constant bone length, total least squares over all clips): "
             f"{'; '.join(scale_txt)}. The well-tracked bones give ratios within a few % of 1 -> one "
-            f"metric scale (metres); the thigh (hip joints are estimated, poorly conditioned fit) is "
-            f"noise-dominated.",
+            f"metric scale (metres); the thigh (the hip joints are estimated) fits the "
+            f"constant-length model badly (large s3/s1) and says nothing.",
             f"- Head joint to lowest foot joint, median per clip: median {np.median(heights) * 1:.1f} cm, "
             f"5-95% {np.percentile(heights, 5):.1f}-{np.percentile(heights, 95):.1f} cm.",
             f"- Sides: in {right_more} of {n_single} single-limb clips (a01-a09 arm, a14-a15 leg) the limb "

@@ -42,7 +42,7 @@ from .errors import MocapValueError
 __all__ = [
     "fill_gaps", "gaussian", "butterworth", "savgol", "median", "hampel", "hampel_residuals",
     "rts_smoother", "cv_model", "random_walk_model", "estimate_noise_sigma",
-    "gate_threshold", "cutoff_to_q", "select_process_noise",
+    "gate_threshold", "cutoff_to_q", "select_process_noise", "steady_state_covariance",
 ]
 
 
@@ -539,7 +539,7 @@ def cutoff_to_q(cutoff_hz, *, r, dt: float, order: int = 2):
 
 
 def select_process_noise(Y, mask=None, /, *, dt: float, r, order: int = 2,
-                         grid_hz=None, huber: float = 3.0, max_frames: int = 4000,
+                         grid_hz=None, huber: float = 3.0, max_frames: int = 2000,
                          x0=None) -> tuple[np.ndarray, np.ndarray]:
     """Per-channel process noise q of a kinematic model (:func:`cv_model`) by maximising
     a robustified innovation log-likelihood over a grid of smoother cutoffs.
@@ -579,25 +579,65 @@ def select_process_noise(Y, mask=None, /, *, dt: float, r, order: int = 2,
         x[:, 0] = np.tile(A[first, np.arange(C)], G)
     else:
         x[:, 0] = np.tile(np.asarray(x0, float).reshape(C), G)
-    P = np.broadcast_to(np.diag([1e4, 1e6, 1e8][:n]), (G * C, n, n)).copy()
-    FT = F.T
-    ll = np.zeros(G * C)
     c2 = float(huber) ** 2
-    for t in range(T):
-        if t > 0:
-            x = x @ FT
-            P = F @ P @ FT + Qm
-        HP = P[:, 0, :]
-        S = HP[:, 0] + Rb
-        nu = Yb[t] - x[:, 0]
-        m = Mb[t]
-        u = nu * nu / S
-        rho = np.where(u <= c2, u, 2.0 * np.sqrt(c2 * u) - c2)
+
+    def score(S, nu, m, t):
         if t > 1:
-            ll -= np.where(m, 0.5 * (np.log(S) + rho), 0.0)
-        K = np.where(m, 1.0 / S, 0.0)[:, None] * HP
-        x = x + K * nu[:, None]
-        P = P - K[:, :, None] * HP[:, None, :]
+            u = nu * nu / S
+            rho = np.where(u <= c2, u, 2.0 * np.sqrt(c2 * u) - c2)
+            return np.where(m, 0.5 * (np.log(S) + rho), 0.0)
+        return 0.0
+
+    ll = np.zeros(G * C)
+    if n <= 2:      # 2x2 algebra on component arrays (as _rts_scalar)
+        d = float(F[0, 1]) if n == 2 else 0.0
+        f00 = float(F[0, 0])
+        q00 = np.ascontiguousarray(Qm[:, 0, 0])
+        if n == 2:
+            q01, q11 = np.ascontiguousarray(Qm[:, 0, 1]), np.ascontiguousarray(Qm[:, 1, 1])
+            x1 = np.zeros(G * C)
+            p01 = np.zeros(G * C)
+            p11 = np.full(G * C, 1e6)
+        x0_ = x[:, 0].copy()
+        p00 = np.full(G * C, 1e4)
+        for t in range(T):
+            if t > 0:
+                if n == 2:      # F = [[1, d], [0, 1]]
+                    x0_ = x0_ + d * x1
+                    p00 = p00 + 2 * d * p01 + d * d * p11 + q00
+                    p01 = p01 + d * p11 + q01
+                    p11 = p11 + q11
+                else:
+                    x0_ = f00 * x0_
+                    p00 = f00 * f00 * p00 + q00
+            S = p00 + Rb
+            nu = Yb[t] - x0_
+            m = Mb[t]
+            ll -= score(S, nu, m, t)
+            inv_s = np.where(m, 1.0 / S, 0.0)
+            k0 = p00 * inv_s
+            x0_ = x0_ + k0 * nu
+            if n == 2:
+                k1 = p01 * inv_s
+                x1 = x1 + k1 * nu
+                p11 = p11 - k1 * p01
+                p01 = p01 - k0 * p01
+            p00 = p00 - k0 * p00
+    else:
+        P = np.broadcast_to(np.diag([1e4, 1e6, 1e8][:n]), (G * C, n, n)).copy()
+        FT = F.T
+        for t in range(T):
+            if t > 0:
+                x = x @ FT
+                P = F @ P @ FT + Qm
+            HP = P[:, 0, :]
+            S = HP[:, 0] + Rb
+            nu = Yb[t] - x[:, 0]
+            m = Mb[t]
+            ll -= score(S, nu, m, t)
+            K = np.where(m, 1.0 / S, 0.0)[:, None] * HP
+            x = x + K * nu[:, None]
+            P = P - K[:, :, None] * HP[:, None, :]
     L = ll.reshape(G, C)
     best = np.argmax(L, axis=0)
     logf = np.log(g)
@@ -636,12 +676,81 @@ def _inv_small(P: np.ndarray) -> np.ndarray:
     return np.linalg.inv(P)
 
 
+def steady_state_covariance(F, Q, H, R, *, tol: float = 1e-12, max_iter: int = 100) -> np.ndarray:
+    """Steady-state *predicted* covariance P of the Kalman filter for
+    ``x' = F x + w`` (w ~ N(0, Q)), ``y = H x + v`` (v ~ N(0, R)): the stabilising
+    solution of the filter Riccati equation
+
+        P = F P Fᵀ - F P Hᵀ (H P Hᵀ + R)⁻¹ H P Fᵀ + Q,
+
+    by the structure-preserving doubling algorithm (Chu, Fan, Lin & Wang 2004): with
+    A0 = Fᵀ, G0 = Hᵀ R⁻¹ H, H0 = Q, iterate  W = I + G H,
+    A ← A W⁻¹ A,  G ← G + A W⁻¹ G Aᵀ,  H ← H + Aᵀ H W⁻¹ A  (old A on the right-hand
+    sides); H converges quadratically to P. Unlike a QZ-based solver it copes with a
+    singular Q (e.g. the deterministic lag block of a second-order model).
+    ``R``: (p,) variances or (p, p). Raises ``np.linalg.LinAlgError`` without convergence.
+    """
+    F = np.asarray(F, dtype=float)
+    H = np.asarray(H, dtype=float)
+    R = np.asarray(R, dtype=float)
+    Ri = np.diag(1.0 / R) if R.ndim == 1 else np.linalg.inv(R)
+    A = F.T.copy()
+    G = H.T @ Ri @ H
+    X = np.array(Q, dtype=float, copy=True)
+    n = A.shape[0]
+    I = np.eye(n)
+    for _ in range(max_iter):
+        W = I + G @ X
+        WiA = np.linalg.solve(W, A)                      # W⁻¹ A
+        WiG = np.linalg.solve(W, G)                      # W⁻¹ G
+        A_new = A @ WiA
+        G_new = G + A @ WiG @ A.T
+        X_new = X + A.T @ X @ WiA
+        X_new = 0.5 * (X_new + X_new.T)
+        G_new = 0.5 * (G_new + G_new.T)
+        done = np.abs(X_new - X).max() <= tol * max(np.abs(X_new).max(), 1e-300)
+        A, G, X = A_new, G_new, X_new
+        if not np.isfinite(X).all():
+            break
+        if done:
+            return X
+    raise np.linalg.LinAlgError("steady-state Riccati iteration did not converge")
+
+
 def _is_e0(h: np.ndarray) -> bool:
     return h.shape[0] >= 1 and h[0] == 1.0 and not h[1:].any()
 
 
+class _Gate:
+    """Innovation gate shared by the filter loops: per group of batch members, reject
+    when the summed squared Mahalanobis distance exceeds the chi-square threshold for
+    the group's observed dof; a group rejected ``max_run`` frames in a row is accepted
+    the next time (so the filter cannot lose a marker for good after a true sudden
+    movement and then reject everything that follows)."""
+
+    def __init__(self, n_sigmas: float, groups, B: int, p: int, max_run: int | None):
+        g = np.arange(B) if groups is None else np.asarray(groups).reshape(B)
+        self.ginv = np.unique(g, return_inverse=True)[1].reshape(B)
+        self.n_groups = int(self.ginv.max()) + 1
+        max_dof = int(np.bincount(self.ginv, minlength=self.n_groups).max()) * p
+        self.thr = gate_threshold(n_sigmas, np.arange(max_dof + 1))
+        self.run = np.zeros(self.n_groups, dtype=np.int64)
+        self.max_run = None if max_run is None else int(max_run)
+
+    def reject(self, d2: np.ndarray, dof: np.ndarray) -> np.ndarray:
+        """d2, dof: (B,) squared distances and observed dimensions -> (B,) bool reject."""
+        gd2 = np.bincount(self.ginv, weights=d2, minlength=self.n_groups)
+        gdof = np.bincount(self.ginv, weights=dof, minlength=self.n_groups).astype(np.int64)
+        bad = (gd2 > self.thr[gdof]) & (gdof > 0)
+        if self.max_run is not None:
+            bad &= self.run < self.max_run
+        self.run = np.where(bad, self.run + 1, np.where(gdof > 0, 0, self.run))
+        return bad[self.ginv]
+
+
 def rts_smoother(Y, mask=None, /, *, F, Q, R, H=None, b=None, x0=None, P0=None,
-                 gate: float | None = None, gate_groups=None, return_cov: bool = False):
+                 gate: float | None = None, gate_groups=None, gate_max_run: int | None = 3,
+                 return_cov: bool = False):
     """Kalman filter + Rauch-Tung-Striebel smoother for a batch of B independent
     linear-Gaussian state-space models sharing their time axis:
 
@@ -669,6 +778,10 @@ def rts_smoother(Y, mask=None, /, *, F, Q, R, H=None, b=None, x0=None, P0=None,
         together on the sum of their squared distances (e.g. the x, y, z filters of one
         marker: a 3-dof test), which catches a 3-D spike with much better power than
         three 1-dof tests.
+    gate_max_run : after this many consecutive rejected frames a group's next
+        observation is accepted whatever its distance (default 3; None = never), so a
+        filter that fell behind a real sudden movement re-acquires the marker instead of
+        rejecting it for the rest of the clip.
     return_cov : also return the smoothed covariances (T, B, n, n).
 
     Returns
@@ -719,17 +832,11 @@ def rts_smoother(Y, mask=None, /, *, F, Q, R, H=None, b=None, x0=None, P0=None,
     used = Mk.copy()
     if (p == 1 and n <= 2 and F.ndim == 2 and bb is None and _is_e0(H[0])
             and not return_cov):
-        ginv_fast = None
-        if gate is not None:
-            groups = np.arange(B) if gate_groups is None else np.asarray(gate_groups).reshape(B)
-            ginv_fast = np.unique(groups, return_inverse=True)[1].reshape(B)
-        xs, u = _rts_scalar(Y0[:, :, 0], used[:, :, 0], F, Qb, Rb[:, 0], x, P, gate, ginv_fast)
+        gt = None if gate is None else _Gate(gate, gate_groups, B, 1, gate_max_run)
+        xs, u = _rts_scalar(Y0[:, :, 0], used[:, :, 0], F, Qb, Rb[:, 0], x, P, gt)
         return xs, (u if squeeze_p else u[:, :, None])
 
-    if gate is not None:
-        groups = np.arange(B) if gate_groups is None else np.asarray(gate_groups).reshape(B)
-        _, ginv = np.unique(groups, return_inverse=True)
-        n_groups = int(ginv.max()) + 1
+    gt = None if gate is None else _Gate(gate, gate_groups, B, p, gate_max_run)
 
     xf = np.empty((T, B, n))
     Pf = np.empty((T, B, n, n))
@@ -737,20 +844,14 @@ def rts_smoother(Y, mask=None, /, *, F, Q, R, H=None, b=None, x0=None, P0=None,
     Pp = np.empty((T, B, n, n))
     FT = np.swapaxes(Fb, -1, -2)
     info_form = p > n
-    if info_form:
-        # information form: W = diag(mask / R); Hᵀ W H only depends on the mask pattern
-        # of a frame, so it is computed once per distinct pattern; Hᵀ W y for all t at once.
-        Wt = np.where(used, 1.0 / Rb[None], 0.0)                       # (T, B, p)
-        hy = (Wt * Y0) @ H                     # (T, B, n)
-        pats, pat_of_t = np.unique(Wt.reshape(T, -1), axis=0, return_inverse=True)
-        pat_of_t = pat_of_t.reshape(T)
-        Jpat = np.matmul(H.T[None, None] * pats.reshape(-1, B, 1, p), H)   # (U, B, n, n)
-        if gate is not None:
-            raise MocapValueError("gating is only supported with p <= n (per-channel filters)")
+    if gate is None and p > 1 and (info_form or B == 1):
+        out = _rts_multi(Y0, used, Fb, Qb, H, Rb, bb, x, P, return_cov)
+        if squeeze_p:
+            out = (out[0], used[:, :, 0]) + tuple(out[2:])
+        else:
+            out = (out[0], used) + tuple(out[2:])
+        return out if return_cov else out[:2]
     shared_F = F.ndim == 2
-    if gate is not None:
-        max_dof = int(np.bincount(ginv, minlength=n_groups).max()) * p
-        thr_table = gate_threshold(gate, np.arange(max_dof + 1))     # by observed dof
     h = H[0]
     Rb1 = Rb[:, 0]
 
@@ -774,18 +875,15 @@ def rts_smoother(Y, mask=None, /, *, F, Q, R, H=None, b=None, x0=None, P0=None,
                 S = (HP[:, 0] if _is_e0(h) else HP @ h) + Rb1                       # (B,)
                 nu = Y0[t, :, 0] - (x[:, 0] if _is_e0(h) else x @ h)
                 mt = m[:, 0]
-                if gate is not None:
-                    d2 = np.where(mt, nu * nu / S, 0.0)
-                    gd2 = np.bincount(ginv, weights=d2, minlength=n_groups)
-                    gdof = np.bincount(ginv, weights=mt, minlength=n_groups).astype(int)
-                    reject = ((gd2 > thr_table[gdof]) & (gdof > 0))[ginv] & mt
+                if gt is not None:
+                    reject = gt.reject(np.where(mt, nu * nu / S, 0.0), mt) & mt
                     if reject.any():
                         used[t, reject, 0] = False
                         mt = used[t, :, 0]
                 K = np.where(mt[:, None], HP / S[:, None], 0.0)              # (B, n)
                 x = x + K * nu[:, None]
                 P = P - K[:, :, None] * HP[:, None, :]
-            elif not info_form:
+            else:
                 HP = np.einsum("pn,bnk->bpk", H, P)                   # (B, p, n)
                 S = np.einsum("bpk,qk->bpq", HP, H)                   # (B, p, p)
                 nu = Y0[t] - x @ H.T                                  # (B, p)
@@ -795,12 +893,8 @@ def rts_smoother(Y, mask=None, /, *, F, Q, R, H=None, b=None, x0=None, P0=None,
                 S = np.where(mm, S, 0.0) + np.where(eye, np.where(m[:, :, None], Rb[:, :, None], 1.0), 0.0)
                 nu = np.where(m, nu, 0.0)
                 Sinv = _inv_small(S)
-                if gate is not None:
-                    d2 = np.einsum("bp,bpq,bq->b", nu, Sinv, nu)
-                    dof = m.sum(axis=1)
-                    gd2 = np.bincount(ginv, weights=d2, minlength=n_groups)
-                    gdof = np.bincount(ginv, weights=dof, minlength=n_groups).astype(int)
-                    reject = ((gd2 > thr_table[gdof]) & (gdof > 0))[ginv]
+                if gt is not None:
+                    reject = gt.reject(np.einsum("bp,bpq,bq->b", nu, Sinv, nu), m.sum(axis=1))
                     if reject.any():
                         used[t, reject] = False
                         m = used[t]
@@ -809,12 +903,6 @@ def rts_smoother(Y, mask=None, /, *, F, Q, R, H=None, b=None, x0=None, P0=None,
                 K = np.einsum("bpn,bpq->bnq", HPm, Sinv)               # (B, n, p)
                 x = x + np.einsum("bnq,bq->bn", K, nu)
                 P = P - K @ HPm
-            else:
-                Jm = Jpat[pat_of_t[t]]                                # (B, n, n)
-                iv = hy[t] - np.einsum("bnk,bk->bn", Jm, x)
-                Pn = np.linalg.inv(np.linalg.inv(P) + Jm)
-                x = x + np.einsum("bnk,bk->bn", Pn, iv)
-                P = Pn
             P = 0.5 * (P + np.swapaxes(P, -1, -2))
         xf[t] = x
         Pf[t] = P
@@ -837,17 +925,100 @@ def rts_smoother(Y, mask=None, /, *, F, Q, R, H=None, b=None, x0=None, P0=None,
     return xs, used
 
 
-def _rts_scalar(Y, M, F, Q, R, x0, P0, gate, ginv):
+def _rts_multi(Y0, used, F, Q, H, R, b, x, P, return_cov, tol=1e-8):
+    """Kalman filter + RTS smoother for vector observations with missing entries
+    (W = diag(mask / R)), used when p > n or B = 1.
+
+    Filtered covariance per frame: information form ``P⁺ = (P⁻¹ + Hᵀ W H)⁻¹`` (n x n
+    inverses) when at least n channels are observed, else the Woodbury/gain form
+    ``P⁺ = P - P Hₒᵀ (Hₒ P Hₒᵀ + Rₒ)⁻¹ Hₒ P`` on the p_o observed rows (p_o x p_o
+    inverse; needs no inverse of P, which may be nearly singular, e.g. the lag block of
+    a second-order model). Either way the mean update is ``x⁺ = x + P⁺ (Hᵀ W y - Hᵀ W H x)``
+    with Hᵀ W H computed once per distinct mask pattern and Hᵀ W y for all frames in one
+    product.
+
+    Steady state: when the predicted covariance stops changing (largest entry change
+    below ``tol`` x its largest entry) while the mask pattern stays the same, the
+    covariances and gains of the previous frame are reused (the Riccati recursion has
+    converged), so long stretches of complete frames cost a few matrix-vector products
+    per frame and no inverse; the backward pass reuses its gain the same way.
+    """
+    T, B, p = Y0.shape
+    n = F.shape[-1]
+    W = np.where(used, 1.0 / R[None], 0.0)                          # (T, B, p)
+    hy = (W * Y0) @ H                                               # (T, B, n)
+    pats, pat = np.unique(W.reshape(T, -1), axis=0, return_inverse=True)
+    pat = pat.reshape(T)
+    pats = pats.reshape(-1, B, p)
+    Jpat = np.matmul(H.T[None, None] * pats[:, :, None, :], H)      # (U, B, n, n)
+    FT = np.swapaxes(F, -1, -2)
+    xf = np.empty((T, B, n))
+    xp = np.empty((T, B, n))
+    covs_p: list[np.ndarray] = []
+    covs_f: list[np.ndarray] = []
+    idx_p = np.empty(T, dtype=np.int64)
+    idx_f = np.empty(T, dtype=np.int64)
+    steady = False
+    for t in range(T):
+        if t > 0:
+            x = np.einsum("bij,bj->bi", F, x)
+            if b is not None:
+                x = x + b
+        same = t > 0 and pat[t] == pat[t - 1]
+        if steady and same:
+            idx_p[t], idx_f[t] = idx_p[t - 1], idx_f[t - 1]
+        else:
+            Ppred = F @ P @ FT + Q if t > 0 else P
+            if same and np.abs(Ppred - covs_p[idx_p[t - 1]]).max() <= tol * np.abs(Ppred).max():
+                steady = True
+                idx_p[t], idx_f[t] = idx_p[t - 1], idx_f[t - 1]
+            else:
+                steady = False
+                w = pats[pat[t]]                                    # (B, p)
+                if B == 1 and (w[0] > 0).sum() < n:
+                    o = np.flatnonzero(w[0] > 0)
+                    Ho = H[o]
+                    PH = Ppred[0] @ Ho.T                            # (n, p_o)
+                    S = Ho @ PH + np.diag(1.0 / w[0, o])
+                    Pn = (Ppred[0] - PH @ np.linalg.solve(S, PH.T))[None] if o.size else Ppred.copy()
+                else:
+                    Pn = np.linalg.inv(np.linalg.inv(Ppred) + Jpat[pat[t]])
+                Pn = 0.5 * (Pn + np.swapaxes(Pn, -1, -2))
+                covs_p.append(Ppred)
+                covs_f.append(Pn)
+                idx_p[t] = idx_f[t] = len(covs_f) - 1
+        Pn = covs_f[idx_f[t]]
+        xp[t] = x
+        iv = hy[t] - np.einsum("bnk,bk->bn", Jpat[pat[t]], x)
+        x = x + np.einsum("bnk,bk->bn", Pn, iv)
+        P = Pn
+        xf[t] = x
+    xs = np.empty_like(xf)
+    xs[-1] = xf[-1]
+    if return_cov:
+        Ps = np.empty((T, B, n, n))
+        Ps[-1] = covs_f[idx_f[-1]]
+    key_prev, G = None, None
+    for t in range(T - 2, -1, -1):
+        key = (int(idx_f[t]), int(idx_p[t + 1]))
+        if key != key_prev:                                        # G = P_f Fᵀ P_pred⁻¹
+            G = np.swapaxes(np.linalg.solve(covs_p[key[1]], F @ covs_f[key[0]]), -1, -2)
+            key_prev = key
+        xs[t] = xf[t] + np.einsum("bij,bj->bi", G, xs[t + 1] - xp[t + 1])
+        if return_cov:
+            Ps[t] = covs_f[key[0]] + G @ (Ps[t + 1] - covs_p[key[1]]) @ np.swapaxes(G, -1, -2)
+    if return_cov:
+        return xs, used, Ps
+    return xs, used
+
+
+def _rts_scalar(Y, M, F, Q, R, x0, P0, gt):
     """Fast path of :func:`rts_smoother` for n <= 2 states, one scalar observation of the
     first state and a transition shared by the batch: the 2 x 2 algebra is written out on
     (B,) component arrays (about 40 vector operations per frame for both passes)."""
     T, B = Y.shape
     n = F.shape[0]
     used = M.copy()
-    if gate is not None:
-        n_groups = int(ginv.max()) + 1
-        max_dof = int(np.bincount(ginv, minlength=n_groups).max())
-        thr_table = gate_threshold(gate, np.arange(max_dof + 1))
     if n == 1:
         f = float(F[0, 0])
         q = np.ascontiguousarray(Q[:, 0, 0])
@@ -862,11 +1033,8 @@ def _rts_scalar(Y, M, F, Q, R, x0, P0, gate, ginv):
             m = used[t]
             S = P + R
             nu = Y[t] - x
-            if gate is not None:
-                d2 = np.where(m, nu * nu / S, 0.0)
-                gd2 = np.bincount(ginv, weights=d2, minlength=n_groups)
-                gdof = np.bincount(ginv, weights=m, minlength=n_groups).astype(int)
-                m = m & ~((gd2 > thr_table[gdof]) & (gdof > 0))[ginv]
+            if gt is not None:
+                m = m & ~gt.reject(np.where(m, nu * nu / S, 0.0), m)
                 used[t] = m
             k = np.where(m, P / S, 0.0)
             x = x + k * nu
@@ -897,11 +1065,8 @@ def _rts_scalar(Y, M, F, Q, R, x0, P0, gate, ginv):
         m = used[t]
         S = p00 + R
         nu = Y[t] - x0_
-        if gate is not None:
-            d2 = np.where(m, nu * nu / S, 0.0)
-            gd2 = np.bincount(ginv, weights=d2, minlength=n_groups)
-            gdof = np.bincount(ginv, weights=m, minlength=n_groups).astype(int)
-            m = m & ~((gd2 > thr_table[gdof]) & (gdof > 0))[ginv]
+        if gt is not None:
+            m = m & ~gt.reject(np.where(m, nu * nu / S, 0.0), m)
             used[t] = m
         inv_s = np.where(m, 1.0 / S, 0.0)
         k0 = p00 * inv_s

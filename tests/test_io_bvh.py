@@ -143,6 +143,9 @@ def test_read_end_sites_as_joints(synth_file):
     assert "Head_End" in m.skeleton.names and m.n_joints == len(SYNTH)
     head, end = m.skeleton.index("Head"), m.skeleton.index("Head_End")
     np.testing.assert_allclose(np.linalg.norm(m.positions[:, end] - m.positions[:, head], axis=1), 18.0)
+    names, X = bvh.node_positions(bvh.read(p, units="cm").slice(3, 9))
+    assert names == tuple(s[0] for s in SYNTH)
+    np.testing.assert_allclose(X, m.positions[3:9], atol=1e-9)
 
 
 def test_units_inferred_and_overridden(synth_file, tmp_path):
@@ -193,6 +196,14 @@ def test_round_trip_synthetic(synth_file, tmp_path):
     txt = out.read_text()
     assert "CHANNELS 6 Xposition Yposition Zposition Yrotation Zrotation Xrotation" in txt
     assert txt.count("End Site") == 5
+    # writing in another unit rescales offsets and translations, rotations unchanged
+    out_m = tmp_path / "rt_m.bvh"
+    bvh.write(m, out_m, units="m")
+    mm = bvh.read(out_m)
+    assert mm.source["units"]["name"] == "m"
+    assert np.abs(mm.positions - m.positions).max() < 1e-6
+    rot_cols = [k for k, c in enumerate(" ".join(s[3] for s in SYNTH if s[3]).split()) if "rotation" in c]
+    np.testing.assert_allclose(mm.source["per_frame"]["channels"][:, rot_cols], ch[:, rot_cols], atol=1e-7)
     # a sliced motion keeps its per-frame channels aligned and still round-trips
     s = m.slice(7, 30)
     out2 = tmp_path / "slice.bvh"

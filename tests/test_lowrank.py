@@ -120,6 +120,19 @@ def test_rpca_with_mask_completes_missing_entries():
     assert np.abs(A - L)[~mask].max() < 1e-3
 
 
+def test_ialm_per_entry_weights():
+    L, S = low_rank_plus_sparse(m=60, n=20, seed=5)
+    D = np.stack([L + S, 2 * (L + S)])
+    lam = 1 / np.sqrt(60)
+    A1, E1, _, _ = lr._ialm_batch(D, None, np.full(2, lam), 1e-9, 500, 1.5, "auto")
+    A2, E2, _, _ = lr._ialm_batch(D, None, np.full(D.shape, lam), 1e-9, 500, 1.5, "auto")
+    np.testing.assert_allclose(A1, A2, atol=1e-9)
+    W = np.full(D.shape, lam)
+    W[:, :, 0] = 1e3                          # l1 weight so high that column 0 cannot go to E
+    A3, E3, _, _ = lr._ialm_batch(D, None, W, 1e-9, 2000, 1.5, "auto")
+    assert np.abs(E3[:, :, 0]).max() < 1e-6 and np.abs(E3[:, :, 1:]).max() > 1
+
+
 def test_rpca_batch_equals_single_and_checks_input():
     mats = [sum(low_rank_plus_sparse(m=60, n=20, seed=s)) for s in range(3)]
     A, E = lr.rpca_ialm(np.stack(mats))

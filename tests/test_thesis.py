@@ -330,3 +330,50 @@ def test_psc_fit_denoise_save_load(shared_data, tmp_path):
     np.testing.assert_array_equal(loaded.denoise(noisy).positions, out.positions)
     with pytest.raises(MocapValueError):
         model.denoise(test.slice(0, 5))                      # shorter than the window
+
+
+@pytest.mark.parametrize("masked", [False, True])
+def test_kalman_rts_equals_dense_posterior(masked):
+    """The smoother's means, summed covariances and lag-one cross covariances are the
+    Gaussian posterior of the LDS, computed here by one dense solve."""
+    rng = np.random.default_rng(0)
+    T, k, C = (40 if masked else 150), 3, 5          # 150: steady-state shortcuts are used
+    A = np.array([[0.9, 0.1, 0], [-0.1, 0.9, 0], [0, 0, 0.8]])
+    Cm = rng.standard_normal((C, k))
+    Q = np.eye(k) * 0.1 + 0.02
+    Rd = rng.uniform(0.1, 0.5, C)
+    u0, V0 = rng.standard_normal(k), np.eye(k)
+    X = rng.standard_normal((T, C))
+    obs = rng.random((T, C)) > 0.3 if masked else np.ones((T, C), bool)
+    if masked:
+        out = cp._kalman_rts_masked(X, obs / Rd, A, Cm, Q, u0, V0)
+    else:
+        out = cp._kalman_rts(X, A, Cm, Q, Rd, u0, V0)
+    n = T * k
+    H, h = np.zeros((n, n)), np.zeros(n)
+    iQ = np.linalg.inv(Q)
+
+    def b(i):
+        return slice(i * k, (i + 1) * k)
+    H[b(0), b(0)] += np.linalg.inv(V0)
+    h[b(0)] += np.linalg.inv(V0) @ u0
+    for t in range(1, T):
+        H[b(t), b(t)] += iQ
+        H[b(t - 1), b(t - 1)] += A.T @ iQ @ A
+        H[b(t), b(t - 1)] -= iQ @ A
+        H[b(t - 1), b(t)] -= A.T @ iQ
+    for t in range(T):
+        w = obs[t] / Rd
+        H[b(t), b(t)] += Cm.T @ (w[:, None] * Cm)
+        h[b(t)] += Cm.T @ (w * X[t])
+    S = np.linalg.inv(H)
+    mean = (S @ h).reshape(T, k)
+    Vsum = sum(S[b(t), b(t)] for t in range(T))
+    cross = sum(S[b(t), b(t - 1)] for t in range(1, T))
+    ms, vs, vs_prev, vs_next, cr, v1 = out
+    np.testing.assert_allclose(ms, mean, atol=1e-8)
+    np.testing.assert_allclose(vs, Vsum, atol=1e-8)
+    np.testing.assert_allclose(vs_prev, Vsum - S[b(T - 1), b(T - 1)], atol=1e-8)
+    np.testing.assert_allclose(vs_next, Vsum - S[b(0), b(0)], atol=1e-8)
+    np.testing.assert_allclose(cr, cross, atol=1e-8)
+    np.testing.assert_allclose(v1, S[b(0), b(0)], atol=1e-8)

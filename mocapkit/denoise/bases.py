@@ -84,7 +84,7 @@ def angle_channels(motion: Motion) -> tuple[np.ndarray, list[str], dict[str, Any
             "selecting joints drops them) -- use space='position'")
     if vals.ndim != 2 or vals.shape[0] != motion.n_frames or len(names) != vals.shape[1]:
         raise MocapValueError("lou-chai: the motion's joint-angle channels do not match its frames")
-    return vals, names, {"key": key, "rotation": rot, "root": root,
+    return vals, names, {"key": key, "rotation": rot, "root": root, "names": names,
                          "period": 2 * np.pi if rad else 360.0}
 
 
@@ -137,6 +137,59 @@ def _smooth_trend(V: np.ndarray, fps: float, smooth_s: float) -> np.ndarray:
     if w >= 3:
         V = signal.median(V, window=w)
     return signal.gaussian(V, sigma=max(0.5 * smooth_s * fps, 0.5))
+
+
+def _root_euler(motion: Motion, info: dict) -> tuple[list[int], str] | None:
+    """Columns of the root's three rotation channels (in the order their angles enter
+    the rotation) and the scipy Euler sequence, or None if the root has no 3 rotations."""
+    src = motion.source
+    names = info["names"]
+    if info["key"] == "dofs":                     # AMC: R = product in the ASF root 'axis' order
+        axis = str(src["asf"]["root"]["axis"]).upper()
+        cols = [names.index(f"root.R{c}") for c in axis if f"root.R{c}" in names]
+        return (cols, axis.lower()) if len(cols) == 3 else None    # extrinsic: first axis first
+    root = [i for i, (r, rt) in enumerate(zip(info["rotation"], info["root"])) if r and rt]
+    if len(root) != 3:
+        return None
+    seq = "".join(names[i].split(".")[-1][0].upper() for i in root)  # BVH: intrinsic, listed order
+    return root, seq
+
+
+def _smooth_root(motion: Motion, V: np.ndarray, info: dict, median: int = 5, sigma: float = 1.0) -> np.ndarray:
+    """Robustly smoothed root channels (decision, angle space): the root's translation
+    and orientation are global, so the filter bases do not model them; instead they get
+    a running median (``median`` frames) then a Gaussian (``sigma`` frames) -- the
+    orientation as sign-continuous unit quaternions (renormalised), converted back to
+    the file's Euler channels nearest the input values."""
+    from scipy.spatial.transform import Rotation
+
+    T = V.shape[0]
+    out = V.copy()
+    root, rot = info["root"], info["rotation"]
+    med = min(median, T if T % 2 else T - 1)
+
+    def smooth(A):
+        if med >= 3:
+            A = signal.median(A, window=med)
+        return signal.gaussian(A, sigma=sigma) if T >= 2 else A
+
+    tr = root & ~rot
+    if tr.any():
+        out[:, tr] = smooth(V[:, tr])
+    eul = _root_euler(motion, info)
+    if eul is not None:
+        cols, seq = eul
+        deg = info["period"] == 360.0
+        q = Rotation.from_euler(seq, V[:, cols], degrees=deg).as_quat()
+        flip = np.concatenate([[1.0], np.sign(np.einsum("ti,ti->t", q[1:], q[:-1]))])
+        q *= np.cumprod(np.where(flip == 0, 1.0, flip))[:, None]
+        q = smooth(q)
+        q /= np.linalg.norm(q, axis=1, keepdims=True)
+        ang = Rotation.from_quat(q).as_euler(seq, degrees=deg)
+        per = info["period"]
+        ang = ang + per * np.round((V[:, cols] - ang) / per)       # nearest turn to the input
+        out[:, cols] = ang
+    return out
 
 
 # ---------------------------------------------------------------------------------------
@@ -300,28 +353,24 @@ class LouChai(Denoiser):
         V = vals.copy()
         rot = info["rotation"]
         V[:, rot] = np.unwrap(V[:, rot], axis=0, period=info["period"])
-        glob = info["root"] & ~rot
-        names_l = [n.lower() for n in names]
-        up_letter = "xyz"[up]
-        for c, n in enumerate(names_l):
-            if info["root"][c] and rot[c] and (n.endswith(f".r{up_letter}") or n.endswith(f".{up_letter}rotation")):
-                glob[c] = True
-        trend = np.zeros_like(V)
-        if glob.any():
-            trend[:, glob] = _smooth_trend(V[:, glob], motion.fps, float(self.smooth_s))
-        return V - trend, np.ones_like(V, dtype=bool), (trend, names, info)
+        joint = rot & ~info["root"]
+        return V[:, joint], np.ones((len(V), int(joint.sum())), dtype=bool), (V, names, info, joint)
 
     def _from_array(self, motion: Motion, Z: np.ndarray, ctx) -> Motion:
         if self.space == "position":
             tr, s = ctx
             P = tr.to_world(Z.reshape(motion.n_frames, -1, 3) / s)
             return motion.with_positions(P)
-        trend, names, info = ctx
-        V = Z + trend
-        P = angle_fk(motion, V)
+        V, names, info, joint = ctx
+        out_v = V.copy()
+        out_v[:, joint] = Z
+        root = info["root"]
+        if root.any():
+            out_v[:, root] = _smooth_root(motion, V, info)[:, root]
+        P = angle_fk(motion, out_v)
         out = motion.with_positions(P)
         pf = dict(out.source.get("per_frame", {}))
-        pf[info["key"]] = V
+        pf[info["key"]] = out_v
         return out.with_source(per_frame=pf)
 
     # -- training ----------------------------------------------------------------------------

@@ -445,7 +445,6 @@ class _Compiled:
     def __init__(self, asf: dict):
         self.asf = asf
         bones = asf["bones"]
-        by_name = {b["name"]: b for b in bones}
         parent = {}
         for par, children in asf["hierarchy"]:
             for c in children:
@@ -603,8 +602,13 @@ def _amc_header(text: str):
     return end, head_lines
 
 
-def _parse_amc(path, text: str, comp: _Compiled, asf_path) -> tuple[np.ndarray, dict]:
-    """Return (dofs (T, D) in file units, amc metadata)."""
+def _parse_amc(path, text: str, comp: _Compiled, asf_path) -> tuple[np.ndarray, bool, dict]:
+    """Return (dofs (T, D) as in the file, angles in radians?, AMC metadata).
+
+    The bulk tokeniser handles the usual layout (same bones in the same order in every
+    frame); anything else, including every malformed file, goes through the line parser,
+    which accepts any bone order and names the offending line.
+    """
     start, head_lines = _amc_header(text)
     n_head = len(head_lines)
     keys = [h.strip().upper() for h in head_lines if h.strip().startswith(":")]
@@ -692,7 +696,6 @@ def _parse_amc_lines(path, body: str, line0: int, comp: _Compiled, fully: bool, 
     cur_line = 0
     seq: list[str] = []
     prev = np.zeros(comp.n_dofs)
-    need = {b for b, c in comp.dof_cols.items() if c}
 
     def close(ln_end):
         if cur is None:
@@ -730,6 +733,8 @@ def _parse_amc_lines(path, body: str, line0: int, comp: _Compiled, fully: bool, 
         name = toks[0]
         if cur is None:
             raise MocapFormatError(path, f"expected a frame number, found {s[:40]!r}", ln)
+        if len(toks) == 1 and re.fullmatch(r"[+-]?[\d.eE+-]+", name):
+            raise MocapFormatError(path, f"expected an integer frame number, found {name!r}", ln)
         if name not in comp.dof_cols:
             raise MocapFormatError(path, f"unknown bone {name!r}: not in {asf_name} "
                                    f"(mismatched ASF/AMC pair?)", ln)
@@ -748,8 +753,6 @@ def _parse_amc_lines(path, body: str, line0: int, comp: _Compiled, fully: bool, 
     close(last_ln)
     if not rows:
         raise MocapFormatError(path, "no frames (empty motion)", last_ln if last_ln > line0 else None)
-    if not need <= set(seq) and not fully:
-        pass
     return np.array(rows), frame_no[0], seq
 
 
@@ -819,7 +822,7 @@ def _units_info(asf: dict, f: float, override) -> dict:
 
 
 def read(path: str | os.PathLike, *, skeleton: str | os.PathLike | None = None,
-         units: float | str | None = None) -> Motion:
+         units: float | str | None = None, fps: float = 120.0) -> Motion:
     """Read an AMC motion (with its ASF skeleton) into a Motion in cm.
 
     Parameters
@@ -827,11 +830,11 @@ def read(path: str | os.PathLike, *, skeleton: str | os.PathLike | None = None,
     path : the ``.amc`` file.
     skeleton : the ``.asf`` file; default: found by :func:`find_skeleton`.
     units : cm per file length unit (default ``2.54 / ASF length``, 5.644444 for CMU/HDM05).
+    fps : frame rate; AMC files do not store one (CMU and HDM05 record at 120 Hz).
 
     Returns
     -------
-    Motion with joints ``root`` + one per bone (end points), positions (T, J, 3) cm, fps 120
-    (Acclaim files do not store a rate; CMU and HDM05 record at 120 Hz).
+    Motion with joints ``root`` + one per bone (end points), positions (T, J, 3) cm.
 
     Raises
     ------
@@ -852,7 +855,7 @@ def read(path: str | os.PathLike, *, skeleton: str | os.PathLike | None = None,
     src = {"path": str(path), "format": "amc", "skeleton_path": str(asf_path),
            "units": _units_info(asf, f, units), "asf": asf, "amc": meta,
            "dof_names": list(comp.dof_names), "per_frame": {"dofs": dofs}}
-    return Motion(P, comp.skeleton(f), 120.0, None, src)
+    return Motion(P, comp.skeleton(f), fps, None, src)
 
 
 def read_asf_motion(path: str | os.PathLike, *, units: float | str | None = None) -> Motion:
@@ -992,24 +995,67 @@ def _before_rot(order: str, ang: np.ndarray, a: int) -> np.ndarray:
 
 
 def _fit_partial(order: str, axes: list[int], U: np.ndarray, W: np.ndarray, ang: np.ndarray,
-                 ang0: np.ndarray, iters: int = 6) -> np.ndarray:
+                 ang0: np.ndarray, iters: int = 40, scan: int = 36) -> np.ndarray:
     """Angles of the present ``axes`` minimising Σ_i |M(ang) u_i - w_i|² (other angles zero).
 
     U (n, 3) rest vectors and W (T, n, 3) targets, both in the bone's local (C) frame.
-    Each step is the exact single-axis optimum; one step is exact for a 1-dof bone,
-    two dofs alternate ``iters`` times.
+    One dof: the exact single-axis optimum (:func:`_axis_angle_fit`). Two dofs
+    (``M = R_q(β) R_p(α)``, p applied first): for every α the best β is exact, so the
+    cost is scanned over ``scan`` values of α, then refined by ``iters`` golden-section
+    steps within one scan step of the best value (global to the scan resolution, then
+    precise to ~1e-8 rad); the same refinement runs around the start ``ang`` and wins
+    when it fits as well, so equally good solutions do not flip branches between frames.
+    Angles are returned on the 2π turn nearest ``ang0``.
     """
-    ang = ang.copy()
     present = [("XYZ".index(c)) for c in order if "XYZ".index(c) in axes]
     T = ang.shape[0]
     e = np.eye(3)
-    for _ in range(1 if len(present) == 1 else iters):
-        for a in present:
-            Ub = np.einsum("tij,nj->tni", _before_rot(order, ang, a), U)
-            Wa = np.einsum("tji,tnj->tni", _after_rot(order, ang, a), W)       # after^T w
-            th = _axis_angle_fit(np.broadcast_to(e[a], (T, 3)), Ub, Wa)
-            ang[:, a] = _wrap_near(th, ang0[:, a])
-    return ang
+    out = np.zeros_like(ang)
+    if len(present) == 1:
+        a = present[0]
+        th = _axis_angle_fit(np.broadcast_to(e[a], (T, 3)), np.broadcast_to(U, (T,) + U.shape), W)
+        out[:, a] = _wrap_near(th, ang0[:, a])
+        return out
+    p, q = present
+    # scan α (axis p) with the best β (axis q) in closed form for each, then a golden-section
+    # search on α around the best scan point
+    def best_beta(alpha):                                  # alpha (..., T) -> beta, cost
+        sh = alpha.shape
+        Ua = np.einsum("...ij,nj->...ni", _axis_rot(p, alpha), U)             # (..., T, n, 3)
+        Wb = np.broadcast_to(W, sh + W.shape[1:])
+        m = int(np.prod(sh))
+        beta = _axis_angle_fit(np.broadcast_to(e[q], (m, 3)), Ua.reshape(m, -1, 3),
+                               Wb.reshape(m, -1, 3)).reshape(sh)
+        fit = np.einsum("...ij,...nj->...ni", _axis_rot(q, beta), Ua)
+        return beta, np.sum((fit - Wb) ** 2, axis=(-2, -1))
+
+    step = 2 * np.pi / scan
+    alphas = np.linspace(-np.pi, np.pi, scan, endpoint=False)[:, None] + np.zeros((1, T))
+    _, cost = best_beta(alphas)
+    center = np.stack([alphas[np.argmin(cost, axis=0), np.arange(T)], ang[:, p]])   # (2, T)
+    lo, hi = center - step, center + step
+    g = (np.sqrt(5) - 1) / 2
+    x1, x2 = hi - g * (hi - lo), lo + g * (hi - lo)
+    f1, f2 = best_beta(x1)[1], best_beta(x2)[1]
+    for _ in range(iters):
+        left = f1 < f2                       # minimum in [lo, x2]
+        hi = np.where(left, x2, hi)
+        lo = np.where(left, lo, x1)
+        nx1 = np.where(left, hi - g * (hi - lo), x2)
+        nx2 = np.where(left, x1, lo + g * (hi - lo))
+        fn = best_beta(np.where(left, nx1, nx2))[1]
+        f1, f2 = np.where(left, fn, f2), np.where(left, f1, fn)
+        x1, x2 = nx1, nx2
+    al = 0.5 * (lo + hi)                                   # (2, T): scan branch, start branch
+    be, c = best_beta(al)
+    # prefer the branch of the start angles when it fits as well (no flips between frames)
+    k = np.where(c[1] <= c[0] + 1e-9 * (1.0 + c[0]), 1, 0)
+    cur = np.zeros((T, 3))
+    cur[:, p] = al[k, np.arange(T)]
+    cur[:, q] = be[k, np.arange(T)]
+    out[:, p] = _wrap_near(cur[:, p], ang0[:, p])
+    out[:, q] = _wrap_near(cur[:, q], ang0[:, q])
+    return out
 
 
 def _start_angles(S: np.ndarray, comp: _Compiled, n: str, to_rad) -> np.ndarray:
@@ -1024,7 +1070,7 @@ def _start_angles(S: np.ndarray, comp: _Compiled, n: str, to_rad) -> np.ndarray:
 
 
 def inverse_kinematics(comp: _Compiled, target_cm: np.ndarray, f: float, angle_rad: bool,
-                       start: np.ndarray | None = None, *, refine: int = 10) -> np.ndarray:
+                       start: np.ndarray | None = None, *, refine: int = 12) -> np.ndarray:
     """Dof values (T, D) (file units and angle unit) whose FK follows ``target_cm`` (T, J, 3).
 
     Stage 1: per-bone IK, top-down, vectorised over frames (module docstring, steps 1-3).
@@ -1188,46 +1234,51 @@ def _ik_jacobian(comp: _Compiled, dofs: np.ndarray, P: np.ndarray, L: dict, angl
 
 
 def _ik_refine(comp: _Compiled, X: np.ndarray, dofs: np.ndarray, angle_rad: bool, iters: int,
-               chunk: int = 512) -> np.ndarray:
-    """Levenberg-Marquardt polish of ``dofs`` towards targets X (file units), per frame."""
+               chunk: int = 512, tol_cm: float = 1e-6, rel_tol: float = 1e-3) -> np.ndarray:
+    """Levenberg-Marquardt polish of ``dofs`` towards targets X (file units), per frame.
+
+    Each frame has its own damping; a step is kept only if it lowers that frame's sum of
+    squared position errors; a frame leaves the active set once its error is below
+    ``tol_cm`` or a step gains less than ``rel_tol`` of it.
+    """
     dofs = dofs.copy()
-    W = np.isfinite(X).all(axis=2)                                  # (T, J) usable targets
-    Xf = np.where(W[..., None], X, 0.0)
+    Wm = np.isfinite(X).all(axis=2)                                 # (T, J) usable targets
+    Xf = np.where(Wm[..., None], X, 0.0)
+    tol = (tol_cm / 5.0) ** 2
+    eye = np.eye(comp.n_dofs)
 
     def cost_of(D, idx):
-        P = forward_kinematics(comp, D, angle_rad, 1.0)
-        r = (P - Xf[idx]) * W[idx][..., None]
-        return np.sum(r ** 2, axis=(1, 2)), P
+        P, Lr = forward_kinematics(comp, D, angle_rad, 1.0, return_rotations=True)
+        r = (P - Xf[idx]) * Wm[idx][..., None]
+        return np.sum(r ** 2, axis=(1, 2)), r, P, Lr
 
-    c0, _ = cost_of(dofs, slice(None))
-    active = np.flatnonzero(c0 > (1e-6 / 5.6) ** 2)
-    for s in range(0, len(active), chunk):
-        idx = active[s:s + chunk]
+    for s in range(0, X.shape[0], chunk):
+        idx = np.arange(s, min(s + chunk, X.shape[0]))
         D = dofs[idx]
+        cost, r, P, Lr = cost_of(D, idx)
         lam = np.full(len(idx), 1e-3)
-        cost = c0[idx]
+        live = cost > tol
         for _ in range(iters):
-            P, Lr = forward_kinematics(comp, D, angle_rad, 1.0, return_rotations=True)
-            r = ((P - Xf[idx]) * W[idx][..., None]).reshape(len(idx), -1)
-            Jm = _ik_jacobian(comp, D, P, Lr, angle_rad) * np.repeat(W[idx], 3, axis=1)[..., None]
-            Jt = np.swapaxes(Jm, 1, 2)
-            A = Jt @ Jm                                             # batched BLAS
-            g = (Jt @ r[..., None])[..., 0]
-            diag = np.einsum("tii->ti", A)
-            improved = np.zeros(len(idx), bool)
-            for _try in range(3):
-                Ad = A + (lam[:, None] * (diag + 1e-9))[:, :, None] * np.eye(comp.n_dofs)
-                step = -np.linalg.solve(Ad, g[..., None])[..., 0]
-                newc, _ = cost_of(D + step, idx)
-                ok = (newc < cost) & ~improved
-                D = np.where(ok[:, None], D + step, D)
-                cost = np.where(ok, newc, cost)
-                improved |= ok
-                lam = np.where(ok, np.maximum(lam / 5, 1e-9), np.where(improved, lam, lam * 8))
-                if improved.all():
-                    break
-            if not improved.any() or np.all(cost < (1e-6 / 5.6) ** 2):
+            if not live.any():
                 break
+            k = np.flatnonzero(live)
+            Lk = {n: v[k] for n, v in Lr.items()}
+            Jm = _ik_jacobian(comp, D[k], P[k], Lk, angle_rad) * np.repeat(Wm[idx[k]], 3, axis=1)[..., None]
+            Jt = np.swapaxes(Jm, 1, 2)
+            A = Jt @ Jm                                              # batched BLAS
+            g = (Jt @ r[k].reshape(len(k), -1, 1))[..., 0]
+            diag = np.einsum("tii->ti", A)
+            step = -np.linalg.solve(A + (lam[k, None] * (diag + 1e-9))[:, :, None] * eye, g[..., None])[..., 0]
+            newc, newr, newP, newL = cost_of(D[k] + step, idx[k])
+            ok = newc < cost[k]
+            gain = np.where(ok, (cost[k] - newc) / np.maximum(cost[k], 1e-300), 0.0)
+            acc = k[ok]
+            D[acc] += step[ok]
+            cost[acc], r[acc], P[acc] = newc[ok], newr[ok], newP[ok]
+            for n in Lr:
+                Lr[n][acc] = newL[n][ok]
+            lam[k] = np.where(ok, np.maximum(lam[k] / 5, 1e-9), lam[k] * 8)
+            live[k] = np.where(ok, (newc > tol) & (gain > rel_tol), lam[k] < 1e6)
         dofs[idx] = D
     return dofs
 

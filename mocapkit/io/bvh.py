@@ -50,8 +50,11 @@ kinematics, top-down and vectorised over frames:
    vectors to its children as predicted by ``L0`` onto the vectors to the children's
    target positions: the minimal (shortest-arc) rotation for one child, the
    Kabsch/SVD rotation for several (hips, chest). Children at zero offset (CMU
-   ``LHipJoint``, ``LowerBack`` ...) are looked through to their own children; children
-   with position channels are skipped (their translation is solved exactly instead);
+   ``LHipJoint``, ``LowerBack`` ...) are looked through to their own children; rigidly
+   attached children decide first and the looked-through ones only fix what those leave
+   free (the twist about a single bone), since the zero-length joint in between corrects
+   its own subtree; children with position channels are skipped (their translation is
+   solved exactly instead); a leaf keeps ``L0``;
 3. ``L = G_parent^T Q G_parent L0`` is converted back to Euler angles in the joint's own
    channel order (the branch and 360-degree turn nearest to the original value, or
    unwrapped over time without one).
@@ -80,7 +83,7 @@ from ..skeleton import Skeleton
 from ._atomic import atomic_write
 from ._text import float_rows, parse_float, parse_int, read_text
 
-__all__ = ["read", "write", "UNITS", "forward_kinematics"]
+__all__ = ["read", "write", "node_positions", "UNITS"]
 
 #: unit name -> factor to cm
 UNITS: dict[str, float] = {
@@ -498,6 +501,21 @@ def read(path: str | os.PathLike, *, units: str | float | None = None, end_sites
     return Motion(X[:, keep] * f, skeleton, 1.0 / frame_time, None, source)
 
 
+def node_positions(motion: Motion) -> tuple[tuple[str, ...], np.ndarray]:
+    """Every hierarchy node of a BVH-read motion, End Sites included: (names, (T, N, 3) cm).
+
+    Needs the hierarchy and the per-frame channels the reader stored (kept by ``slice``;
+    dropped by ``resample``/``select``). End Sites are named ``<parent>_End``.
+    """
+    meta = motion.source.get("bvh")
+    ch = motion.source.get("per_frame", {}).get("channels")
+    if meta is None or ch is None:
+        raise MocapValueError("node_positions needs a motion read from BVH with its per-frame channels")
+    nodes = _meta_to_nodes(meta["nodes"])
+    X, _ = forward_kinematics(nodes, np.asarray(ch, float))
+    return tuple(n.name for n in nodes), X * float(motion.source["units"]["factor_to_cm"])
+
+
 # ----------------------------------------------------------------------------------------
 # inverse kinematics
 # ----------------------------------------------------------------------------------------
@@ -839,7 +857,9 @@ def write(motion: Motion, path: str | os.PathLike, *, hierarchy: str = "auto",
             f"({100 * motion.missing_fraction:.1f}%); BVH has no way to mark them - fill the gaps "
             f"first (e.g. mocapkit.denoise.get('spline').denoise(motion))")
     src = motion.source
-    meta = src.get("bvh") if src.get("format") == "bvh" or "bvh" in src else None
+    meta = src.get("bvh")
+    if isinstance(units, str) and units.lower() == "auto":
+        units = None
     use_source = meta is not None and hierarchy in ("auto", "source")
     if hierarchy == "source" and meta is None:
         raise MocapValueError("this motion carries no BVH hierarchy (it was not read from a BVH file); "
@@ -863,14 +883,19 @@ def write(motion: Motion, path: str | os.PathLike, *, hierarchy: str = "auto",
         if list(sk.parents) != exp_par:
             raise MocapValueError("the motion's skeleton parents do not match the stored BVH hierarchy; "
                                   "pass hierarchy='skeleton'")
-        if units is None:
-            factor = float(src.get("units", {}).get("factor_to_cm", 1.0))
-        else:
-            factor = _resolve_units(units, nodes, path)["factor_to_cm"]
+        read_factor = float(src.get("units", {}).get("factor_to_cm", 1.0))
+        factor = read_factor if units is None else _resolve_units(units, nodes, path)["factor_to_cm"]
         pf = src.get("per_frame", {}).get("channels")
-        _, _, C = _layout(nodes)
+        _, pos_layout, C = _layout(nodes)
         if pf is not None and np.shape(pf) == (T, C):
-            ch0 = np.asarray(pf, dtype=float)
+            ch0 = np.array(pf, dtype=float)
+        if factor != read_factor:               # new file unit: rescale lengths
+            scale = read_factor / factor
+            for n in nodes:
+                n.offset = n.offset * scale
+            if ch0 is not None:
+                for _, cols in pos_layout:
+                    ch0[:, cols] *= scale
         ft = float(meta.get("frame_time", 1.0 / motion.fps))
         frame_time = ft if abs(1.0 / ft - motion.fps) <= 1e-9 * motion.fps else 1.0 / motion.fps
     else:

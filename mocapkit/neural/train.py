@@ -406,6 +406,8 @@ class Trainer:
         """Train until both phases reach their step counts (continuing a resumed run)."""
         from tqdm import tqdm
 
+        if self.phase == "done" and self.step < self.total_steps("denoise"):
+            self.phase = "denoise"           # resumed with more denoising steps than before
         while self.phase != "done":
             total = self.total_steps(self.phase)
             if self.phase == "perceptual" and self.perceptual is not None and self.step == 0:

@@ -163,7 +163,14 @@ def smooth_solve(rhs: np.ndarray, eta: float, mu: float) -> np.ndarray:
 
 def soft_threshold(A: np.ndarray, tau: float) -> np.ndarray:
     """Element-wise soft thresholding sign(a) max(|a| - tau, 0) (the prox of tau ||.||_1)."""
-    return np.sign(A) * np.maximum(np.abs(A) - tau, 0.0)
+    return A - np.clip(A, -tau, tau)
+
+
+def _shrink_observed(Z: np.ndarray, tau: float, miss: np.ndarray) -> np.ndarray:
+    """Soft thresholding on observed entries, identity on missing ones (eqs. 4.11, 4.24)."""
+    out = soft_threshold(Z, tau)
+    np.copyto(out, Z, where=miss)
+    return out
 
 
 def _singular_values(X: np.ndarray) -> np.ndarray:
@@ -299,22 +306,32 @@ def tsmc(X: Any, mask: Any = None, *, rank: int | str | None = None, alpha: floa
     crit = np.inf
     it = 0
     converged = False
+    Z = np.empty((T, C))
+    Ze = np.empty((T, C))
     for it in range(1, int(max_iter) + 1):
-        Z = Y1 + Y2 + l1 * M + l2 * (X - E)
-        U = np.linalg.solve(Ik + (l1 + l2) * (V.T @ V), (Z @ V).T).T
-        V = np.linalg.solve(Ik + (l1 + l2) * (U.T @ U), (Z.T @ U).T).T
+        # Z = Y1 + Y2 + l1 M + l2 (X - E)   (in place: one (T, C) buffer)
+        np.subtract(X, E, out=Z)
+        Z *= l2
+        Z += Y1
+        Z += Y2
+        Z += l1 * M
+        U = (Z @ V) @ np.linalg.inv(Ik + (l1 + l2) * (V.T @ V))             # eq. 4.9
+        V = (Z.T @ U) @ np.linalg.inv(Ik + (l1 + l2) * (U.T @ U))           # eq. 4.10
         UV = U @ V.T
-        Ze = X - UV + Y2 / l2
-        E = soft_threshold(Ze, alpha / l2)
-        E[miss] = Ze[miss]
-        M = smooth_solve(l1 * UV - Y1, l1, beta)
+        # E: element-wise shrinkage of Ze = X - UV + Y2 / l2 on Omega, Ze itself off Omega
+        np.subtract(X, UV, out=Ze)
+        Ze += Y2 / l2
+        E = _shrink_observed(Ze, alpha / l2, miss)                           # eq. 4.11
+        M = smooth_solve(l1 * UV - Y1, l1, beta)                             # eq. 4.13
         R1 = M - UV
-        R2 = X - UV - E
-        Y1 += l1 * R1
+        R2 = X - UV
+        R2 -= E
+        Y1 += l1 * R1                                                        # eq. 4.14
         Y2 += l2 * R2
         nuv = np.linalg.norm(UV)
+        UV_prev -= UV
         crit = max(_rel(np.linalg.norm(R2), nx), _rel(np.linalg.norm(R1), nx),
-                   _rel(np.linalg.norm(UV - UV_prev), nuv))
+                   _rel(np.linalg.norm(UV_prev), nuv))
         UV_prev = UV
         l1 = min(gamma * l1, lam_max)
         l2 = min(gamma * l2, lam_max)
@@ -434,26 +451,34 @@ def trnn(X: Any, mask: Any = None, *, r: int = 15, d: int | str | None = None, l
     crit = np.inf
     it = 0
     converged = False
+    Trest = np.empty((T, C))
+    Ts = np.empty((T, C))
     for it in range(1, int(max_iter) + 1):
-        Trest = Y1 + Y2 + eta * (M + D - S)
-        # T1 B and T1^T A with T1 = P^T Q + Trest, without forming P^T Q
-        A = np.linalg.solve(Id + 2 * eta * (B.T @ B), (Trest @ B + P.T @ (Q @ B)).T).T
-        B = np.linalg.solve(Id + 2 * eta * (A.T @ A), (Trest.T @ A + Q.T @ (P @ A)).T).T
+        # Trest = Y1 + Y2 + eta (M + D - S); T1 = P^T Q + Trest is never formed
+        np.add(M, D, out=Trest)
+        Trest -= S
+        Trest *= eta
+        Trest += Y1
+        Trest += Y2
+        A = (Trest @ B + P.T @ (Q @ B)) @ np.linalg.inv(Id + 2 * eta * (B.T @ B))    # (4.24)
+        B = (Trest.T @ A + Q.T @ (P @ A)) @ np.linalg.inv(Id + 2 * eta * (A.T @ A))
         AB = A @ B.T
-        Ts = D - AB + Y2 / eta
-        S = soft_threshold(Ts, lam / eta)
-        S[miss] = Ts[miss]
-        M = smooth_solve(eta * AB - Y1, eta, mu)
+        np.subtract(D, AB, out=Ts)
+        Ts += Y2 / eta
+        S = _shrink_observed(Ts, lam / eta, miss)
+        M = smooth_solve(eta * AB - Y1, eta, mu)                                      # (4.25)
         if r > 0:
-            P = _orth_max(A @ (Q @ B).T)                      # (T, r) -> P (r, T)
+            P = _orth_max(A @ (Q @ B).T)                      # (T, r) -> P (r, T)  (4.26)
             Q = _orth_max(B @ (P @ A).T)                      # (C, r) -> Q (r, C)
         R1 = M - AB
-        R2 = D - AB - S
+        R2 = D - AB
+        R2 -= S
         Y1 += eta * R1
         Y2 += eta * R2
         nab = np.linalg.norm(AB)
+        AB_prev -= AB
         crit = max(_rel(np.linalg.norm(R2), nd), _rel(np.linalg.norm(R1), nd),
-                   _rel(np.linalg.norm(AB - AB_prev), nab))
+                   _rel(np.linalg.norm(AB_prev), nab))
         AB_prev = AB
         eta = min(rho * eta, eta_max)
         if crit < tol:
@@ -484,59 +509,127 @@ def _kalman_rts(Xc: np.ndarray, A: np.ndarray, Cm: np.ndarray, Q: np.ndarray, Rd
 
     Observation noise is diagonal (``Rd`` (C,)), so the update works in information form
     on k x k matrices.  With every frame (filled) observed, the covariances do not depend
-    on the data: they are iterated until they reach their steady state and then reused,
-    so the Python loops over frames only do k-vector recursions.
+    on the data: the forward ones are iterated until they reach their steady state (after
+    ``ns`` frames) and reused; the backward (smoothed) ones reach a fixed point in the
+    steady middle of the sequence, which is then counted instead of iterated.  Only the
+    k-vector mean recursions visit every frame.  Memory is O(ns k^2 + T k).
 
     Returns smoothed means (T, k), the sum of smoothed covariances over all frames, over
-    frames 1..T-1 and 2..T, the sum of lag-one cross covariances Cov(z_t, z_{t-1}),
-    and the first frame's covariance.
+    frames 1..T-1 and 2..T, the sum of lag-one cross covariances
+    ``sum_t Cov(z_t, z_{t-1})``, and the first frame's smoothed covariance.
     """
     T, k = Xc.shape[0], A.shape[0]
     CtRinv = Cm.T / Rd                                   # (k, C)
     info = CtRinv @ Cm                                    # C^T R^-1 C (k, k)
-    # forward covariance recursion (data independent), to steady state
-    Pp = np.empty((T, k, k))                              # predicted
-    Pf = np.empty((T, k, k))                              # filtered
-    steady_f = T
-    prev = None
-    for t in range(T):
-        Pp[t] = V0 if t == 0 else A @ Pf[t - 1] @ A.T + Q
-        Pf[t] = np.linalg.inv(np.linalg.inv(Pp[t]) + info)
-        Pf[t] = 0.5 * (Pf[t] + Pf[t].T)
-        if prev is not None and t > 2 and np.abs(Pf[t] - prev).max() <= 1e-10 * max(np.abs(prev).max(), 1e-300):
-            steady_f = t + 1
+    Pp_l, Pf_l = [], []
+    for t in range(T):                                    # forward covariances to steady state
+        Pp = V0 if t == 0 else A @ Pf_l[-1] @ A.T + Q
+        Pf = np.linalg.inv(np.linalg.inv(Pp) + info)
+        Pf = 0.5 * (Pf + Pf.T)
+        steady = (t > 2 and np.abs(Pf - Pf_l[-1]).max() <= 1e-10 * max(np.abs(Pf).max(), 1e-300))
+        Pp_l.append(Pp)
+        Pf_l.append(Pf)
+        if steady:
             break
-        prev = Pf[t]
-    if steady_f < T:
-        Pp[steady_f:] = Pp[steady_f - 1]
-        Pf[steady_f:] = Pf[steady_f - 1]
-    # filter means: mu_t = G_t A mu_{t-1} + b_t with b_t = K_t x_t, K_t = Pf_t C^T R^-1 and
-    # G_t = I - K_t C = Pf_t Pp_t^-1 (information form)
-    Ppinv = np.linalg.inv(Pp)
-    b = np.einsum("tij,tj->ti", Pf, Xc @ CtRinv.T)
-    GA = (Pf @ Ppinv) @ A                                 # (T, k, k)
+    ns = len(Pf_l)                                        # t >= ns - 1 uses the last entry
+    Pp_u, Pf_u = np.array(Pp_l), np.array(Pf_l)
+    Ppinv_u = np.linalg.inv(Pp_u)
+    GA_u = Pf_u @ Ppinv_u @ A                             # (I - K_t C) A
+    nxt = np.minimum(np.arange(ns) + 1, ns - 1)
+    J_u = Pf_u @ A.T @ Ppinv_u[nxt]                       # J_t = Pf_t A^T Pp_{t+1}^-1
+    # filter means: mu_t = (I - K_t C) A mu_{t-1} + K_t x_t, K_t x_t = Pf_t C^T R^-1 x_t
+    Kx = Xc @ CtRinv.T                                    # (T, k)
+    b = np.empty((T, k))
+    m0 = min(ns, T)
+    b[:m0] = np.einsum("tij,tj->ti", Pf_u[:m0], Kx[:m0])
+    if T > ns:
+        b[ns:] = Kx[ns:] @ Pf_u[-1].T
     mu = np.empty((T, k))
-    mu[0] = Pf[0] @ Ppinv[0] @ u0 + b[0]
+    mu[0] = Pf_u[0] @ Ppinv_u[0] @ u0 + b[0]
+    last = ns - 1
     for t in range(1, T):
-        mu[t] = GA[t] @ mu[t - 1] + b[t]
-    # backward RTS: J_t = Pf_t A^T Pp_{t+1}^-1 (batched), then the two recursions
-    J = Pf[:-1] @ A.T @ Ppinv[1:]                         # (T-1, k, k)
-    Vs = np.empty((T, k, k))
-    Vs[-1] = Pf[-1]
+        mu[t] = GA_u[t if t < last else last] @ mu[t - 1] + b[t]
+    # backward covariances with fixed-point skipping
+    Vs_last = Pf_u[min(T - 1, last)]
+    Vsum = Vs_last.copy()
+    cross = np.zeros((k, k))
+    Vn = Vs_last
+    t = T - 2
+    while t >= 0:
+        i, i1 = min(t, last), min(t + 1, last)
+        Jt = J_u[i]
+        Vt = Pf_u[i] + Jt @ (Vn - Pp_u[i1]) @ Jt.T
+        Vsum += Vt
+        cross += Vn @ Jt.T
+        if (t > ns and t < T - 3 and np.abs(Vt - Vn).max() <= 1e-10 * max(np.abs(Vt).max(), 1e-300)):
+            c = t - ns                                    # frames ns .. t-1 share Vt
+            Vsum += c * Vt
+            cross += c * (Vt @ Jt.T)
+            Vn = Vt
+            t = ns - 1
+            continue
+        Vn = Vt
+        t -= 1
+    V1 = Vn if T > 1 else Vs_last
+    # smoothed means
     ms = np.empty((T, k))
     ms[-1] = mu[-1]
     Amu = mu @ A.T
+    D = ms[-1]
     for t in range(T - 2, -1, -1):
-        Vs[t] = Pf[t] + J[t] @ (Vs[t + 1] - Pp[t + 1]) @ J[t].T
-        ms[t] = mu[t] + J[t] @ (ms[t + 1] - Amu[t])
-    Vsum = Vs.sum(axis=0)
-    cross = np.einsum("tij,tkj->ik", Vs[1:], J) if T > 1 else np.zeros((k, k))
-    return ms, Vsum, Vsum - Vs[-1], Vsum - Vs[0], cross, Vs[0]
+        D = mu[t] + J_u[t if t < last else last] @ (D - Amu[t])
+        ms[t] = D
+    return ms, Vsum, Vsum - Vs_last, Vsum - V1, cross, V1
+
+
+def _kalman_rts_masked(Xc: np.ndarray, W: np.ndarray, A: np.ndarray, Cm: np.ndarray,
+                       Q: np.ndarray, u0: np.ndarray, V0: np.ndarray):
+    """Kalman filter + RTS smoother that conditions on the observed entries only.
+
+    ``W`` (T, C) holds ``mask / R`` (0 on missing entries), so frame t contributes the
+    information ``C^T diag(W_t) C`` and ``C^T diag(W_t) x_t`` (information-form update;
+    Shumway & Stoffer 1982 for LDS with missing observations).  Covariances now depend
+    on the mask, so they are computed for every frame (memory O(T k^2)).  Same returns as
+    :func:`_kalman_rts`.
+    """
+    T, k = Xc.shape[0], A.shape[0]
+    Ckl = (Cm[:, :, None] * Cm[:, None, :]).reshape(Cm.shape[0], k * k)
+    info = (W @ Ckl).reshape(T, k, k)                     # C^T diag(w_t) C per frame
+    bx = (W * Xc) @ Cm                                    # C^T diag(w_t) x_t
+    Pp = np.empty((T, k, k))
+    Pf = np.empty((T, k, k))
+    Ppinv = np.empty((T, k, k))
+    mu = np.empty((T, k))
+    for t in range(T):
+        Pp[t] = V0 if t == 0 else A @ Pf[t - 1] @ A.T + Q
+        Ppinv[t] = np.linalg.inv(Pp[t])
+        P = np.linalg.inv(Ppinv[t] + info[t])
+        Pf[t] = 0.5 * (P + P.T)
+        mp = u0 if t == 0 else A @ mu[t - 1]
+        mu[t] = Pf[t] @ (Ppinv[t] @ mp + bx[t])
+    J = Pf[:-1] @ A.T @ Ppinv[1:]                         # (T-1, k, k)
+    Vn = Pf[-1]
+    Vsum = Vn.copy()
+    cross = np.zeros((k, k))
+    for t in range(T - 2, -1, -1):
+        Vt = Pf[t] + J[t] @ (Vn - Pp[t + 1]) @ J[t].T
+        Vsum += Vt
+        cross += Vn @ J[t].T
+        Vn = Vt
+    ms = np.empty((T, k))
+    ms[-1] = mu[-1]
+    Amu = mu @ A.T
+    D = ms[-1]
+    for t in range(T - 2, -1, -1):
+        D = mu[t] + J[t] @ (D - Amu[t])
+        ms[t] = D
+    return ms, Vsum, Vsum - Pf[-1], Vsum - Vn, cross, Vn
 
 
 @_one_blas_thread
 def lds_em_complete(X: Any, mask: Any = None, *, k: int | None = None, max_iter: int = 100,
-                    tol: float = 1e-4, min_var: float = 1e-6, return_info: bool = False):
+                    tol: float = 1e-4, min_var: float = 1e-6, estep: str = "fill",
+                    return_info: bool = False):
     """Fill missing entries with a linear dynamical system learnt by EM (DynaMMo).
 
     Li, McCann, Pollard & Faloutsos (2009), "DynaMMo: mining and summarization of
@@ -545,21 +638,31 @@ def lds_em_complete(X: Any, mask: Any = None, *, k: int | None = None, max_iter:
         z_1 ~ N(u0, V0),   z_{t+1} = A z_t + w_t, w ~ N(0, Q),   x_t = C z_t + v_t, v ~ N(0, R)
 
     with latent z_t in R^k and x_t the (centred) frame.  Every EM iteration runs the Kalman
-    filter and the Rauch-Tung-Striebel smoother on the current filled data (E-step), updates
-    (u0, V0, A, Q, C, R) in closed form (M-step; Ghahramani & Hinton 1996) and re-estimates
-    the missing entries as ``C E[z_t]`` (DynaMMo's step 4).  Decisions: R is diagonal (one
-    variance per coordinate, as DynaMMo's implementation) with variances floored at
-    ``min_var`` times the data variance; the parameters start from PCA of the linearly
-    interpolated data (C = top-k principal directions, A by least squares on the latent
-    sequence) rather than at random, which needs far fewer EM iterations; observed entries
-    are returned unchanged.
+    filter and the Rauch-Tung-Striebel smoother (E-step), re-estimates the missing entries
+    as ``C E[z_t]`` (DynaMMo's step 4) and updates (u0, V0, A, Q, C, R) in closed form
+    (M-step; Ghahramani & Hinton 1996) with the missing entries at their expected values.
+
+    E-step (``estep``): ``"fill"`` (default, DynaMMo's algorithm) runs the smoother on the
+    current filled data -- every frame is then fully "observed", the covariances do not
+    depend on the data and reach a steady state, so an iteration costs O(T k^2);
+    ``"observed"`` conditions on the observed entries only (per-frame information update,
+    Shumway & Stoffer 1982), which is the exact posterior but costs two k x k inversions per
+    frame.  Measured on CMU 135_09 (600 frames, k = 48): 60 % random missing markers
+    0.16 cm ("fill") vs 0.14 cm ("observed"); 10 markers x 60 frames 9.5 vs 9.3 cm, at
+    about 10x the run time for "observed".
+
+    Decisions: R is diagonal (one variance per
+    coordinate) estimated on observed entries and floored at ``min_var`` times the data
+    variance; the parameters start from PCA of the linearly interpolated data (C = top-k
+    principal directions, A by least squares on the latent sequence) rather than at random,
+    which needs far fewer EM iterations; observed entries are returned unchanged.
 
     Parameters
     ----------
     X : (T, C) data (cm); mask : bool (T, C), True = observed.
-    k : latent dimension (default ``min(16, C)``).
+    k : latent dimension (default ``min(48, C)``; see :class:`mocapkit.denoise.thesis.DynaMMo`).
     max_iter, tol : EM iterations; stop when the filled values change by less than ``tol``
-        relative to the data norm.
+        relative to their norm (centred).
 
     Returns
     -------
@@ -568,7 +671,7 @@ def lds_em_complete(X: Any, mask: Any = None, *, k: int | None = None, max_iter:
     """
     X, m = _prepare(X, mask)
     T, Cn = X.shape
-    k = int(min(16, Cn) if k is None else k)
+    k = int(min(48, Cn) if k is None else k)
     if k < 1:
         raise MocapValueError(f"k must be >= 1, got {k}")
     k = min(k, Cn, max(T - 1, 1))
@@ -593,8 +696,22 @@ def lds_em_complete(X: Any, mask: Any = None, *, k: int | None = None, max_iter:
     change = np.inf
     converged = not miss.any()
     it = 0
+    if estep not in ("fill", "observed"):
+        raise MocapValueError(f"estep must be 'fill' or 'observed', got {estep!r}")
+    n_obs = np.maximum(m.sum(axis=0), 1)
     for it in range(1, int(max_iter) + 1):
-        ms, Vsum, Vsum_prev, Vsum_next, cross, V1 = _kalman_rts(Xc, A, Cm, Q, Rd, u0, V0)
+        if miss.any() and estep == "observed":
+            ms, Vsum, Vsum_prev, Vsum_next, cross, V1 = _kalman_rts_masked(
+                Xc, m / Rd, A, Cm, Q, u0, V0)
+            new = (ms @ Cm.T)[miss]
+            change = float(np.linalg.norm(new - Xc[miss]) / max(np.linalg.norm(Xc[miss]), 1e-300))
+            Xc[miss] = new                                # E[x_missing] = C E[z]
+        else:
+            ms, Vsum, Vsum_prev, Vsum_next, cross, V1 = _kalman_rts(Xc, A, Cm, Q, Rd, u0, V0)
+            if miss.any():
+                new = (ms @ Cm.T)[miss]
+                change = float(np.linalg.norm(new - Xc[miss]) / max(np.linalg.norm(Xc[miss]), 1e-300))
+                Xc[miss] = new
         # sufficient statistics
         S11 = Vsum + ms.T @ ms                            # sum_t E[z_t z_t^T]
         Sprev = Vsum_prev + ms[:-1].T @ ms[:-1]           # t = 1..T-1
@@ -603,16 +720,16 @@ def lds_em_complete(X: Any, mask: Any = None, *, k: int | None = None, max_iter:
         # M-step
         A = np.linalg.solve(Sprev.T, S10.T).T
         Q = _psd_floor((Snext - A @ S10.T) / (T - 1), floor)
-        XZ = Xc.T @ ms                                    # (C, k)
+        XZ = Xc.T @ ms                                    # (C, k), missing entries filled
         Cm = np.linalg.solve(S11.T, XZ.T).T
-        Rd = np.maximum(((Xc ** 2).sum(axis=0) - np.einsum("ck,ck->c", Cm, XZ)) / T, floor)
+        # R from the observed entries only (plus the state uncertainty, averaged over frames)
+        resid = np.where(m, Xc - ms @ Cm.T, 0.0)
+        Rd = np.maximum((resid ** 2).sum(axis=0) / n_obs
+                        + np.einsum("ck,kl,cl->c", Cm, Vsum / T, Cm), floor)
         u0 = ms[0].copy()
         V0 = _psd_floor(V1, floor)
         if not miss.any():
             break
-        new = (ms @ Cm.T)[miss]
-        change = float(np.linalg.norm(new - Xc[miss]) / max(np.linalg.norm(Xc[miss]), 1e-300))
-        Xc[miss] = new
         if change < tol:
             converged = True
             break

@@ -392,6 +392,8 @@ def _ialm_batch(D: np.ndarray, mask: np.ndarray | None, lam: np.ndarray, tol: fl
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Inexact ALM (Lin et al. 2010, Alg. 5) on a stack D (p, m, n); unobserved D entries are 0.
 
+    ``lam`` is one weight per matrix (p,) or one per entry (p, m, n) (weighted l1 norm).
+
     Per matrix: Y_0 = D / max(||D||_2, ||D||_inf / lambda), mu_0 = 1.25 / ||D||_2,
     mu_bar = 1e7 mu_0, mu_{k+1} = min(rho mu_k, mu_bar).  With a mask, E is unconstrained
     (not penalised) on unobserved entries, i.e. the constraint is P_Omega(A + E) = P_Omega(D)
@@ -402,7 +404,8 @@ def _ialm_batch(D: np.ndarray, mask: np.ndarray | None, lam: np.ndarray, tol: fl
     normF = np.linalg.norm(D, axis=(1, 2))
     norm2 = _spectral_norm(D)
     safe2 = np.where(norm2 > 0, norm2, 1.0)
-    norm_inf = np.abs(D).max(axis=(1, 2)) / lam
+    lam_s = lam if lam.ndim == 1 else lam.min(axis=(1, 2))      # per-entry weights allowed
+    norm_inf = np.abs(D).max(axis=(1, 2)) / lam_s
     Y = D / np.maximum(safe2, norm_inf)[:, None, None]
     mu = 1.25 / safe2
     mu_bar = mu * 1e7
@@ -432,7 +435,7 @@ def _ialm_batch(D: np.ndarray, mask: np.ndarray | None, lam: np.ndarray, tol: fl
         A_new, _ = shrink_singular_values(M, inv_mu[:, 0, 0], svd)     # eq. 4
         R = Dw - A_new
         R += Ym
-        thr = lam_w[:, None, None] * inv_mu
+        thr = (lam_w[:, None, None] if lam_w.ndim == 1 else lam_w) * inv_mu
         E_new = R - np.clip(R, -thr, thr)                  # soft threshold, eqs. 5-6
         if Mw is not None:
             np.copyto(E_new, R, where=~Mw)                 # unobserved: E absorbs all

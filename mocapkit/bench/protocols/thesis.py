@@ -47,6 +47,7 @@ from typing import Any, Iterator
 import numpy as np
 
 from ...datasets import bundled, cmu_amc
+from ...errors import MocapError
 from ..core import Context, Row, Timer, protocol
 
 CLIPS = (
@@ -116,7 +117,7 @@ def _clips(ctx: Context) -> list[tuple[str, str, Any]]:
 
             try:
                 m = io.read(bundled("16_15.amc"))
-            except Exception:                          # noqa: BLE001 - bundled data missing
+            except MocapError:                         # bundled clip missing too
                 m = None
         if m is None:
             continue
@@ -126,11 +127,25 @@ def _clips(ctx: Context) -> list[tuple[str, str, Any]]:
     return out
 
 
+_PSC_CACHE: dict[tuple, tuple[Any, str]] = {}
+
+
 def _psc_model(ours: str, clean, ctx: Context):
-    """PSC trained on PSC_TRAIN[ours] (falls back to the clip's other half when absent)."""
+    """PSC trained on PSC_TRAIN[ours] (falls back to the clip's other frames when absent).
+
+    Models are cached per (clip, frames, parameters, data folder) within one process, so
+    the random and block protocols share them.
+    """
+    params = dict(QUICK_PSC if ctx.quick else ctx.options.get("psc", {}))
+    key = (ours, clean.n_frames, tuple(sorted(params.items())), str(ctx.data_dir), ctx.quick)
+    if key not in _PSC_CACHE:
+        _PSC_CACHE[key] = _train_psc(ours, clean, ctx, params)
+    return _PSC_CACHE[key]
+
+
+def _train_psc(ours: str, clean, ctx: Context, params: dict[str, Any]):
     from ... import denoise
 
-    params = dict(QUICK_PSC if ctx.quick else ctx.options.get("psc", {}))
     train = []
     if not ctx.quick:
         for t in PSC_TRAIN.get(ours, ()):

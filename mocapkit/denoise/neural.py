@@ -1,0 +1,198 @@
+"""Neural refinement: BRA and BRA-P (Li et al. 2020, seed 002; torch, optional).
+
+``bra-p``
+    Li, Zhu, Zheng & Li 2020, "A perceptual-based noise-agnostic 3D skeleton motion data
+    refinement network" (IEEE Access 8). A perceptual autoencoder (E_p, D_p), eqs.
+    (1)-(2), trained on clean clips with eq. (8); then a denoising autoencoder
+    (E_d, D_d) trained on the mixed-noise set DS_syn with eq. (9): reproduction (3),
+    smoothness (5)-(6), bone length (7) and perceptual (4) losses. At run time the
+    output is ``Y_R = D_p(E_p(D_d(E_d(X_N))))`` (``postprocess=True``; False gives the
+    BRA-P-D ablation of Table 2).
+``bra``
+    Li et al. 2019 (the paper's [13]; Table 2 row BRA(512)): the denoising autoencoder
+    alone, trained with eq. (9) without the perceptual term.
+
+Other Table 2 ablations are parameters: EBD = ``bra`` with ``lambdas_denoise=(1, 0, 0,
+0)``; EBD-P = ``bra-p`` with ``lambdas_denoise=(1, 0, 0, 10)``; BRA-P(256) = ``hidden=256``.
+
+Data handling (``mocapkit.neural.clips``): 60 fps, the 21-joint CMU subset, root-local
+ground frame, mean/std normalisation, 120-frame clips overlapping by 60 with a linear
+cross-fade; the output has the input's skeleton, frames and fps, joints outside the
+subset attached rigidly to their nearest refined ancestor. A motion whose skeleton lacks
+one of the 21 joints is refused with a MocapValueError naming them.
+
+Without a trained model, ``bra-p`` and ``bra`` load the checkpoints shipped in
+``mocapkit/neural/pretrained/`` (small CPU-trained models; ``docs/neural.md`` says how
+they were trained and how well they do), so they need no training step. ``fit(motions)``
+trains a new model on clean motions (defaults: the paper's settings, 300 epochs per
+network: hours on a CPU; see ``docs/neural.md`` for CPU-sized settings).
+
+Models are saved as ``.pt`` files (:mod:`mocapkit.neural.bundle`), not ``.npz``.
+torch is imported only when a model is trained or used; without it these methods raise
+MissingDependencyError ("pip install mocapkit[neural]").
+"""
+from __future__ import annotations
+
+import os
+from typing import Any, Sequence
+
+from ..errors import MocapFormatError, MocapValueError
+from ..motion import Motion
+from ..neural import pretrained_path, require_torch
+from .base import Denoiser, check_output, register
+
+_PARAMS = ("hidden", "dropout", "batch_size", "lambdas_perceptual", "lambdas_denoise", "lr_perceptual",
+           "lr_denoise", "epochs_perceptual", "epochs_denoise", "steps_perceptual", "steps_denoise",
+           "random_offsets", "seed", "threads")
+
+
+class _NeuralDenoiser(Denoiser):
+    """Shared implementation of ``bra`` and ``bra-p`` (see the module docstring)."""
+
+    keeps_observed = False
+    clean_tolerance_cm = 6.0
+    _perceptual: bool = True
+
+    def __init__(self, *, model: str | None = None, postprocess: bool = True, hidden: int = 512,
+                 dropout: float = 0.2, batch_size: int = 16,
+                 lambdas_perceptual: Sequence[float] = (1.0, 1e-4, 1e-4),
+                 lambdas_denoise: Sequence[float] = (1.0, 1e-3, 1e-3, 10.0),
+                 lr_perceptual: float = 1e-5, lr_denoise: float = 1e-3,
+                 epochs_perceptual: float = 300.0, epochs_denoise: float = 300.0,
+                 steps_perceptual: int | None = None, steps_denoise: int | None = None,
+                 random_offsets: bool = False, seed: int = 0, threads: int | None = None,
+                 progress: bool = False):
+        self.model = model
+        self.postprocess = postprocess
+        self.hidden = hidden
+        self.dropout = dropout
+        self.batch_size = batch_size
+        self.lambdas_perceptual = lambdas_perceptual
+        self.lambdas_denoise = lambdas_denoise
+        self.lr_perceptual = lr_perceptual
+        self.lr_denoise = lr_denoise
+        self.epochs_perceptual = epochs_perceptual
+        self.epochs_denoise = epochs_denoise
+        self.steps_perceptual = steps_perceptual
+        self.steps_denoise = steps_denoise
+        self.random_offsets = random_offsets
+        self.seed = seed
+        self.threads = threads
+        self.progress = progress
+
+    @classmethod
+    def quick_params(cls) -> dict[str, Any]:
+        return {"hidden": 16, "steps_perceptual": 2, "steps_denoise": 2, "random_offsets": True,
+                "threads": 1}
+
+    # -- model ------------------------------------------------------------------------------
+    def is_fitted(self) -> bool:
+        return (getattr(self, "bundle_", None) is not None or bool(self.model)
+                or pretrained_path(self.name).is_file())
+
+    def _bundle(self):
+        b = getattr(self, "bundle_", None)
+        if b is not None:
+            return b
+        from ..neural.bundle import Bundle
+
+        require_torch()
+        path = self.model or pretrained_path(self.name)
+        if not self.model and not os.path.isfile(path):
+            self._check_fitted()
+            raise MocapValueError(f"no shipped checkpoint for {self.name!r} at {path}; train one "
+                                  f"(mocapkit train --method {self.name} ...)")
+        b = Bundle.load(path)
+        if b.meta.get("method") != self.name:
+            raise MocapFormatError(path, f"model is for method {b.meta.get('method')!r}, not {self.name!r}")
+        if not b.same_topology:
+            raise MocapValueError(f"{path}: a different-topology model ({len(b.joints_in)} -> "
+                                  f"{len(b.joints_out)} joints) cannot be a Denoiser; use "
+                                  f"mocapkit.neural.bundle.Bundle.refine")
+        self.bundle_ = b
+        return b
+
+    def _config(self):
+        from ..neural.train import TrainConfig
+
+        p = {k: getattr(self, k) for k in _PARAMS}
+        return TrainConfig.from_params(perceptual=self._perceptual,
+                                       postprocess=bool(self.postprocess and self._perceptual), **p)
+
+    def fit(self, motions: Sequence[Motion]) -> "_NeuralDenoiser":
+        """Train on clean motions (each with the 21 CMU joints; any fps) with DS_syn noise."""
+        require_torch()
+        from ..neural.train import train_motions
+
+        motions = list(motions)
+        if not motions:
+            raise MocapValueError("fit() needs at least one training motion")
+        self.bundle_ = train_motions(motions, self._config(), progress=bool(self.progress))
+        self.bundle_.meta["method"] = self.name
+        return self
+
+    def denoise(self, motion: Motion) -> Motion:
+        b = self._bundle()
+        post = bool(self.postprocess) and self._perceptual
+        out = b.refine(motion, postprocess=post)
+        return check_output(motion, out, self.name)
+
+    # -- persistence ------------------------------------------------------------------------
+    def save(self, path: str | os.PathLike, *, half: bool = False) -> None:
+        """Write the model as a ``.pt`` file (:mod:`mocapkit.neural.bundle` format)."""
+        b = self._bundle()
+        b.meta["method"] = self.name
+        b.meta["denoiser_params"] = {k: v for k, v in self.get_params().items() if k not in ("model",)}
+        b.save(path, half=half)
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> "_NeuralDenoiser":
+        return load_model(path, cls)
+
+
+def load_model(path: str | os.PathLike, cls: type | None = None) -> "_NeuralDenoiser":
+    """Load a ``.pt`` model written by ``bra`` / ``bra-p`` (``save`` or ``train_cli``)."""
+    require_torch()
+    from ..neural.bundle import Bundle
+
+    b = Bundle.load(path)
+    method = b.meta.get("method")
+    target = {"bra-p": BRAP, "bra": BRA}.get(method)
+    if target is None:
+        raise MocapFormatError(path, f"model is for unknown method {method!r}")
+    if cls is not None and cls is not Denoiser and not issubclass(target, cls):
+        raise MocapFormatError(path, f"model is for method {method!r}, not {getattr(cls, 'name', cls)!r}")
+    params = {k: v for k, v in b.meta.get("denoiser_params", {}).items() if k in target._param_names()}
+    if not params:   # written by train_cli: take the training configuration
+        tp = b.meta.get("params", {})
+        params = {k: tp[k] for k in _PARAMS if k in tp}
+        params["postprocess"] = bool(b.meta.get("postprocess", method == "bra-p"))
+    obj = target(**params)
+    obj.model = os.fspath(path)
+    obj.bundle_ = b
+    return obj
+
+
+@register
+class BRAP(_NeuralDenoiser):
+    """BRA-P (Li et al. 2020): denoising BiLSTM autoencoder + perceptual loss + perceptual
+    post-processing; eqs. (1)-(9). Parameters: see the module docstring and
+    :class:`mocapkit.neural.train.TrainConfig` (paper defaults)."""
+
+    name = "bra-p"
+    description = ("BRA-P BiLSTM autoencoder with perceptual loss and perceptual post-processing "
+                   "(Li et al. 2020; torch; shipped CPU checkpoint)")
+    needs_training = not pretrained_path("bra-p").is_file()
+    _perceptual = True
+
+
+@register
+class BRA(_NeuralDenoiser):
+    """BRA (Li et al. 2019, Table 2 of Li et al. 2020): the denoising BiLSTM autoencoder
+    with smoothness and bone-length losses, no perceptual term. ``postprocess`` is ignored."""
+
+    name = "bra"
+    description = ("BRA BiLSTM denoising autoencoder with smoothness and bone-length losses "
+                   "(Li et al. 2019; torch; shipped CPU checkpoint)")
+    needs_training = not pretrained_path("bra").is_file()
+    _perceptual = False

@@ -1,0 +1,452 @@
+"""ASF/AMC reader and writer: hand-computed FK, skeleton lookup, round trips, IK, malformed input.
+
+Uses the bundled CMU clips (mocapkit/data), so it runs without ../shared/data.
+"""
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mocapkit import io
+from mocapkit.datasets import bundled
+from mocapkit.errors import MocapFormatError, MocapValueError
+from mocapkit.io import asfamc
+
+CM = 2.54 / 0.45          # cm per CMU length unit
+
+
+@pytest.fixture(scope="module")
+def walk():
+    return io.read(bundled("16_15.amc"))
+
+
+@pytest.fixture
+def pair(tmp_path):
+    """A writable copy of the bundled 16.asf + 16_15.amc (text lines of the AMC returned too)."""
+    asf = tmp_path / "16.asf"
+    amc = tmp_path / "16_15.amc"
+    shutil.copy(bundled("16.asf"), asf)
+    shutil.copy(bundled("16_15.amc"), amc)
+    return asf, amc, amc.read_text().splitlines()
+
+
+# ------------------------------------------------------------------------------------
+# a tiny hand-made skeleton: FK by hand
+# ------------------------------------------------------------------------------------
+TINY_ASF = """:version 1.10
+:name tiny
+:units
+  mass 1.0
+  length 0.45
+  angle deg
+:root
+   order TX TY TZ RX RY RZ
+   axis XYZ
+   position 0 0 0
+   orientation 0 0 0
+:bonedata
+  begin
+     id 1
+     name up
+     direction 0 1 0
+     length 2
+     axis 0 0 0 XYZ
+    dof rx ry rz
+    limits (-180 180)
+           (-180 180)
+           (-180 180)
+  end
+  begin
+     id 2
+     name fore
+     direction 0 1 0
+     length 1
+     axis 0 0 90 XYZ
+    dof rx
+    limits (-180 180)
+  end
+  begin
+     id 3
+     name side
+     direction 1 0 0
+     length 1
+     axis 0 0 0 XYZ
+  end
+:hierarchy
+  begin
+    root up side
+    up fore
+  end
+"""
+
+
+def _tiny(tmp_path, frames: str) -> Path:
+    (tmp_path / "tiny.asf").write_text(TINY_ASF)
+    p = tmp_path / "tiny_01.amc"
+    p.write_text(":FULLY-SPECIFIED\n:DEGREES\n" + frames)
+    return p
+
+
+def test_fk_by_hand(tmp_path):
+    # frame 1: rest pose at translation (1, 2, 3)
+    # frame 2: root rz = 90 (x -> y, y -> -x); 'up' rx = 0; 'fore' rx = 90 about its C axis:
+    #   C = Rz(90) maps local x to global y, so M = Rx(90) acts about global y (in the
+    #   root frame): L_fore = Rz90 . (Rz90 Rx90 Rz90^-1) = Rz90 . Ry90.
+    #   Ry90 (0,1,0) = (0,1,0) -> bone 'fore' (0,1,0) unchanged by its own rotation, then
+    #   Rz90 -> (-1, 0, 0).
+    # frame 3: 'up' rz = 90 (fore follows), 'fore' rx = 0.
+    p = _tiny(tmp_path, "1\nroot 1 2 3 0 0 0\nup 0 0 0\nfore 0\n"
+                        "2\nroot 0 0 0 0 0 90\nup 0 0 0\nfore 90\n"
+                        "3\nroot 0 0 0 0 0 0\nup 0 0 90\nfore 0\n")
+    m = io.read(p)
+    assert m.skeleton.names == ("root", "up", "fore", "side")
+    assert list(m.skeleton.parents) == [-1, 0, 1, 0]
+    P = m.positions / CM
+    np.testing.assert_allclose(P[0], [[1, 2, 3], [1, 4, 3], [1, 5, 3], [2, 2, 3]], atol=1e-12)
+    np.testing.assert_allclose(P[1], [[0, 0, 0], [-2, 0, 0], [-3, 0, 0], [0, 1, 0]], atol=1e-12)
+    np.testing.assert_allclose(P[2], [[0, 0, 0], [-2, 0, 0], [-3, 0, 0], [1, 0, 0]], atol=1e-12)
+
+
+def test_fk_bone_axis_and_hinge_by_hand(tmp_path):
+    # 'fore' has axis (0, 0, 90): its rx hinge turns about global y (C = Rz90, C x = y).
+    # A 90 degree turn about y takes the bone direction... (0,1,0) stays; so use 'up' rx=90
+    # first: up points to +z (Rx90 y = z); then fore's hinge axis is L_up C x = Rx90 y = z,
+    # and rotating fore (0,1,0)->Rx90 -> (0,0,1) by 90 about z gives (0,0,1): unchanged.
+    # With up rx=90 and fore rx=90 the fore bone (direction y) becomes
+    # L_fore y = Rx90 (Rz90 Rx90 Rz90^-1) y = Rx90 Ry90 y = Rx90 y = z.
+    p = _tiny(tmp_path, "1\nroot 0 0 0 0 0 0\nup 90 0 0\nfore 90\n")
+    P = io.read(p).positions[0] / CM
+    np.testing.assert_allclose(P[1], [0, 0, 2], atol=1e-12)
+    np.testing.assert_allclose(P[2], [0, 0, 3], atol=1e-12)
+    # and 'fore' rx = 90 with 'up' at rest: L = Ry90; Ry90 y = y (the hinge axis is y).
+    p2 = _tiny(tmp_path / "..", "") if False else None
+    (tmp_path / "b").mkdir()
+    p2 = _tiny(tmp_path / "b", "1\nroot 0 0 0 0 0 0\nup 0 0 0\nfore 90\n")
+    P2 = io.read(p2).positions[0] / CM
+    np.testing.assert_allclose(P2[2], [0, 3, 0], atol=1e-12)
+
+
+def test_cmu_units_and_offsets(walk):
+    asf = walk.source["asf"]
+    assert walk.source["units"]["cm_per_unit"] == pytest.approx(5.644444, abs=1e-6)
+    b = next(x for x in asf["bones"] if x["name"] == "lfemur")
+    np.testing.assert_allclose(walk.skeleton.offsets[walk.skeleton.index("lfemur")],
+                               np.array(b["direction"]) * b["length"] * CM)
+    assert walk.n_frames == 471 and walk.n_joints == 31 and walk.fps == 120
+    assert walk.source["per_frame"]["dofs"].shape == (471, 62)
+    # first root line of 16_15.amc: 1.22935 17.2598 -26.9208 (CMU units)
+    np.testing.assert_allclose(walk.positions[0, 0], np.array([1.22935, 17.2598, -26.9208]) * CM)
+    assert 150 < walk.height() < 200
+
+
+def test_asf_rest_pose_motion():
+    m = io.read(bundled("16.asf"))
+    assert m.n_frames == 1 and m.n_joints == 31
+    np.testing.assert_allclose(m.positions[0], m.skeleton.rest_positions(), atol=1e-9)
+    assert 140 < np.ptp(m.positions[0, :, 1]) < 200         # head to toes, Y up
+
+
+# ------------------------------------------------------------------------------------
+# skeleton lookup
+# ------------------------------------------------------------------------------------
+def test_lookup_cmu_and_hdm05_layouts(tmp_path):
+    src_asf = bundled("16.asf")
+    src_amc = bundled("16_15.amc")
+    # CMU: 05/05.asf for 05/05_04.amc (prefix in the same folder), beside a decoy
+    d = tmp_path / "05"
+    d.mkdir()
+    shutil.copy(src_asf, d / "05.asf")
+    shutil.copy(src_asf, d / "0.asf")                 # shorter prefix: loses to 05.asf
+    shutil.copy(src_amc, d / "05_04.amc")
+    assert asfamc.find_skeleton(d / "05_04.amc") == d / "05.asf"
+    # HDM05: HDM_bd.asf one folder up from hopBothLegs1hops/HDM_bd_....amc
+    h = tmp_path / "hdm"
+    (h / "hopBothLegs1hops").mkdir(parents=True)
+    shutil.copy(src_asf, h / "HDM_bd.asf")
+    shutil.copy(src_asf, h / "HDM_mm.asf")
+    amc = h / "hopBothLegs1hops" / "HDM_bd_hopBothLegs1hops_001_120.amc"
+    shutil.copy(src_amc, amc)
+    assert asfamc.find_skeleton(amc) == h / "HDM_bd.asf"
+    assert io.read(amc).n_frames == 471
+    # the only .asf in the AMC's folder
+    o = tmp_path / "only"
+    o.mkdir()
+    shutil.copy(src_asf, o / "subject.asf")
+    shutil.copy(src_amc, o / "clip.amc")
+    assert asfamc.find_skeleton(o / "clip.amc") == o / "subject.asf"
+    # explicit skeleton=
+    assert io.read(o / "clip.amc", skeleton=o / "subject.asf").n_joints == 31
+
+
+def test_lookup_errors(tmp_path):
+    shutil.copy(bundled("16_15.amc"), tmp_path / "clip.amc")
+    with pytest.raises(MocapFormatError, match="no .asf skeleton found"):
+        io.read(tmp_path / "clip.amc")
+    shutil.copy(bundled("16.asf"), tmp_path / "a.asf")
+    shutil.copy(bundled("16.asf"), tmp_path / "b.asf")
+    with pytest.raises(MocapFormatError, match="cannot tell which skeleton"):
+        io.read(tmp_path / "clip.amc")
+    with pytest.raises(MocapFormatError, match="skeleton file not found"):
+        io.read(tmp_path / "clip.amc", skeleton=tmp_path / "nope.asf")
+
+
+# ------------------------------------------------------------------------------------
+# round trips
+# ------------------------------------------------------------------------------------
+def test_amc_write_read_identical(walk, tmp_path):
+    out = tmp_path / "copy.amc"
+    io.write(walk, out)
+    assert (tmp_path / "copy.asf").exists()               # companion skeleton written
+    back = io.read(out)
+    assert np.array_equal(back.source["per_frame"]["dofs"], walk.source["per_frame"]["dofs"])
+    assert np.array_equal(back.positions, walk.positions)
+    assert back.skeleton == walk.skeleton
+    # a second AMC in the same folder finds copy.asf (identical skeleton): no new ASF
+    io.write(walk.slice(10, 20), tmp_path / "copy_part.amc")
+    assert not (tmp_path / "copy_part.asf").exists()
+    part = io.read(tmp_path / "copy_part.amc")
+    assert np.array_equal(part.positions, walk.positions[10:20])
+
+
+def test_asf_writer_round_trip(walk, tmp_path):
+    p = asfamc.write_asf(walk.source["asf"], tmp_path / "w.asf")
+    again = asfamc.read_asf(p)
+    assert asfamc._same_skeleton(again, walk.source["asf"])
+    assert again["bones"][1]["limits"] == walk.source["asf"]["bones"][1]["limits"]
+
+
+def test_writer_refuses_input_and_non_amc(walk, tmp_path):
+    with pytest.raises(MocapValueError, match="input file"):
+        io.write(walk, walk.source["path"])
+    bare = walk.with_source(asf=None)
+    with pytest.raises(MocapValueError, match="ASF/AMC"):
+        io.write(bare, tmp_path / "x.amc")
+    with pytest.raises(MocapValueError, match="do not match"):
+        io.write(walk.select(["root", "lfemur", "ltibia"]), tmp_path / "y.amc")
+
+
+def test_ik_recovers_perturbed_dofs(walk, tmp_path):
+    """Positions from FK of perturbed dofs (2 degrees on every angle) are re-found by IK."""
+    comp = asfamc._Compiled(walk.source["asf"])
+    D = walk.source["per_frame"]["dofs"]
+    rng = np.random.default_rng(0)
+    D1 = D + rng.normal(0, 2.0, D.shape) * (np.arange(D.shape[1]) >= 3)
+    P1 = asfamc.forward_kinematics(comp, D1, False, CM)[:60]
+    moved = walk.slice(0, 60).with_positions(P1)          # stored dofs (unperturbed) kept
+    io.write(moved, tmp_path / "ik.amc")
+    back = io.read(tmp_path / "ik.amc")
+    err = np.linalg.norm(back.positions - P1, axis=2)
+    assert err.max() < 0.1 and err.mean() < 0.01           # measured 0.04 / 0.0002 cm
+    # bone lengths are those of the skeleton, exactly
+    np.testing.assert_allclose(back.bone_lengths(), walk.bone_lengths()[:60], atol=1e-9)
+
+
+def test_ik_without_stored_dofs(walk):
+    """No stored dofs (e.g. after resampling): IK from the rest pose still fits clean positions."""
+    comp = asfamc._Compiled(walk.source["asf"])
+    P = walk.positions[:60]
+    out = asfamc.inverse_kinematics(comp, P, CM, False, None)
+    err = np.linalg.norm(asfamc.forward_kinematics(comp, out, False, CM) - P, axis=2)
+    assert err.max() < 0.5 and err.mean() < 0.05           # measured 0.16 / 0.015 cm
+
+
+def test_ik_noisy_positions_projects_onto_skeleton(walk, tmp_path):
+    rng = np.random.default_rng(1)
+    clean = walk.slice(0, 60)
+    noisy = clean.positions + rng.normal(0, 1.0, clean.positions.shape)
+    io.write(clean.with_positions(noisy), tmp_path / "noisy.amc")
+    back = io.read(tmp_path / "noisy.amc")
+    rms_noisy = np.sqrt(np.mean((back.positions - noisy) ** 2))
+    rms_clean = np.sqrt(np.mean((back.positions - clean.positions) ** 2))
+    assert rms_noisy < 1.0          # least-squares fit: closer to the targets than the noise
+    assert rms_clean < 1.0          # and closer to the truth than the noisy input
+
+
+def test_partial_dof_fit_matches_dense_search():
+    """Bones with fewer than 3 dofs: the closest representable rotation (dense grid reference)."""
+    rng = np.random.default_rng(3)
+    T = 40
+    U = rng.normal(size=(2, 3))
+    W = rng.normal(size=(T, 2, 3))
+    for order, axes in (("XYZ", [0]), ("XYZ", [0, 2]), ("ZYX", [1, 2]), ("YZX", [0, 1])):
+        ang = asfamc._fit_partial(order, axes, U, W, np.zeros((T, 3)), np.zeros((T, 3)))
+
+        def cost(A):                                   # A (G, 3) -> (G, T)
+            M = asfamc._euler_matrix(order, A)
+            return np.sum((np.einsum("gij,nj->gni", M, U)[:, None] - W[None]) ** 2, axis=(2, 3))
+        grid = np.deg2rad(np.arange(-180, 180, 3.0))
+        if len(axes) == 1:
+            A = np.zeros((len(grid), 3))
+            A[:, axes[0]] = grid
+        else:
+            g1, g2 = np.meshgrid(grid, grid, indexing="ij")
+            A = np.zeros((g1.size, 3))
+            A[:, axes[0]], A[:, axes[1]] = g1.ravel(), g2.ravel()
+        best = cost(A).min(axis=0)                     # dense reference (3 degree grid)
+        M = asfamc._euler_matrix(order, ang)
+        got = np.sum((np.einsum("tij,nj->tni", M, U) - W) ** 2, axis=(1, 2))
+        assert np.all(got <= best + 1e-9)
+        assert np.all(ang[:, [a for a in range(3) if a not in axes]] == 0)
+
+
+def test_min_rotation_and_kabsch():
+    rng = np.random.default_rng(4)
+    a, b = rng.normal(size=(50, 3)), rng.normal(size=(50, 3))
+    R = asfamc._min_rotation(a, b)
+    an = a / np.linalg.norm(a, axis=1, keepdims=True)
+    bn = b / np.linalg.norm(b, axis=1, keepdims=True)
+    np.testing.assert_allclose(np.einsum("tij,tj->ti", R, an), bn, atol=1e-12)
+    np.testing.assert_allclose(R @ np.swapaxes(R, 1, 2), np.broadcast_to(np.eye(3), R.shape), atol=1e-10)
+    Rt = asfamc._euler_matrix("XYZ", rng.uniform(-3, 3, (50, 3)))
+    U = rng.normal(size=(50, 4, 3))
+    np.testing.assert_allclose(asfamc._kabsch(U, np.einsum("tij,tnj->tni", Rt, U)), Rt, atol=1e-10)
+
+
+def test_euler_both_branches():
+    rng = np.random.default_rng(5)
+    for order in ("XYZ", "ZYX", "YZX", "XZY", "YXZ", "ZXY"):
+        ang = rng.uniform(-3, 3, (20, 3))
+        M = asfamc._euler_matrix(order, ang)
+        for c in asfamc._euler_from(M, order):
+            np.testing.assert_allclose(asfamc._euler_matrix(order, c), M, atol=1e-12)
+
+
+# ------------------------------------------------------------------------------------
+# malformed input: each raises MocapFormatError naming the line
+# ------------------------------------------------------------------------------------
+def _line_of(lines, startswith, nth=0):
+    hits = [i for i, s in enumerate(lines) if s.strip().startswith(startswith)]
+    return hits[nth]
+
+
+def _expect(path, line, match, **kw):
+    with pytest.raises(MocapFormatError, match=match) as ei:
+        io.read(path, **kw)
+    assert ei.value.line == line, str(ei.value)
+    assert str(path) in str(ei.value)
+    return ei.value
+
+
+def test_truncated_frame(pair):
+    asf, amc, lines = pair
+    cut = len(lines) - 10                      # ends in the middle of the last frame
+    amc.write_text("\n".join(lines[:cut]) + "\n")
+    _expect(amc, cut, "incomplete")
+
+
+def test_truncated_line(pair):
+    asf, amc, lines = pair
+    i = _line_of(lines, "rtibia", 3)
+    lines[i] = "rtibia"
+    amc.write_text("\n".join(lines) + "\n")
+    _expect(amc, i + 1, "needs 1 values")
+
+
+def test_wrong_value_count(pair):
+    asf, amc, lines = pair
+    i = _line_of(lines, "lfemur", 5)
+    lines[i] += " 4.5"
+    amc.write_text("\n".join(lines) + "\n")
+    _expect(amc, i + 1, r"bone 'lfemur' needs 3 values \(dof rx ry rz\), found 4")
+
+
+def test_unknown_bone(pair):
+    asf, amc, lines = pair
+    i = _line_of(lines, "head", 7)
+    lines[i] = lines[i].replace("head", "skull")
+    amc.write_text("\n".join(lines) + "\n")
+    _expect(amc, i + 1, "unknown bone 'skull'")
+
+
+def test_nan_and_garbage_text(pair):
+    asf, amc, lines = pair
+    i = _line_of(lines, "rfoot", 2)
+    lines[i] = "rfoot nan 0.5"
+    amc.write_text("\n".join(lines) + "\n")
+    _expect(amc, i + 1, "only finite numbers")
+    lines[i] = "rfoot 1.0 abc"
+    amc.write_text("\n".join(lines) + "\n")
+    _expect(amc, i + 1, "expected a number")
+
+
+def test_zero_frames(pair):
+    asf, amc, lines = pair
+    amc.write_text(":FULLY-SPECIFIED\n:DEGREES\n")
+    with pytest.raises(MocapFormatError, match="no frames"):
+        io.read(amc)
+
+
+def test_frame_numbers_out_of_sequence(pair):
+    asf, amc, lines = pair
+    i = lines.index("5")
+    lines[i] = "7"
+    amc.write_text("\n".join(lines) + "\n")
+    _expect(amc, i + 1, "frame number 7 out of sequence")
+
+
+def test_mismatched_pair(pair, tmp_path):
+    """The AMC names a bone the ASF does not have (skeleton of another layout)."""
+    asf, amc, lines = pair
+    text = asf.read_text().replace("name lthumb", "name lthumb2").replace("lwrist lhand lthumb", "lwrist lhand lthumb2")
+    other = tmp_path / "other.asf"
+    other.write_text(text)
+    i = _line_of(lines, "lthumb", 0)
+    e = _expect(amc, i + 1, "unknown bone 'lthumb': not in other.asf", skeleton=other)
+    assert "mismatched" in e.message
+
+
+def test_bone_order_may_vary_between_frames(pair, walk):
+    """Not malformed: bones in another order in frame 2 (line parser), same values."""
+    asf, amc, lines = pair
+    a, b = lines.index("2"), lines.index("3")
+    lines[a + 1:b] = lines[a + 1:b][::-1]
+    amc.write_text("\n".join(lines) + "\n")
+    m = io.read(amc)
+    assert np.array_equal(m.source["per_frame"]["dofs"], walk.source["per_frame"]["dofs"])
+
+
+def test_asf_cyclic_and_missing_hierarchy(pair):
+    asf, amc, lines = pair
+    text = asf.read_text()
+    alines = text.splitlines()
+    # cycle: lfoot becomes the parent of lfemur (lfemur -> ltibia -> lfoot -> lfemur)
+    cyc = text.replace("    lhipjoint lfemur\n", "    lhipjoint\n").replace("    lfoot ltoes", "    lfoot ltoes lfemur")
+    asf.write_text(cyc)
+    with pytest.raises(MocapFormatError, match="cyclic") as ei:
+        io.read(amc)
+    assert ei.value.line is not None and "16.asf" in str(ei.value)
+    # a bone not in the hierarchy
+    asf.write_text(text.replace("    lhand lfingers\n", ""))
+    i = _line_of(alines, "name lfingers")
+    with pytest.raises(MocapFormatError, match="'lfingers' is missing from the :hierarchy") as ei:
+        io.read(amc)
+    assert ei.value.line == i - 1  # the 1-based line of its block's "begin" (two above "name")
+    # no hierarchy at all
+    asf.write_text(text[:text.index(":hierarchy")])
+    with pytest.raises(MocapFormatError, match="no :hierarchy"):
+        io.read(amc)
+
+
+def test_asf_bad_numbers_and_truncation(pair):
+    asf, amc, lines = pair
+    text = asf.read_text()
+    alines = text.splitlines()
+    i = _line_of(alines, "length", 2)
+    bad = alines.copy()
+    bad[i] = "     length NaN"
+    asf.write_text("\n".join(bad) + "\n")
+    with pytest.raises(MocapFormatError, match="only finite") as ei:
+        io.read(amc)
+    assert ei.value.line == i + 1
+    asf.write_text(text[: text.index("name lradius")])
+    with pytest.raises(MocapFormatError, match="no 'end'"):
+        io.read(amc)
+
+
+def test_asf_is_not_an_amc(pair):
+    asf, amc, lines = pair
+    with pytest.raises(MocapFormatError, match="ASF skeleton, not an AMC"):
+        asfamc.read(asf, skeleton=asf)
