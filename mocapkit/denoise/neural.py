@@ -43,7 +43,7 @@ from .base import Denoiser, check_output, register
 
 _PARAMS = ("hidden", "dropout", "batch_size", "lambdas_perceptual", "lambdas_denoise", "lr_perceptual",
            "lr_denoise", "epochs_perceptual", "epochs_denoise", "steps_perceptual", "steps_denoise",
-           "random_offsets", "seed", "threads")
+           "random_offsets", "seed", "threads", "device")
 
 
 class _NeuralDenoiser(Denoiser):
@@ -61,7 +61,7 @@ class _NeuralDenoiser(Denoiser):
                  epochs_perceptual: float = 300.0, epochs_denoise: float = 300.0,
                  steps_perceptual: int | None = None, steps_denoise: int | None = None,
                  random_offsets: bool = False, seed: int = 0, threads: int | None = None,
-                 progress: bool = False):
+                 device: str = "cpu", progress: bool = False):
         self.model = model
         self.postprocess = postprocess
         self.hidden = hidden
@@ -78,6 +78,7 @@ class _NeuralDenoiser(Denoiser):
         self.random_offsets = random_offsets
         self.seed = seed
         self.threads = threads
+        self.device = device
         self.progress = progress
 
     @classmethod

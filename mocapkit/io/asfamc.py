@@ -496,6 +496,8 @@ class _Compiled:
             self.order[n] = b["axis_order"]
             self.dof_axes[n] = ["xyz".index(d[1]) for d in b["dof"]]
         self.bone_dofs = {b["name"]: list(b["dof"]) for b in bones}
+        self.C_is_identity = {n: bool(np.array_equal(C, np.eye(3))) for n, C in self.C.items()}
+        self.C_root_is_identity = bool(np.array_equal(self.C_root, np.eye(3)))
         self.children = {n: [] for n in self.names}
         for n in order:
             self.children[parent[n]].append(n)
@@ -557,35 +559,88 @@ class _Compiled:
         return tr, rot
 
 
+def _rot_t(axis: int, ang: np.ndarray) -> np.ndarray:
+    """Rotation about axis 0/1/2 by ``ang`` (T,) radians, in the (3, 3, T) layout."""
+    c, s = np.cos(ang), np.sin(ang)
+    R = np.zeros((3, 3) + np.shape(ang))
+    i, j = [(1, 2), (2, 0), (0, 1)][axis]
+    R[axis, axis] = 1.0
+    R[i, i] = c
+    R[j, j] = c
+    R[i, j] = -s
+    R[j, i] = s
+    return R
+
+
+def _mm_t(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """Product of stacks of 3x3 matrices in the (3, 3, T) layout (either may be a plain 3x3).
+
+    Nine length-T multiply-adds: about 3x faster than ``np.matmul`` on (T, 3, 3) stacks.
+    """
+    shape = (3, 3) + np.broadcast_shapes(A.shape[2:], B.shape[2:])
+    C = np.empty(shape)
+    for i in range(3):
+        for k in range(3):
+            C[i, k] = A[i, 0] * B[0, k] + A[i, 1] * B[1, k] + A[i, 2] * B[2, k]
+    return C
+
+
 def forward_kinematics(comp: _Compiled, dofs: np.ndarray, angle_rad: bool, f: float,
                        return_rotations: bool = False):
     """Joint positions (T, J, 3) in cm from dof values (T, D) (file units, file angles).
 
-    One loop over bones; every step is a batched (T, 3, 3) matrix product.
+    One loop over bones, none over frames: rotations are kept as (3, 3, T) stacks and
+    multiplied component-wise. With ``return_rotations`` also the global rotation of every
+    node as a dict of (T, 3, 3) arrays.
     """
     dofs = np.asarray(dofs, float)
     T = dofs.shape[0]
     J = len(comp.names)
-    P = np.zeros((T, J, 3))
-    tr, rot = comp.root_split(dofs, angle_rad)
-    C, Ci = comp.C_root, comp.C_root.T
-    L = {"root": C @ _euler_matrix(comp.root_axis, rot) @ Ci}
+    P = np.zeros((3, J, T))
+    conv = (lambda d: d) if angle_rad else np.deg2rad
+    # root: L = C_root · M_root · C_root^T, M from the root rotation channels (axis order)
+    M = None
+    tr = np.zeros((3, T))
+    rot = {}
+    for k, ch in enumerate(comp.root_order):
+        a = "XYZ".index(ch[1])
+        if ch[0] == "T":
+            tr[a] = dofs[:, k]
+        else:
+            rot[a] = conv(dofs[:, k])
+    for letter in comp.root_axis:
+        a = "XYZ".index(letter)
+        if a in rot:
+            Ra = _rot_t(a, rot[a])
+            M = Ra if M is None else _mm_t(Ra, M)
+    if M is None:
+        M = np.broadcast_to(np.eye(3)[:, :, None], (3, 3, T))
+    Cr = comp.C_root
+    L = {"root": M if comp.C_root_is_identity else _mm_t(_mm_t(Cr, M), Cr.T)}
     P[:, 0] = tr
     for j, n in enumerate(comp.bone_order, start=1):
-        p = comp.parent[n]
-        Lp = L[p]
-        if comp.dof_axes[n]:
-            ang = np.zeros((T, 3))
-            d = dofs[:, comp.dof_cols[n]]
-            ang[:, comp.dof_axes[n]] = d if angle_rad else np.deg2rad(d)
-            A = comp.C[n] @ _euler_matrix(comp.order[n], ang) @ comp.C[n].T
-            Lb = Lp @ A
+        Lp = L[comp.parent[n]]
+        axes = comp.dof_axes[n]
+        if axes:
+            d = conv(dofs[:, comp.dof_cols[n]])
+            # only the axes with a dof rotate (absent dofs are zero), in the 'axis' order
+            M = None
+            for letter in comp.order[n]:
+                a = "XYZ".index(letter)
+                if a in axes:
+                    Ra = _rot_t(a, d[:, axes.index(a)])
+                    M = Ra if M is None else _mm_t(Ra, M)
+            C = comp.C[n]
+            Lb = _mm_t(Lp, M if comp.C_is_identity[n] else _mm_t(_mm_t(C, M), C.T))
         else:
             Lb = Lp
         L[n] = Lb
-        P[:, j] = P[:, comp.parent_joint[j]] + Lb @ comp.vec[n]
-    P *= f
-    return (P, L) if return_rotations else P
+        v = comp.vec[n]
+        P[:, j] = P[:, comp.parent_joint[j]] + Lb[:, 0] * v[0] + Lb[:, 1] * v[1] + Lb[:, 2] * v[2]
+    P = np.ascontiguousarray(np.transpose(P, (2, 1, 0))) * f
+    if return_rotations:
+        return P, {n: np.transpose(v, (2, 0, 1)) for n, v in L.items()}
+    return P
 
 
 # ======================================================================================
@@ -674,7 +729,7 @@ def _parse_amc_bulk(body: str, comp: _Compiled):
         raise _BulkFail
     try:
         frames = A[:, 0].astype(np.int64)
-        V = A[:, val_pos].astype(np.float64)
+        V = np.array(A[:, val_pos].ravel().tolist(), dtype=np.float64).reshape(T, len(val_pos))
     except (ValueError, TypeError):
         raise _BulkFail from None
     if not np.isfinite(V).all():

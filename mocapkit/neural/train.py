@@ -63,7 +63,8 @@ class TrainConfig:
     ``perceptual=False`` trains BRA (no perceptual AE, no perceptual loss, no
     postprocessing). ``random_offsets=True`` draws each training clip at a random start
     in its motion instead of from the fixed half-overlapping clip set (a superset of the
-    paper's clips; used for the small CPU runs).
+    paper's clips; used for the small CPU runs). ``device`` is a torch device name
+    (``"cuda"`` for a GPU run; the saved model is always moved back to the CPU).
     """
 
     hidden: int = 512
@@ -86,6 +87,7 @@ class TrainConfig:
     reference_sigma: float = C.REFERENCE_SIGMA
     random_offsets: bool = False
     noise: tuple = NOISE_MIX
+    device: str = "cpu"
 
     def to_json(self) -> dict:
         d = asdict(self)
@@ -314,8 +316,10 @@ class Trainer:
         self.rng = np.random.default_rng(int(config.seed))
         self.queue: list[int] = []
         n = source.n
-        self.perceptual = build(n, n, config.hidden, config.dropout) if config.perceptual else None
-        self.denoise = build(source.m, n, config.hidden, config.dropout)
+        self.device = torch.device(config.device)
+        self.perceptual = (build(n, n, config.hidden, config.dropout).to(self.device)
+                           if config.perceptual else None)
+        self.denoise = build(source.m, n, config.hidden, config.dropout).to(self.device)
         self.opt_p = (torch.optim.Adam(self.perceptual.parameters(), lr=config.lr_perceptual)
                       if self.perceptual is not None else None)
         self.opt_d = torch.optim.Adam(self.denoise.parameters(), lr=config.lr_denoise)
@@ -323,8 +327,9 @@ class Trainer:
         self.step = 0                      # step within the current phase
         self.history: list[dict] = []
         self.seconds = 0.0
-        self.bones = torch.as_tensor(source.bones, dtype=torch.long)
-        self.mean_over_std = torch.as_tensor(source.norm_out.mean / source.norm_out.std, dtype=torch.float32)
+        self.bones = torch.as_tensor(source.bones, dtype=torch.long, device=self.device)
+        self.mean_over_std = torch.as_tensor(source.norm_out.mean / source.norm_out.std, dtype=torch.float32,
+                                             device=self.device)
 
     # -- schedule ------------------------------------------------------------------------------
     def total_steps(self, phase: str) -> int:
@@ -339,7 +344,7 @@ class Trainer:
 
     # -- one step ------------------------------------------------------------------------------
     def _tensor(self, a: np.ndarray):
-        return self.torch.from_numpy(np.ascontiguousarray(a, dtype=np.float32))
+        return self.torch.from_numpy(np.ascontiguousarray(a, dtype=np.float32)).to(self.device)
 
     def _losses_perceptual(self, batch: dict) -> tuple[Any, dict]:
         from . import losses as L
@@ -467,7 +472,7 @@ class Trainer:
         mine = self.cfg.to_json()
         theirs = meta["config"]
         ignore = {"steps_perceptual", "steps_denoise", "epochs_perceptual", "epochs_denoise",
-                  "checkpoint_every", "threads"}
+                  "checkpoint_every", "threads", "device"}
         diff = sorted(k for k in mine if k not in ignore and mine[k] != theirs.get(k))
         if diff:
             raise MocapValueError(f"checkpoint {path} was written with other settings ({', '.join(diff)}); "
@@ -505,9 +510,9 @@ class Trainer:
         info.update(training_info or {})
         meta = make_meta(method, params, self.src.joints_in, self.src.joints_out, self.src.parents,
                          self.src.offsets, training=info)
-        self.denoise.eval()
+        self.denoise.cpu().eval()
         if self.perceptual is not None:
-            self.perceptual.eval()
+            self.perceptual.cpu().eval()
         return Bundle(self.denoise, self.perceptual, self.src.norm_in, self.src.norm_out, meta)
 
 

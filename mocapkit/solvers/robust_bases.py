@@ -369,7 +369,8 @@ def _prior(Z, A, n_t) -> float:
 
 def robust_filter(Y: np.ndarray, E: np.ndarray, M: int, *, mask: np.ndarray | None = None,
                   lam: float = 0.1, p: float = 3.0, max_iter: int = 20, tol: float = 1e-4,
-                  Z0: np.ndarray | None = None, method: str = "auto", return_info: bool = False):
+                  Z0: np.ndarray | None = None, method: str = "auto", fill_iter: int = 100,
+                  return_info: bool = False):
     """Robust filtering with filter bases (Lou & Chai 2010, eqs. 11-16; module doc).
 
     Parameters
@@ -388,8 +389,17 @@ def robust_filter(Y: np.ndarray, E: np.ndarray, M: int, *, mask: np.ndarray | No
         centred).
     method : implementation of the coefficient + overlap-add step, see
         :class:`WindowProjector` (``'auto'``, ``'direct'``, ``'fft'``).
+    fill_iter : missing entries (alpha = 0) have no data term, so the alternating
+        updates move them only by averaging window reconstructions -- a slow (Jacobi)
+        iteration for long gaps. Before the first and after the last alternating
+        iteration the missing entries are therefore set to their exact minimiser of J
+        with every other entry fixed (J is quadratic in them: solve
+        ``(N - A)_mm z_m = (A z_o)_m`` by conjugate gradients, at most ``fill_iter``
+        steps, preconditioned by N = diag(n_t)). Each such block step cannot increase J.
+        0 = the paper's plain alternation.
     return_info : also return a dict with ``cost`` (J before each motion step and at
-        the end; non-increasing), ``n_iter`` and ``weights`` (alpha * w of the last step).
+        the end; non-increasing), ``n_iter``, ``fill_cg_iter`` and ``weights`` (alpha * w
+        of the last step).
 
     Returns
     -------
@@ -424,11 +434,16 @@ def robust_filter(Y: np.ndarray, E: np.ndarray, M: int, *, mask: np.ndarray | No
     n_t = window_counts(T, M)
     two_lam_n = (2.0 * lam * n_t)[:, None]
     a = alpha.astype(float)
+    miss = ~alpha
+    cg_its = 0
+    if miss.any() and fill_iter > 0:
+        Z, k = _fill_missing(Z, miss, proj, n_t, int(fill_iter))
+        cg_its += k
     costs: list[float] = []
     w = a.copy()
     half_p2 = 0.5 * p * p
-    for it in range(max(1, int(max_iter)) + 1):
-        A = proj(Z)                                               # eqs. 13-14
+
+    def cost(Z, A):
         R = Z - Yf
         if np.isinf(p):
             e = np.ones_like(R)
@@ -436,16 +451,65 @@ def robust_filter(Y: np.ndarray, E: np.ndarray, M: int, *, mask: np.ndarray | No
         else:
             e = np.exp(-(R * R) / (p * p))                         # rho'(r)/r, Fig. 2c
             data = half_p2 * float(np.sum(a * (1.0 - e)))          # eq. 9
-        J = data + lam * _prior(Z, A, n_t)
+        return data + lam * _prior(Z, A, n_t), e
+
+    n_max = max(1, int(max_iter))
+    for it in range(n_max + 1):
+        A = proj(Z)                                               # eqs. 13-14
+        J, e = cost(Z, A)
         done = bool(costs) and abs(costs[-1] - J) <= tol * max(abs(costs[-1]), 1e-300)
         costs.append(J)
-        if done or it == max(1, int(max_iter)):
+        if done or it == n_max:
             break
         w = a * e                                                 # eq. 15 (IRLS weights)
         Z = (0.5 * w * Yf + 2.0 * lam * A) / (0.5 * w + two_lam_n)   # (*)
+    if miss.any() and fill_iter > 0:
+        Z, k = _fill_missing(Z, miss, proj, n_t, int(fill_iter))
+        cg_its += k
+        costs.append(cost(Z, proj(Z))[0])
     if return_info:
-        return Z, {"cost": np.array(costs), "n_iter": len(costs) - 1, "weights": w}
+        return Z, {"cost": np.array(costs), "n_iter": it, "fill_cg_iter": cg_its, "weights": w}
     return Z
+
+
+def _fill_missing(Z: np.ndarray, miss: np.ndarray, proj, n_t: np.ndarray, max_iter: int,
+                  rtol: float = 1e-4) -> tuple[np.ndarray, int]:
+    """Exact minimiser of the bases term over the missing entries, the others fixed:
+    ``(N - A)_mm z_m = (A z_o)_m`` (N = diag n_t, A = window projector) by Jacobi-
+    preconditioned conjugate gradients started from the current values."""
+    N = np.broadcast_to(n_t[:, None], Z.shape)
+    Zo = np.where(miss, 0.0, Z)
+    b = proj(Zo)[miss]
+
+    def op(v):
+        full = np.zeros_like(Z)
+        full[miss] = v
+        return N[miss] * v - proj(full)[miss]
+
+    x = Z[miss].copy()
+    r = b - op(x)
+    Minv = 1.0 / N[miss]
+    zv = Minv * r
+    d = zv.copy()
+    rz = float(r @ zv)
+    b_norm = max(float(np.linalg.norm(b)), 1e-300)
+    k = 0
+    while k < max_iter and np.linalg.norm(r) > rtol * b_norm:
+        q = op(d)
+        dq = float(d @ q)
+        if dq <= 0:
+            break
+        step = rz / dq
+        x += step * d
+        r -= step * q
+        zv = Minv * r
+        rz_new = float(r @ zv)
+        d = zv + (rz_new / rz) * d
+        rz = rz_new
+        k += 1
+    out = Z.copy()
+    out[miss] = x
+    return out, k
 
 
 def dense_quadratic_reference(Y: np.ndarray, E: np.ndarray, M: int, *, mask: np.ndarray | None = None,

@@ -161,3 +161,52 @@ def table1(ctx: Context) -> Iterator[Row]:
             best = min(best, time.perf_counter() - t0)
         yield Row(NAME, f"{t} ({full.n_frames} frames @ {full.fps:g} fps)", "clean", mname, "speed",
                   "frames/s", full.n_frames / best, seconds=best, n=1)
+
+
+def write_report(json_path, md_path, note: str = "") -> str:
+    """Markdown report of a ``bra-table1`` run (Table 1 summary, per condition, speed) from its JSON."""
+    import json
+    from pathlib import Path
+
+    rows = json.loads(Path(json_path).read_text())
+    get = {(r["condition"], r["method"], r["metric"]): r for r in rows}
+    methods = list(dict.fromkeys(r["method"] for r in rows if r["metric"] in PAPER and r["method"] != "truth"))
+    conds = [c for c, _ in CONDITIONS]
+    clip = next(r["clip"] for r in rows if r["metric"] in PAPER)
+
+    def fmt(r, nd=4):
+        if r is None:
+            return ""
+        v = r["value"]
+        return f"{v:.{nd}g}" + (f" ± {r['std']:.2g}" if r.get("std") is not None else "")
+
+    out = [f"# {NAME}: BRA-P Table 1 on held-out CMU clips", ""]
+    if note:
+        out += [note, ""]
+    out += [f"Test set: {clip}; each clip under the four noise conditions. Mean ± std over clips "
+            "(std over clip x condition for 'all').", "",
+            "## Table 1 (all four conditions)", "",
+            "| method | R (cm/channel) | B (cm/bone) | S | P |", "|---|---:|---:|---:|---:|"]
+    for m in methods:
+        out.append(f"| {m} | " + " | ".join(fmt(get.get(("all", m, k))) for k in ("R", "B", "S", "P")) + " |")
+    out.append("| paper BRA-P | " + " | ".join(f"{PAPER[k]:g}" for k in ("R", "B", "S", "P")) + " |")
+    tr = get.get(("clean", "truth", "S"))
+    if tr:
+        out += ["", f"Smoothness S of the clean clips themselves: {fmt(tr)}."]
+    for k in ("R", "B", "S", "P"):
+        out += ["", f"## {k} ({UNITS[k]}) per condition", "",
+                "| method | " + " | ".join(conds) + " |", "|---|" + "---:|" * len(conds)]
+        for m in methods:
+            out.append(f"| {m} | " + " | ".join(fmt(get.get((c, m, k))) for c in conds) + " |")
+    sp = [r for r in rows if r["metric"] == "speed"]
+    if sp:
+        out += ["", "## Inference speed (CPU)", "", "| method | motion | frames/s | s |", "|---|---|---:|---:|"]
+        for r in sp:
+            out.append(f"| {r['method']} | {r['clip']} | {r['value']:.0f} | {r['seconds']:.3f} |")
+    secs = {m: sum(get[(c, m, 'R')]["seconds"] for c in conds) for m in methods}
+    n = get[(conds[0], methods[0], "R")]["n"]
+    out += ["", "Denoising time per clip (s, mean over all conditions): " +
+            ", ".join(f"{m} {secs[m] / (n * len(conds)):.4f}" for m in methods) + "."]
+    text = "\n".join(out) + "\n"
+    Path(md_path).write_text(text)
+    return text
