@@ -156,6 +156,11 @@ def main(argv=None) -> int:
     return 0
 
 
+def _frames(rows, clip, fps):
+    v = [r["frames"] for r in rows if r["clip"] == clip and r["fps"] == fps]
+    return v[0] if v else "-"
+
+
 def report(rows, a, clips, frames, seeds, total_s) -> str:
     import collections
 
@@ -164,7 +169,11 @@ def report(rows, a, clips, frames, seeds, total_s) -> str:
          f"Produced by `benchmarks/filters_baseline.py{' --quick' if a.quick else ''}` "
          f"(do not edit by hand). Machine: {platform.processor() or platform.machine()}, "
          f"Python {platform.python_version()}, numpy {np.__version__}, one thread; "
-         f"total run time {total_s:.0f} s.", "",
+         f"total run time {total_s:.0f} s; load average at the end {os.getloadavg()[0]:.1f} on "
+         f"{os.cpu_count()} cores (the machine is shared: frames/s are indicative, lower than on "
+         f"an idle core).", "",
+         "Frames per test clip (120 / 30 fps): " + ", ".join(
+             f"{t} {_frames(rows, t, 120.0)} / {_frames(rows, t, 30.0)}" for t, _ in clips) + ".", "",
          f"Clips: {', '.join(f'{t} ({act})' for t, act in clips)}; {frames} frames of each from frame {SKIP} on "
          f"(at 120 fps; the same span resampled to 30 fps). Seeds per condition: {len(seeds)}. "
          "Conditions: `gauss2` = 2 cm i.i.d. Gaussian noise per coordinate; `spikes10` = 10 % of "

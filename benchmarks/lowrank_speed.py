@@ -78,8 +78,13 @@ def measure(frames: int = 5000, repeats: int = 3, data_dir: str | None = None) -
 
 
 def to_markdown(name: str, rows: list[dict], frames: int) -> str:
+    import os
+
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     lines = [f"Clip {name}, first {frames} frames x 93 coordinates, eq.-7 noise on 1/3 of the "
-             f"frames (CMU units); one BLAS thread; best of 3 runs.", "",
+             f"frames (CMU units); one BLAS thread; best of 3 runs; {os.cpu_count()} CPUs, "
+             f"1-min load average {load:.1f} when the table was written (the machine is "
+             f"shared: a load above the CPU count slows every number here).", "",
              "| method | seconds | frames/s | FD (CMU units) |", "|---|---:|---:|---:|"]
     for r in rows:
         lines.append(f"| {r['method']} | {r['seconds']:.3f} | {r['frames_per_s']:,.0f} | {r['fd']:.4f} |")

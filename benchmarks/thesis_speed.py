@@ -16,6 +16,7 @@ rebuilt from every part's JSON present, so parts can be run separately):
   ``thesis-corrupt4``, reduced to the first ``--frames`` frames of each clip and
   ``--repeats`` repeats (the full setting -- whole clips, 20 repeats -- takes hours on
   two cores); tables per clip and averaged over clips.
+* ``tdd`` -- trust-data detection on the clean protocol clips and with 15 cm spikes.
 * ``decisions`` -- the measurements behind the documented deviations, on CMU clips that
   are *not* protocol clips (131_01, 07_05, 05_02, 135_06; first 600 frames; one seed):
   unit of the thesis weights (cm / CMU unit / m), factor width (full vs the
@@ -130,6 +131,36 @@ def run_decisions(data: Path | None) -> dict:
     return {"rows": rows, "psc_rows": psc_rows, "psc_train": list(train_ids)}
 
 
+def run_tdd(data: Path | None) -> dict:
+    """Trust-data detection on the clean protocol clips, and on them with 15 cm spikes."""
+    from mocapkit import corrupt, io
+    from mocapkit.bench.protocols.thesis import CLIPS
+    from mocapkit.datasets import cmu_amc
+    from mocapkit.detect import detect_report, trust_data
+
+    rows = []
+    for ours, _ in CLIPS:
+        p = cmu_amc(ours, data)
+        if p is None:
+            continue
+        m = io.read(p)
+        t0 = time.time()
+        rep = detect_report(m)
+        dt = time.time() - t0
+        noisy, spikes = corrupt.outliers(m, ratio=0.05, mode="spike", magnitude_cm=15.0, seed=0)
+        flagged = trust_data(noisy)
+        clean_flags = trust_data(m)
+        new = spikes & ~clean_flags
+        rows.append({"clip": ours, "frames": m.n_frames, "seconds": dt,
+                     "clean_flagged": rep["n_flagged"], "clean_frames_flagged": rep["frames_flagged"],
+                     "clean_markers": {k: v["runs"] for k, v in rep["markers"].items()},
+                     "spikes": int(spikes.sum()),
+                     "recall": float((flagged & spikes).sum() / max(spikes.sum(), 1)),
+                     "false_alarms": int((flagged & ~spikes & ~clean_flags).sum()),
+                     "recall_new": float((flagged & new).sum() / max(new.sum(), 1))})
+    return {"rows": rows}
+
+
 # --------------------------------------------------------------------------------------
 # Markdown
 # --------------------------------------------------------------------------------------
@@ -164,18 +195,30 @@ def md_speed(part: dict) -> str:
             f"{b['paper_value'] / b['value']:.0f}x ({b['paper_value'] / cb:.0f}x) | "
             f"{a['extra']['iterations']}/{b['extra']['iterations']} | "
             f"{a['extra']['rmse_missing_cm']:.3f}/{b['extra']['rmse_missing_cm']:.3f} |")
+    band = [n for n in sorted(by) if "trnn(mstep=banded)" in by[n]]
+    if band:
+        lines += ["", "Same solvers with the banded M-step (`mstep=\"banded\"`, an exact O(T) "
+                  "solve of the same system instead of the DCT):", "",
+                  "| frames | TSMC wall s | TSMC CPU s | speed-up (CPU) | TrNN wall s | TrNN CPU s | speed-up (CPU) |",
+                  "|---:|---:|---:|---:|---:|---:|---:|"]
+        for n in band:
+            a, b = by[n]["tsmc(mstep=banded)"], by[n]["trnn(mstep=banded)"]
+            ca, cb = a["extra"]["cpu_seconds"], b["extra"]["cpu_seconds"]
+            lines.append(f"| {n} | {a['value']:.3f} | {ca:.3f} | {a['paper_value'] / ca:.0f}x | "
+                         f"{b['value']:.3f} | {cb:.3f} | {b['paper_value'] / cb:.0f}x |")
     ns = np.array(sorted(by))
-    for meth in ("tsmc", "trnn"):
-        secs = np.array([by[n][meth]["extra"]["cpu_seconds"] for n in ns if meth in by[n]])
+    for meth in ("tsmc", "trnn", "tsmc(mstep=banded)", "trnn(mstep=banded)"):
+        nm = np.array([n for n in ns if meth in by[n]])
+        secs = np.array([by[n][meth]["extra"]["cpu_seconds"] for n in nm])
         if len(secs) >= 3:
-            big = ns >= 1000
+            big = nm >= 1000
             if big.sum() >= 2:
-                slope = np.polyfit(np.log(ns[big]), np.log(secs[big]), 1)[0]
+                slope = np.polyfit(np.log(nm[big]), np.log(secs[big]), 1)[0]
                 lines.append("")
-                lines.append(f"{meth.upper()}: log-log slope of CPU seconds against frames over "
-                             f"{int(ns[big].min())}-{int(ns[big].max())} frames = {slope:.2f} "
-                             f"(1 = linear); seconds per 1000 frames: "
-                             + ", ".join(f"{1000 * s / n:.2f}" for n, s in zip(ns, secs)))
+                lines.append(f"{meth}: log-log slope of CPU seconds against frames over "
+                             f"{int(nm[big].min())}-{int(nm[big].max())} frames = {slope:.2f} "
+                             f"(1 = linear); CPU seconds per 1000 frames: "
+                             + ", ".join(f"{1000 * s / n:.2f}" for n, s in zip(nm, secs)))
     lines.append("")
     lines.append(f"Measured {part.get('when', '')}; load average at the start "
                  f"{part.get('load', '')} on {part.get('cpus', '')} CPUs (other jobs shared "
@@ -263,6 +306,20 @@ def md_protocols(part: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
+def md_tdd(part: dict) -> str:
+    lines = ["## Trust-data detection (6 cm, `mocapkit.detect.trust_data`)", "",
+             "On the clean protocol clips (whole clips), and with 15 cm spikes added to 5 % of the "
+             "marker entries (`corrupt.outliers`, mode spike). False alarms = flags on "
+             "entries that are neither spikes nor flagged in the clean clip.", "",
+             "| clip | frames | flags on clean clip | flagged runs on the clean clip (marker: [start, stop) frames) | spikes | recall | false alarms | s |",
+             "|---|---:|---:|---|---:|---:|---:|---:|"]
+    for r in part["rows"]:
+        runs = "; ".join(f"{k}: {v[:3]}{'...' if len(v) > 3 else ''}" for k, v in list(r["clean_markers"].items())[:6])
+        lines.append(f"| {r['clip']} | {r['frames']} | {r['clean_flagged']} | {runs} | {r['spikes']} | "
+                     f"{r['recall']:.3f} | {r['false_alarms']} | {r['seconds']:.2f} |")
+    return "\n".join(lines) + "\n"
+
+
 def md_decisions(part: dict) -> str:
     rows = part["rows"]
     conds = list(dict.fromkeys(r["condition"] for r in rows))
@@ -304,12 +361,51 @@ coding residual interpolated across the holes (`refine=True`), DynaMMo uses k = 
 """
 
 
+def plot_speed(part: dict, path: Path) -> bool:
+    """Log-log plot of seconds against frames (ours CPU and wall, the thesis' Matlab)."""
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:                                    # pragma: no cover
+        return False
+    fig, ax = plt.subplots(figsize=(6.4, 4.2))
+    styles = {"tsmc": "tab:red", "trnn": "tab:blue"}
+    for meth, col in styles.items():
+        rr = sorted((r for r in part["rows"] if r["method"] == meth),
+                    key=lambda r: int(r["condition"].split("=")[1]))
+        n = [int(r["condition"].split("=")[1]) for r in rr]
+        ax.loglog(n, [r["paper_value"] for r in rr], "s--", color=col, alpha=0.6,
+                  label=f"{meth.upper()} thesis (Matlab)")
+        ax.loglog(n, [r["extra"]["cpu_seconds"] for r in rr], "o-", color=col,
+                  label=f"{meth.upper()} ours (CPU s)")
+        ax.loglog(n, [r["value"] for r in rr], "o:", color=col, alpha=0.5, ms=3,
+                  label=f"{meth.upper()} ours (wall s)")
+    ax.set_xlabel("frames (93 coordinates, 20% markers missing)")
+    ax.set_ylabel("seconds")
+    ax.set_title("Table 4.1 run time: thesis vs mocapkit (one BLAS thread)")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return True
+
+
 def write_md(parts: dict) -> Path:
     text = [HEADER]
+    if "speed" in parts and plot_speed(parts["speed"], OUT_DIR / "thesis_runtime.png"):
+        text.append("![run time against frames](thesis_runtime.png)\n")
+    if "protocols" in parts:                               # flat row lists, one per protocol
+        for name, v in parts["protocols"]["protocols"].items():
+            (OUT_DIR / f"{name}.json").write_text(json.dumps(v["rows"], indent=1))
     if "speed" in parts:
         text.append(md_speed(parts["speed"]))
     if "protocols" in parts:
         text.append(md_protocols(parts["protocols"]))
+    if "tdd" in parts:
+        text.append(md_tdd(parts["tdd"]))
     if "decisions" in parts:
         text.append(md_decisions(parts["decisions"]))
     path = OUT_DIR / "thesis.md"
@@ -320,7 +416,7 @@ def write_md(parts: dict) -> Path:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", default=None)
-    ap.add_argument("--parts", default="speed,protocols,decisions")
+    ap.add_argument("--parts", default="speed,protocols,tdd,decisions")
     ap.add_argument("--frames", type=int, default=600)
     ap.add_argument("--repeats", type=int, default=2)
     ap.add_argument("--quick", action="store_true")
@@ -338,6 +434,8 @@ def main(argv: list[str] | None = None) -> int:
                 res = run_protocols(data, a.frames, a.repeats, a.quick)
             elif part == "decisions":
                 res = run_decisions(data)
+            elif part == "tdd":
+                res = run_tdd(data)
             else:
                 raise SystemExit(f"unknown part {part!r}")
             res["when"] = time.strftime("%Y-%m-%d %H:%M")
@@ -347,7 +445,7 @@ def main(argv: list[str] | None = None) -> int:
             (OUT_DIR / f"thesis_{part}.json").write_text(json.dumps(res, indent=1, default=float))
             print(f"{part}: {time.time() - t0:.0f} s", file=sys.stderr)
     parts = {}
-    for part in ("speed", "protocols", "decisions"):
+    for part in ("speed", "protocols", "tdd", "decisions"):
         p = OUT_DIR / f"thesis_{part}.json"
         if p.exists():
             parts[part] = json.loads(p.read_text())

@@ -362,7 +362,7 @@ def _rolling_median_mad(A: np.ndarray, window: int, chunk: int = 4096,
     return med, mad
 
 
-def hampel_residuals(X, /, *, window: int = 7, scale: Literal["local", "global"] = "local",
+def hampel_residuals(X, /, *, window: int = 7, scale: Literal["local", "global", "both"] = "local",
                      min_sigma: float = 0.0, exclude_center: bool = False, axis: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Residuals from the running median and their robust scale (see :func:`hampel`).
 
@@ -370,7 +370,8 @@ def hampel_residuals(X, /, *, window: int = 7, scale: Literal["local", "global"]
     ``scale='local'`` -- classic Hampel, 1.4826 x the MAD of the ``window`` samples about
     their median; ``scale='global'`` -- one value per channel, 1.4826 x the MAD of that
     channel's residuals over the whole clip (stable, and not inflated by fast motion,
-    which moves the window's samples but not their residuals). Floored at ``min_sigma``.
+    which moves the window's samples but not their residuals); ``scale='both'`` returns
+    both as ``sigma`` of shape (2, *X.shape): [global, local]. Floored at ``min_sigma``.
 
     ``exclude_center=True`` takes the median (and MAD) of the ``window - 1`` neighbours
     of each sample, leaving the sample itself out. The residual is then independent of
@@ -382,20 +383,20 @@ def hampel_residuals(X, /, *, window: int = 7, scale: Literal["local", "global"]
     window = int(window)
     if window < 3 or window % 2 == 0:
         raise MocapValueError(f"hampel window must be an odd number of frames >= 3, got {window}")
-    if scale not in ("local", "global"):
-        raise MocapValueError(f"scale must be 'local' or 'global', got {scale!r}")
+    if scale not in ("local", "global", "both"):
+        raise MocapValueError(f"scale must be 'local', 'global' or 'both', got {scale!r}")
     A, shape, axis = _as_2d(X, axis)
     _require_finite(A, "the Hampel filter")
     med, mad = _rolling_median_mad(A, window, exclude_center=exclude_center)
     res = A - med
-    if scale == "local":
-        sig = 1.4826 * mad
-    else:
-        r0 = np.median(res, axis=0)
-        sig = np.broadcast_to(1.4826 * np.median(np.abs(res - r0), axis=0), A.shape)
-    sig = np.maximum(sig, float(min_sigma))
-    return (_restore(med, shape, axis), _restore(res, shape, axis),
-            _restore(np.array(sig), shape, axis))
+    loc = 1.4826 * mad
+    r0 = np.median(res, axis=0)
+    glob = np.broadcast_to(1.4826 * np.median(np.abs(res - r0), axis=0), A.shape)
+    out = []
+    for sig in ((glob, loc) if scale == "both" else (glob,) if scale == "global" else (loc,)):
+        out.append(_restore(np.maximum(sig, float(min_sigma)), shape, axis))
+    sig = np.stack(out) if scale == "both" else out[0]
+    return _restore(med, shape, axis), _restore(res, shape, axis), sig
 
 
 def hampel(X, /, *, window: int = 7, n_sigmas: float = 3.0, scale: Literal["local", "global"] = "local",
@@ -427,6 +428,8 @@ def hampel(X, /, *, window: int = 7, n_sigmas: float = 3.0, scale: Literal["loca
     n_sigmas = float(n_sigmas)
     if not n_sigmas > 0:
         raise MocapValueError(f"n_sigmas must be positive, got {n_sigmas}")
+    if scale not in ("local", "global"):
+        raise MocapValueError(f"scale must be 'local' or 'global', got {scale!r}")
     med, res, sig = hampel_residuals(X, window=window, scale=scale, min_sigma=min_sigma,
                                      exclude_center=exclude_center, axis=axis)
     flagged = np.abs(res) > n_sigmas * sig

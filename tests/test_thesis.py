@@ -59,7 +59,7 @@ def test_dct_eigenvalues_match_dense():
     np.testing.assert_allclose(np.sort(cp.dct_eigenvalues(n)), w, atol=1e-12)
 
 
-@pytest.mark.parametrize("n", [2, 7, 16])
+@pytest.mark.parametrize("n", [2, 4, 7, 16, 17])
 def test_dct_mstep_equals_dense_solve(n):
     rng = np.random.default_rng(n)
     O = cp.second_difference_matrix(n)
@@ -67,6 +67,7 @@ def test_dct_mstep_equals_dense_solve(n):
     rhs = rng.standard_normal((n, 4))
     dense = np.linalg.solve(eta * np.eye(n) + mu * O.T @ O, rhs)
     np.testing.assert_allclose(cp.smooth_solve(rhs, eta, mu), dense, rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(cp.smooth_solve(rhs, eta, mu, "banded"), dense, rtol=1e-10, atol=1e-12)
 
 
 # ----------------------------------------------------------------------------------------

@@ -354,19 +354,23 @@ class LouChai(Denoiser):
         rot = info["rotation"]
         V[:, rot] = np.unwrap(V[:, rot], axis=0, period=info["period"])
         joint = rot & ~info["root"]
-        return V[:, joint], np.ones((len(V), int(joint.sum())), dtype=bool), (V, names, info, joint)
+        return V[:, joint], np.ones((len(V), int(joint.sum())), dtype=bool), (vals, V, names, info, joint)
 
     def _from_array(self, motion: Motion, Z: np.ndarray, ctx) -> Motion:
         if self.space == "position":
             tr, s = ctx
             P = tr.to_world(Z.reshape(motion.n_frames, -1, 3) / s)
             return motion.with_positions(P)
-        V, names, info, joint = ctx
+        raw, V, names, info, joint = ctx
         out_v = V.copy()
         out_v[:, joint] = Z
         root = info["root"]
         if root.any():
             out_v[:, root] = _smooth_root(motion, V, info)[:, root]
+        # rotations back to the turn of the input values (file range; FK is unchanged)
+        rot, per = info["rotation"], info["period"]
+        d = out_v[:, rot] - raw[:, rot]
+        out_v[:, rot] = raw[:, rot] + (d - per * np.round(d / per))
         P = angle_fk(motion, out_v)
         out = motion.with_positions(P)
         pf = dict(out.source.get("per_frame", {}))
@@ -406,7 +410,7 @@ class LouChai(Denoiser):
             for part in parts:
                 Y, _, ctx = self._to_array(part, up)
                 if self.space == "angle":
-                    names = ctx[1]
+                    names = ctx[2]
                     if channel_names is None:
                         channel_names = names
                     elif names != channel_names:
@@ -453,9 +457,14 @@ class LouChai(Denoiser):
         if T < M:
             Yc = np.concatenate([Yc, np.full((M - T, Yc.shape[1]), np.nan)])
             mask = np.concatenate([mask, np.zeros((M - T, mask.shape[1]), bool)])
-        out = rb.robust_filter(Yc, np.asarray(self.bases_), M, mask=mask, lam=float(self.lam),
+        E = self.bases_
+        if not (isinstance(E, np.ndarray) and E.dtype == float and E.flags.c_contiguous):
+            E = self.bases_ = np.ascontiguousarray(E, dtype=float)
+        if getattr(self, "_cache_owner", None) is not E:
+            self._cache, self._cache_owner = {}, E
+        out = rb.robust_filter(Yc, E, M, mask=mask, lam=float(self.lam),
                                p=float(self.p), max_iter=int(self.max_iter), tol=float(self.tol),
-                               method=self.method, return_info=return_info)
+                               method=self.method, cache=self._cache, return_info=return_info)
         Z, info = out if return_info else (out, None)
         Z = Z[:T] + np.asarray(self.mean_)
         return (Z, info) if return_info else Z

@@ -160,6 +160,10 @@ class SVT(Denoiser):
     description = "singular value thresholding (Cai-Candes-Shen), noise-bounded, completes missing markers"
     clean_tolerance_cm = 1.0
 
+    @classmethod
+    def quick_params(cls) -> dict[str, Any]:
+        return {"max_iter": 150}
+
     def __init__(self, tau: float | None = None, delta: float | None = None,
                  noise_cm: float | None = None, center: str = "mean", tol: float = 1e-4,
                  max_iter: int = 500, keep_observed: bool = False):

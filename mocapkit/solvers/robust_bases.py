@@ -28,19 +28,21 @@ alpha (0 = missing, eq. 16). :func:`robust_filter` alternates (Sec. 3.4.3):
   ``Z[m:m+S] @ E_m`` (E_m = the L rows of E for window frame m), no window copies;
 * motion step (eqs. 14-15): one IRLS step per outer iteration. Welsch is concave in r²,
   so ``rho(r) <= const + ½ w r²`` with ``w = exp(-r0²/p²) = rho'(r0)/r0`` at the current
-  residual r0 (half-quadratic majoriser); minimising the majoriser is, per frame and
-  channel, the closed-form weighted average
+  residual r0 (half-quadratic majoriser); minimising the majoriser plus the bases term
+  (gradient ``alpha w (z - y) + 2 lam (n_t z - acc) = 0``) is, per frame and channel,
+  the closed-form weighted average
 
-      z_l(t) = (½ alpha w y_l(t) + 2 lam acc_l(t)) / (½ alpha w + 2 lam n_t)     ... (*)
+      z_l(t) = (alpha w y_l(t) + 2 lam acc_l(t)) / (alpha w + 2 lam n_t)           (*)
 
   where ``acc(t) = sum_m E_m c_{t-m}`` sums the n_t overlapping window reconstructions
   of frame t (overlap-add, again M products). Each step cannot increase J, so the cost
   decreases monotonically.
 
-  Note on eq. 15: printed as ``sum_l w_l (z_l - y_l)²`` it drops the factor ½ that the
-  IRLS majoriser of ``rho ~ r²/2`` carries; that equals running the exact objective with
-  lam/2. We implement the exact objective (11)/(16); pass ``lam`` halved to mimic the
-  printed eq. 15.
+  Note on eq. 15: printed as ``lam sum ||z - E_m c||² + sum_l w_l (z_l - y_l)²`` it drops
+  the factor ½ that the IRLS majoriser of ``rho ~ r²/2`` carries, giving
+  ``z = (w y + lam acc) / (w + lam n_t)``: the exact objective with lam/2. We implement
+  the exact objective (11)/(16) with the paper's lam = 0.1; pass ``lam=0.05`` to
+  reproduce the printed eq. 15.
 
 Stopping: relative change of J below ``tol`` or ``max_iter`` iterations (paper: 10-20).
 ``p = inf`` gives rho(r) = r²/2 (plain least squares, the non-robust reference).
@@ -298,32 +300,46 @@ class WindowProjector:
       computed directly). Faster than ``'direct'`` once K is more than a few tens.
     * ``'fft32'`` -- the same in single precision (relative error ~1e-6, i.e. ~1e-5 cm
       on body-frame positions), about twice as fast.
-    * ``'auto'`` -- ``'fft32'`` when 4 M K > 8 L and the clip is longer than 4 M, else
-      ``'direct'``.
+    * ``'auto'`` -- ``'fft32'`` when its estimated cost for ``n_calls`` applications
+      (set-up included) is below that of ``'direct'``, else ``'direct'``.
+
+    ``cache`` (a dict) keeps the frequency responses between projectors with the same
+    bases and block length (e.g. the phases of one clip, or clips of equal length).
     """
 
-    def __init__(self, E: np.ndarray, M: int, L: int, T: int, method: str = "auto"):
+    def __init__(self, E: np.ndarray, M: int, L: int, T: int, method: str = "auto",
+                 n_calls: int = 25, cache: dict | None = None):
         import scipy.fft as sfft
 
         self.M, self.L, self.T = int(M), int(L), int(T)
         self.E = np.ascontiguousarray(E, dtype=float)
         self.Em = _split_bases(self.E, self.M, self.L)
         K = self.E.shape[1]
+        pad = 2 * (M - 1)
+        pow2 = lambda n: 1 << int(np.ceil(np.log2(max(n, 1))))   # noqa: E731
+        N = min(pow2(max(8 * pad, 64)), pow2(T + pad))   # ~8x the overlap, no longer than needed
+        N = max(N, pow2(pad + 1))                        # at least one new frame per block
         if method == "auto":
-            method = "fft32" if (4 * M * K > 8 * L and T > 4 * M) else "direct"
+            F, nb = N // 2 + 1, -(-T // (N - pad))
+            direct = 4.0 * T * M * L * K * n_calls
+            fft = 8.0 * F * L * L * K + n_calls * (4.0 * F * L * L * nb + 5.0 * L * N * nb * np.log2(N)
+                                                   + 8.0 * M * M * L * K)
+            method = "fft32" if fft < direct else "direct"
         if method not in ("direct", "fft", "fft32"):
             raise MocapValueError(f"method must be 'auto', 'direct', 'fft' or 'fft32', got {method!r}")
         self.method = method
         if method != "direct":
             self.dtype = np.float32 if method == "fft32" else np.float64
-            pad = 2 * (M - 1)
-            pow2 = lambda n: 1 << int(np.ceil(np.log2(max(n, 1))))   # noqa: E731
-            N = min(pow2(max(8 * pad, 64)), pow2(T + pad))   # ~8x the overlap, no longer than needed
-            N = max(N, pow2(pad + 1))                        # at least one new frame per block
             self.N, self.B = N, N - pad
-            Et = sfft.rfft(self.Em, n=N, axis=0)                        # (F, L, K)
-            HfT = np.conj(Et) @ Et.transpose(0, 2, 1)                   # (F, L, L) = Hf transposed
-            self.HfT = np.ascontiguousarray(HfT, dtype=np.complex64 if method == "fft32" else np.complex128)
+            key = (method, N, M, L, K, id(E) if cache is not None else None)
+            if cache is not None and key in cache and cache[key][0] is E:
+                self.HfT = cache[key][1]
+            else:
+                Et = sfft.rfft(self.Em, n=N, axis=0)                    # (F, L, K)
+                HfT = np.conj(Et) @ Et.transpose(0, 2, 1)               # (F, L, L) = Hf transposed
+                self.HfT = np.ascontiguousarray(HfT, dtype=np.complex64 if method == "fft32" else np.complex128)
+                if cache is not None:
+                    cache[key] = (E, self.HfT)
 
     def __call__(self, Z: np.ndarray) -> np.ndarray:
         import scipy.fft as sfft
@@ -370,7 +386,7 @@ def _prior(Z, A, n_t) -> float:
 def robust_filter(Y: np.ndarray, E: np.ndarray, M: int, *, mask: np.ndarray | None = None,
                   lam: float = 0.1, p: float = 3.0, max_iter: int = 20, tol: float = 1e-4,
                   Z0: np.ndarray | None = None, method: str = "auto", fill_iter: int = 100,
-                  return_info: bool = False):
+                  cache: dict | None = None, return_info: bool = False):
     """Robust filtering with filter bases (Lou & Chai 2010, eqs. 11-16; module doc).
 
     Parameters
@@ -388,7 +404,9 @@ def robust_filter(Y: np.ndarray, E: np.ndarray, M: int, *, mask: np.ndarray | No
         in time (channels never observed start at 0, i.e. the training mean if Y is
         centred).
     method : implementation of the coefficient + overlap-add step, see
-        :class:`WindowProjector` (``'auto'``, ``'direct'``, ``'fft'``).
+        :class:`WindowProjector` (``'auto'``, ``'direct'``, ``'fft'``, ``'fft32'``).
+    cache : optional dict reused between calls with the same bases (see
+        :class:`WindowProjector`).
     fill_iter : missing entries (alpha = 0) have no data term, so the alternating
         updates move them only by averaging window reconstructions -- a slow (Jacobi)
         iteration for long gaps. Before the first and after the last alternating
@@ -423,7 +441,8 @@ def robust_filter(Y: np.ndarray, E: np.ndarray, M: int, *, mask: np.ndarray | No
         raise MocapValueError(f"lam must be positive, got {lam!r}")
     if not p > 0:
         raise MocapValueError(f"Welsch p must be positive (or inf), got {p!r}")
-    proj = WindowProjector(np.asarray(E, dtype=float), M, L, T, method)
+    proj = WindowProjector(E if isinstance(E, np.ndarray) and E.dtype == float else np.asarray(E, dtype=float),
+                           M, L, T, method, n_calls=int(max_iter) + 2, cache=cache)
     Yf = np.where(alpha, Y, 0.0)
     if Z0 is None:
         Z = fill_gaps_linear(Y, alpha) if not alpha.all() else Yf.copy()
@@ -462,7 +481,7 @@ def robust_filter(Y: np.ndarray, E: np.ndarray, M: int, *, mask: np.ndarray | No
         if done or it == n_max:
             break
         w = a * e                                                 # eq. 15 (IRLS weights)
-        Z = (0.5 * w * Yf + 2.0 * lam * A) / (0.5 * w + two_lam_n)   # (*)
+        Z = (w * Yf + 2.0 * lam * A) / (w + two_lam_n)            # (*)
     if miss.any() and fill_iter > 0:
         Z, k = _fill_missing(Z, miss, proj, n_t, int(fill_iter))
         cg_its += k
