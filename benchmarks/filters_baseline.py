@@ -174,7 +174,7 @@ def report(rows, a, clips, frames, seeds, total_s) -> str:
          f"an idle core).", "",
          "Frames per test clip (120 / 30 fps): " + ", ".join(
              f"{t} {_frames(rows, t, 120.0)} / {_frames(rows, t, 30.0)}" for t, _ in clips) + ".", "",
-         f"Clips: {', '.join(f'{t} ({act})' for t, act in clips)}; {frames} frames of each from frame {SKIP} on "
+         f"Clips: {', '.join(f'{t} ({act})' for t, act in clips)}; up to {frames} frames of each from frame {SKIP} on "
          f"(at 120 fps; the same span resampled to 30 fps). Seeds per condition: {len(seeds)}. "
          "Conditions: `gauss2` = 2 cm i.i.d. Gaussian noise per coordinate; `spikes10` = 10 % of "
          "(frame, joint) entries moved 15 cm in a random 3-D direction, no other noise; "

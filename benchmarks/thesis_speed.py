@@ -306,6 +306,50 @@ def md_protocols(part: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
+def md_targets(parts: dict) -> str:
+    """The issue's targets, checked against the measured rows (computed, not typed)."""
+    lines = ["## Targets of the issue, checked on these measurements", ""]
+    P = parts.get("protocols", {}).get("protocols", {})
+    for name in ("thesis-missing-random", "thesis-missing-blocks"):
+        if name not in P:
+            continue
+        rows = [r for r in P[name]["rows"] if r["metric"] == "rmse_missing"]
+        keys = sorted({(r["clip"], r["condition"]) for r in rows})
+        val = {(r["clip"], r["condition"], r["method"]): r["value"] for r in rows}
+        hold_tt = sum(val.get((c, k, "trnn"), np.inf) <= val.get((c, k, "tsmc"), -np.inf) for c, k in keys)
+        hold_ts = sum(val.get((c, k, "tsmc"), np.inf) <= val.get((c, k, "svt"), -np.inf) for c, k in keys)
+        best = {}
+        for c, k in keys:
+            cand = {m: v for (cc, kk, m), v in val.items() if cc == c and kk == k}
+            b = min(cand, key=cand.get)
+            best[b] = best.get(b, 0) + 1
+        lines.append(f"- {name}: trnn <= tsmc in {hold_tt}/{len(keys)} (clip, condition) cases, "
+                     f"tsmc <= svt in {hold_ts}/{len(keys)}; best method per case: "
+                     + ", ".join(f"{m} {n}" for m, n in sorted(best.items(), key=lambda x: -x[1])) + ".")
+        hi = [(c, k) for c, k in keys if k in ("mr=0.5", "mr=0.6", "ml=50", "ml=60")]
+        if hi:
+            psc_best = [f"{c.split()[0]} {k}" for c, k in hi
+                        if min(((m, v) for (cc, kk, m), v in val.items() if cc == c and kk == k),
+                               key=lambda x: x[1])[0] == "psc"]
+            lines.append(f"  psc best at the two highest ratios/lengths in {len(psc_best)}/{len(hi)} cases"
+                         + (f" ({', '.join(psc_best)})" if psc_best else "") + ".")
+    if "speed" in parts:
+        rows = parts["speed"]["rows"]
+        for meth in ("tsmc", "trnn"):
+            rr = [r for r in rows if r["method"] == meth]
+            if not rr:
+                continue
+            wall = [r["paper_value"] / r["value"] for r in rr]
+            cpu = [r["paper_value"] / r["extra"]["cpu_seconds"] for r in rr]
+            longest = max(rr, key=lambda r: int(r["condition"].split("=")[1]))
+            lines.append(f"- {meth} speed-up over the thesis' Matlab: CPU time {min(cpu):.0f}x-{max(cpu):.0f}x "
+                         f"({sum(c >= 20 for c in cpu)}/{len(cpu)} lengths >= 20x), wall time "
+                         f"{min(wall):.0f}x-{max(wall):.0f}x ({sum(w >= 20 for w in wall)}/{len(wall)} >= 20x); "
+                         f"{longest['condition']}: {longest['value']:.1f} s wall, "
+                         f"{longest['extra']['cpu_seconds']:.1f} s CPU.")
+    return "\n".join(lines) + "\n"
+
+
 def md_tdd(part: dict) -> str:
     lines = ["## Trust-data detection (6 cm, `mocapkit.detect.trust_data`)", "",
              "On the clean protocol clips (whole clips), and with 15 cm spikes added to 5 % of the "
@@ -394,7 +438,7 @@ def plot_speed(part: dict, path: Path) -> bool:
 
 
 def write_md(parts: dict) -> Path:
-    text = [HEADER]
+    text = [HEADER, md_targets(parts)]
     if "speed" in parts and plot_speed(parts["speed"], OUT_DIR / "thesis_runtime.png"):
         text.append("![run time against frames](thesis_runtime.png)\n")
     if "protocols" in parts:                               # flat row lists, one per protocol

@@ -284,6 +284,29 @@ def cmd_batch(a: argparse.Namespace) -> int:
     return 0 if summ.failed == 0 else 1
 
 
+def cmd_plot(a: argparse.Namespace) -> int:
+    from .io._atomic import check_output_path
+    from .viz import plots
+
+    check_output_path(a.output, tuple(a.files), overwrite=a.force)
+    if a.bench:
+        path = plots.plot_bench(a.output, a.files[0], a.metric)
+    else:
+        motions = [_read(p, a.skeleton) for p in a.files]
+        labels = [Path(p).name for p in a.files]
+        if a.gif:
+            path = plots.animate_gif(a.output, motions, labels, max_frames=a.max_frames)
+        elif a.error:
+            if len(motions) < 2:
+                raise MocapError("--error needs TRUTH and at least one ESTIMATE")
+            path = plots.plot_error(a.output, motions[0], motions[1:], labels[1:])
+        else:
+            joints = a.joints.split(",") if a.joints else [motions[0].skeleton.names[-1]]
+            path = plots.plot_trajectories(a.output, motions, labels, joints, a.axis)
+    print(f"wrote {path}")
+    return 0
+
+
 # -- parser ----------------------------------------------------------------------------------
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
@@ -380,6 +403,19 @@ def build_parser() -> argparse.ArgumentParser:
                    help="file patterns (default: *.bvh *.amc *.c3d *.trc *skeleton*.txt)")
     s.add_argument("-q", "--quiet", action="store_true")
     s.set_defaults(func=cmd_batch)
+
+    s = sub.add_parser("plot", help="figures: joint trajectories, error per frame, bench charts, --gif animation")
+    s.add_argument("files", nargs="+", help="motion files (first = truth/reference), or a bench JSON with --bench")
+    s.add_argument("-o", "--output", required=True, help="PNG, SVG or PDF (GIF with --gif)")
+    s.add_argument("--joints", help="comma-separated joint names for trajectories (default: last joint)")
+    s.add_argument("--axis", default="y", choices=["x", "y", "z"])
+    s.add_argument("--error", action="store_true", help="error per frame of each file against the first")
+    s.add_argument("--gif", action="store_true", help="skeleton animation, files side by side")
+    s.add_argument("--max-frames", type=int, default=300)
+    s.add_argument("--bench", action="store_true", help="chart of a 'mocapkit bench' JSON")
+    s.add_argument("--metric", help="bench metric to chart (default: the first)")
+    common(s)
+    s.set_defaults(func=cmd_plot)
 
     s = sub.add_parser("report", help="self-contained HTML report: input, cleaned (and truth)")
     s.add_argument("files", nargs="+", help="TRUTH_OR_INPUT [CLEANED ...]")

@@ -111,22 +111,34 @@ def test_fk_by_hand(tmp_path):
 
 
 def test_fk_bone_axis_and_hinge_by_hand(tmp_path):
-    # 'fore' has axis (0, 0, 90): its rx hinge turns about global y (C = Rz90, C x = y).
-    # A 90 degree turn about y takes the bone direction... (0,1,0) stays; so use 'up' rx=90
-    # first: up points to +z (Rx90 y = z); then fore's hinge axis is L_up C x = Rx90 y = z,
-    # and rotating fore (0,1,0)->Rx90 -> (0,0,1) by 90 about z gives (0,0,1): unchanged.
-    # With up rx=90 and fore rx=90 the fore bone (direction y) becomes
-    # L_fore y = Rx90 (Rz90 Rx90 Rz90^-1) y = Rx90 Ry90 y = Rx90 y = z.
-    p = _tiny(tmp_path, "1\nroot 0 0 0 0 0 0\nup 90 0 0\nfore 90\n")
-    P = io.read(p).positions[0] / CM
-    np.testing.assert_allclose(P[1], [0, 0, 2], atol=1e-12)
-    np.testing.assert_allclose(P[2], [0, 0, 3], atol=1e-12)
-    # and 'fore' rx = 90 with 'up' at rest: L = Ry90; Ry90 y = y (the hinge axis is y).
-    p2 = _tiny(tmp_path / "..", "") if False else None
+    """'fore' has axis (0, 0, 90), so C = Rz90 and its rx dof turns about C·x = y.
+
+    'fore' rx = 90 alone: L_fore = C Rx90 C^-1 = Ry90, and Ry90 leaves the bone direction
+    y unchanged: fore ends at (0, 3, 0). With 'up' rx = 90 too: L_up = Rx90 (y -> z), so
+    up ends at (0, 0, 2) and L_fore = Rx90 Ry90; Ry90 y = y, Rx90 y = z: fore ends at (0, 0, 3).
+    """
+    p = _tiny(tmp_path, "1\nroot 0 0 0 0 0 0\nup 0 0 0\nfore 90\n"
+                        "2\nroot 0 0 0 0 0 0\nup 90 0 0\nfore 90\n")
+    P = io.read(p).positions / CM
+    np.testing.assert_allclose(P[0, 2], [0, 3, 0], atol=1e-12)
+    np.testing.assert_allclose(P[1, 1], [0, 0, 2], atol=1e-12)
+    np.testing.assert_allclose(P[1, 2], [0, 0, 3], atol=1e-12)
+
+
+def test_fk_hinge_axis_matters(tmp_path):
+    """A hinge whose rotation axis is not along the bone: 'up' rz = 90 and 'fore' rx = 90.
+
+    L_up = Rz90; L_fore = Rz90 · Ry90. Ry90 y = y, so fore stays along up's direction:
+    up ends at Rz90 (0, 2, 0) = (-2, 0, 0), fore at (-3, 0, 0). With 'fore' axis (0,0,0)
+    instead (hinge about x), Rz90 Rx90 y = Rz90 z = z: fore would end at (-2, 0, 1).
+    """
+    p = _tiny(tmp_path, "1\nroot 0 0 0 0 0 0\nup 0 0 90\nfore 90\n")
+    np.testing.assert_allclose(io.read(p).positions[0, 2] / CM, [-3, 0, 0], atol=1e-12)
     (tmp_path / "b").mkdir()
-    p2 = _tiny(tmp_path / "b", "1\nroot 0 0 0 0 0 0\nup 0 0 0\nfore 90\n")
-    P2 = io.read(p2).positions[0] / CM
-    np.testing.assert_allclose(P2[2], [0, 3, 0], atol=1e-12)
+    (tmp_path / "b" / "tiny.asf").write_text(TINY_ASF.replace("axis 0 0 90 XYZ", "axis 0 0 0 XYZ"))
+    q = tmp_path / "b" / "tiny_01.amc"
+    q.write_text(":FULLY-SPECIFIED\n:DEGREES\n1\nroot 0 0 0 0 0 0\nup 0 0 90\nfore 90\n")
+    np.testing.assert_allclose(io.read(q).positions[0, 2] / CM, [-2, 0, 1], atol=1e-12)
 
 
 def test_cmu_units_and_offsets(walk):

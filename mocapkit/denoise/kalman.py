@@ -23,7 +23,7 @@ Noise levels (documented decisions; every one is a parameter)
 * process noise (kalman-cv, kalman-identity): by default chosen per channel by maximum
   (Huber-robustified) innovation likelihood over a grid of smoother bandwidths
   (:func:`mocapkit.signal.select_process_noise`; one batched forward pass over all
-  channels x 13 candidate values). The process noise q and the smoother's -6 dB cutoff
+  channels x 10 candidate values). The process noise q and the smoother's -6 dB cutoff
   f_c are equivalent (:func:`mocapkit.signal.cutoff_to_q`: q = r dt (2 pi f_c)^(2 order)),
   so ``cutoff_hz`` can be given instead.
 """

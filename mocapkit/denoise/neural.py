@@ -27,6 +27,9 @@ they were trained and how well they do), so they need no training step. ``fit(mo
 trains a new model on clean motions (defaults: the paper's settings, 300 epochs per
 network: hours on a CPU; see ``docs/neural.md`` for CPU-sized settings).
 
+``threads``: torch threads for training (None: every core this process may use) and for
+inference (None: 1, see :meth:`mocapkit.neural.bundle.Bundle.run_windows`).
+
 Models are saved as ``.pt`` files (:mod:`mocapkit.neural.bundle`), not ``.npz``.
 torch is imported only when a model is trained or used; without it these methods raise
 MissingDependencyError ("pip install mocapkit[neural]").
@@ -135,7 +138,7 @@ class _NeuralDenoiser(Denoiser):
     def denoise(self, motion: Motion) -> Motion:
         b = self._bundle()
         post = bool(self.postprocess) and self._perceptual
-        out = b.refine(motion, postprocess=post)
+        out = b.refine(motion, postprocess=post, threads=self.threads)
         return check_output(motion, out, self.name)
 
     # -- persistence ------------------------------------------------------------------------

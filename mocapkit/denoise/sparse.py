@@ -30,7 +30,8 @@ Decisions where the paper is silent (each is a parameter):
 * ``noise='auto'`` (default) detects outliers first: residuals from a running median
   of the 6 neighbouring frames (centre excluded, :func:`mocapkit.signal.hampel_residuals`)
   are flagged beyond ``max(5 sigma_c, 1 cm)`` (sigma_c a robust per-channel scale); more
-  than ``outlier_detect_ratio`` (0.5 %) flagged entries -> outliers present; then
+  than ``outlier_detect_ratio`` (2 %; real "clean" CMU clips have up to ~1 % of
+  such samples: glitches of the capture) flagged entries -> outliers present; then
   ``'mixed'`` if the robust Gaussian noise level exceeds 0.1 cm, else ``'outliers'``;
   no outliers -> ``'gaussian'``.  ``noise='gaussian'|'outliers'|'mixed'`` forces a model.
 * lambda: the paper's lambda=100 is in unstated units.  For eq. (4) lambda has the
@@ -111,7 +112,7 @@ def overlap_mean(R: np.ndarray, T: int, M: int) -> np.ndarray:
 # ---------------------------------------------------------------------------------------
 # noise detection
 # ---------------------------------------------------------------------------------------
-def detect_noise(X: np.ndarray, *, outlier_detect_ratio: float = 0.005, n_sigmas: float = 5.0,
+def detect_noise(X: np.ndarray, *, outlier_detect_ratio: float = 0.02, n_sigmas: float = 5.0,
                  floor_cm: float = 1.0, mixed_sigma_cm: float = 0.1) -> dict[str, Any]:
     """Classify the noise of a (T, C) local-frame matrix (cm): gaussian / outliers / mixed.
 
@@ -192,7 +193,7 @@ class XiaoSparse(Denoiser):
     center : subtract the mean training window per poselet (default True).
     max_train_windows : K-SVD training windows per poselet (default 8000, strided).
     n_jobs : parallel training processes (default 1; 2 trains two poselets at a time).
-    code_iter : FISTA iterations for eq. (4) (default 60).
+    code_iter : ADMM iterations for eq. (4) (default 40).
     admm_iter : ADMM iterations for eq. (5) (default 80).
     dtype : ``'float32'`` (default, faster) or ``'float64'`` for the coding step.
     smooth_frame : estimate the local frame from smoothed tracks (default True).
@@ -209,7 +210,7 @@ class XiaoSparse(Denoiser):
     def __init__(self, window: int = 15, n_atoms: int = 512, sparsity: int = 8, n_iter: int = 10,
                  noise: str = "auto", lam: float | None = None, lam_factor: float = 4.0,
                  lam_l1: float = 0.1, center: bool = True, max_train_windows: int = 8000,
-                 n_jobs: int = 1, code_iter: int = 60, admm_iter: int = 80,
+                 n_jobs: int = 1, code_iter: int = 40, admm_iter: int = 80,
                  dtype: str = "float32", smooth_frame: bool = True, random_state: int = 0):
         self.window = window
         self.n_atoms = n_atoms
@@ -319,16 +320,15 @@ class XiaoSparse(Denoiser):
 
     # -- denoising -----------------------------------------------------------------------
     def _solvers(self):
-        """Per-dictionary precomputations (Gram, Lipschitz constant, ADMM factor), cached."""
+        """Per-dictionary precomputations, cached in memory (not saved): the dictionary in
+        the coding dtype, the eigendecomposition of its Gram matrix (lasso ADMM) and the
+        ADMM factor of eq. (5) (computed on first use)."""
         if getattr(self, "_cache", None) is None or len(self._cache) != len(self.dictionaries_):
-            cache = []
+            from ..solvers.sparse_coding import gram_eig
+
             dt = np.dtype(self.dtype)
-            for D in self.dictionaries_:
-                D = np.asarray(D, dtype=np.float64)
-                G = D.T @ D
-                L = float(2.0 * np.linalg.eigvalsh(G)[-1])
-                cache.append({"D": D.astype(dt), "G": G.astype(dt), "L": L, "F": None})
-            self._cache = cache
+            self._cache = [{"D": np.asarray(D, dtype=dt), "eig": gram_eig(D), "F": None}
+                           for D in self.dictionaries_]
         return self._cache
 
     def _factor(self, i: int) -> np.ndarray:
@@ -341,7 +341,7 @@ class XiaoSparse(Denoiser):
 
     def _code_part(self, i: int, X: np.ndarray, kind: str, lam2: float) -> np.ndarray:
         """Denoise one poselet matrix X (T, d) in the local frame; returns (T, d)."""
-        from ..solvers.sparse_coding import l1l1_admm, lasso_fista
+        from ..solvers.sparse_coding import l1l1_admm, lasso_admm
 
         M = int(self.window)
         T = X.shape[0]
@@ -356,8 +356,7 @@ class XiaoSparse(Denoiser):
             if kind == "outliers":
                 return X
             Z = (lagged_windows(X, M) - mu).astype(dt)
-        Th = lasso_fista(Z, c["D"], lam2, n_iter=int(self.code_iter), tol=1e-4, gram=c["G"],
-                         lipschitz=c["L"], dtype=dt)
+        Th = lasso_admm(Z, c["D"], lam2, n_iter=int(self.code_iter), tol=1e-4, eig=c["eig"], dtype=dt)
         return overlap_mean(Th @ c["D"].T + mu, T, M)
 
     def denoise(self, motion: Motion) -> Motion:

@@ -13,6 +13,13 @@ from typing import Callable, IO
 from ..errors import MocapValueError
 
 
+def _umask_mode() -> int:
+    """Permissions a normally created file gets (mkstemp would make it 0600)."""
+    mask = os.umask(0)
+    os.umask(mask)
+    return 0o666 & ~mask
+
+
 def check_output_path(path: str | os.PathLike, inputs: tuple = (), overwrite: bool = False) -> Path:
     """Refuse to write over an input file (or over any existing file unless ``overwrite``)."""
     p = Path(path)
@@ -37,6 +44,7 @@ def atomic_write(path: str | os.PathLike, write: Callable[[IO], None], *, binary
             write(f)
             f.flush()
             os.fsync(f.fileno())
+        os.chmod(tmp, _umask_mode())
         os.replace(tmp, p)
     except BaseException:
         try:
@@ -55,6 +63,7 @@ def atomic_write_path(path: str | os.PathLike, write_to: Callable[[str], None], 
         write_to(tmp)
         with open(tmp, "rb+") as f:
             os.fsync(f.fileno())
+        os.chmod(tmp, _umask_mode())
         os.replace(tmp, p)
     except BaseException:
         try:

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import json
 import os
+from contextlib import contextmanager
 from typing import Any, Sequence
 
 import numpy as np
@@ -134,11 +135,16 @@ class Bundle:
         return cls(nets["denoise"], nets["perceptual"], norm_in, norm_out, meta)
 
     # -- inference -------------------------------------------------------------------------------
-    def run_windows(self, Z: np.ndarray, *, postprocess: bool | None = None, batch: int = 256) -> np.ndarray:
+    def run_windows(self, Z: np.ndarray, *, postprocess: bool | None = None, batch: int = 256,
+                    threads: int | None = None) -> np.ndarray:
         """Normalised windows (K, f, m) -> refined normalised windows (K, f, n).
 
         BRA-P's output is D_p(E_p(X_R)) (postprocessing by the perceptual autoencoder);
         ``postprocess=False`` returns X_R (the BRA-P-D ablation of Table 2).
+        ``threads``: torch threads during the call (default 1, restored afterwards): the
+        LSTMs step through 120 frames with small matrices, so extra threads gain little
+        and on a busy machine they slow inference down many times (measured: 5,000 vs
+        120-1,800 frames/s on 2 shared cores).
         """
         torch = require_torch()
         post = self.meta.get("postprocess", True) if postprocess is None else postprocess
@@ -147,7 +153,7 @@ class Bundle:
         self.denoise_net.eval()
         if self.perceptual_net is not None:
             self.perceptual_net.eval()
-        with torch.inference_mode():
+        with _threads(torch, threads), torch.inference_mode():
             for s in range(0, len(Z), batch):
                 x = torch.from_numpy(np.ascontiguousarray(Z[s:s + batch], dtype=np.float32))
                 y, _ = self.denoise_net(x)
@@ -156,17 +162,18 @@ class Bundle:
                 out.append(y.numpy())
         return np.concatenate(out, axis=0).astype(np.float64)
 
-    def encode_perceptual(self, Z: np.ndarray) -> np.ndarray:
+    def encode_perceptual(self, Z: np.ndarray, *, threads: int | None = None) -> np.ndarray:
         """Hidden units E_p(X) (K, f, h) of normalised output-space windows (for the P metric)."""
         torch = require_torch()
         if self.perceptual_net is None:
             raise MocapValueError("this model has no perceptual autoencoder (a BRA model)")
-        with torch.inference_mode():
+        self.perceptual_net.eval()
+        with _threads(torch, threads), torch.inference_mode():
             h = self.perceptual_net.encode(torch.from_numpy(np.ascontiguousarray(Z, dtype=np.float32)))
         return h.numpy().astype(np.float64)
 
-    def refine_local(self, P: np.ndarray, observed: np.ndarray, *, postprocess: bool | None = None
-                     ) -> np.ndarray:
+    def refine_local(self, P: np.ndarray, observed: np.ndarray, *, postprocess: bool | None = None,
+                     threads: int | None = None) -> np.ndarray:
         """Refine 60-fps positions of the input joints (T, K_in, 3) cm -> (T, K_out, 3) cm.
 
         ``P`` may hold NaN where ``observed`` is False. Horizontal reference, normalisation,
@@ -181,11 +188,11 @@ class Bundle:
         Z = self.norm_in.forward_fill(local.reshape(T, -1))
         f = int(self.meta["clip_frames"])
         W, starts, left = C.split_clips(Z, f, int(self.meta["clip_hop"]))
-        Y = self.run_windows(W, postprocess=postprocess)
+        Y = self.run_windows(W, postprocess=postprocess, threads=threads)
         out = self.norm_out.inverse(C.overlap_add(Y, starts, T, left))
         return out.reshape(T, -1, 3) + ref[:, None, :]
 
-    def refine(self, motion: Motion, *, postprocess: bool | None = None) -> Motion:
+    def refine(self, motion: Motion, *, postprocess: bool | None = None, threads: int | None = None) -> Motion:
         """Refine a whole motion.
 
         Same topology: returns a Motion with the input's skeleton, frames and fps (joints
@@ -197,7 +204,7 @@ class Bundle:
         P, obs = C.prepare_positions(motion, self.joints_in, fps)
         if not obs.any():
             raise MocapValueError("the motion has no observed value of the model's joints")
-        out = self.refine_local(P, obs, postprocess=postprocess)
+        out = self.refine_local(P, obs, postprocess=postprocess, threads=threads)
         out = _resample_back(out, fps, motion.fps, motion.n_frames)
         if self.same_topology or all(j in motion.skeleton.names for j in self.joints_out):
             full = C.attach_dropped(out, motion.skeleton, self.joints_out)
@@ -205,6 +212,20 @@ class Bundle:
             src.pop("per_frame", None)
             return Motion(full, motion.skeleton, motion.fps, None, src)
         return Motion(out, self.output_skeleton(), motion.fps, None, {"refined_from": motion.source.get("path")})
+
+
+@contextmanager
+def _threads(torch: Any, n: int | None):
+    """Run with ``n`` torch threads (default 1), restoring the previous setting."""
+    prev = torch.get_num_threads()
+    want = max(1, int(n or 1))
+    if want != prev:
+        torch.set_num_threads(want)
+    try:
+        yield
+    finally:
+        if want != prev:
+            torch.set_num_threads(prev)
 
 
 def _resample_back(X: np.ndarray, fps_model: float, fps: float, T: int) -> np.ndarray:

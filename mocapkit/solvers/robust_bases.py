@@ -137,9 +137,13 @@ def lag_covariance(clips: Iterable[np.ndarray], M: int, *, method: str = "lag",
     M = int(M)
     if M < 1:
         raise MocapValueError(f"window length M must be >= 1, got {M}")
+    if method not in ("lag", "chunked", "dense"):
+        raise MocapValueError(f"method must be 'lag', 'chunked' or 'dense', got {method!r}")
     n = M * L
     G = np.zeros((n, n))
     S_tot = 0
+    B0_sum = np.zeros((L, n)) if method == "lag" else None   # sum over clips of X[:S]ᵀ [X[d:d+S]]_d
+    heads, tails = [], []
     for X in clips:
         T = X.shape[0]
         S = T - M + 1
@@ -154,27 +158,34 @@ def lag_covariance(clips: Iterable[np.ndarray], M: int, *, method: str = "lag",
             for a in range(0, S, chunk):
                 B = np.array(D[a:a + chunk])
                 G += B.T @ B
-        elif method == "lag":
-            Gv = G.reshape(M, L, M, L)
-            for d in range(M):
-                B0 = X[:S].T @ X[d:d + S]                       # block (0, d)
-                k = M - d - 1                                   # blocks (m, m+d), m = 0..k
-                if k > 0:
-                    head = np.einsum("ti,tj->tij", X[:k], X[d:d + k])          # x_t x_{t+d}ᵀ, t < k
-                    tail = np.einsum("ti,tj->tij", X[S:S + k], X[S + d:S + d + k])
-                    corr = np.concatenate([np.zeros((1, L, L)),
-                                           np.cumsum(tail - head, axis=0)])   # (k+1, L, L)
-                else:
-                    corr = np.zeros((1, L, L))
-                m = np.arange(k + 1)
-                blocks = B0[None] + corr
-                Gv[m, :, m + d, :] += blocks
-                if d > 0:
-                    Gv[m + d, :, m, :] += blocks.transpose(0, 2, 1)
         else:
-            raise MocapValueError(f"method must be 'lag', 'chunked' or 'dense', got {method!r}")
+            if S * n <= 4_000_000:
+                B0_sum += X[:S].T @ np.asarray(window_matrix(X, M))
+            else:
+                for d in range(M):
+                    B0_sum[:, d * L:(d + 1) * L] += X[:S].T @ X[d:d + S]
+            heads.append(X[:M - 1])                            # the corrections use only
+            tails.append(X[S:])                                # the first / last M-1 frames
     if S_tot == 0:
         raise MocapValueError(f"no training clip is at least M = {M} frames long")
+    if method == "lag" and M > 1:
+        # block (m, m+d) = B0[d] - sum_{t<m} x_t x_{t+d}ᵀ + sum_{t<m} x_{S+t} x_{S+t+d}ᵀ,
+        # the two sums taken over all clips at once
+        Hd, Tl = np.stack(heads), np.stack(tails)                # (C, M-1, L)
+        Gv = G.reshape(M, L, M, L)
+        for d in range(M):
+            k = M - d - 1
+            blocks = np.repeat(B0_sum[:, d * L:(d + 1) * L][None], k + 1, axis=0)
+            if k > 0:
+                diff = (np.einsum("cti,ctj->tij", Tl[:, :k], Tl[:, d:d + k])
+                        - np.einsum("cti,ctj->tij", Hd[:, :k], Hd[:, d:d + k]))
+                blocks[1:] += np.cumsum(diff, axis=0)
+            m = np.arange(k + 1)
+            Gv[m, :, m + d, :] = blocks
+            if d > 0:
+                Gv[m + d, :, m, :] = blocks.transpose(0, 2, 1)
+    elif method == "lag":
+        G += B0_sum
     return G, S_tot
 
 

@@ -18,8 +18,15 @@ Yang & Zhang (ref. [59]).  Here all windows (rows of ``Z``, shape (S, n)) are so
 *together* as one matrix problem, so every iteration is a few dense matrix products
 over all windows and no Python loop runs per window:
 
+* :func:`lasso_admm` -- ADMM on the split ``theta = w`` (Boyd et al. 2011, Sec. 6.4):
+  the theta-step is the exact ridge solve ``(2G + rho I)^{-1} (2 D^T z + rho (w - u))``
+  with ``G = D^T D``, applied to all windows as one (S, K) x (K, K) product; the matrix
+  comes from one cached eigendecomposition of G for any rho.  Learned dictionaries of
+  smooth motion windows are very ill-conditioned (eigenvalues of G from ~0 to ~K/2), so
+  this converges in tens of iterations where FISTA needs hundreds (measured in
+  docs/results/xiao.md); it is the default of the denoisers.
 * :func:`lasso_fista` -- FISTA (Beck & Teboulle 2009) with per-window adaptive restart
-  (O'Donoghue & Candes 2015); gradient ``2 (Theta G - Z D)`` with ``G = D^T D``.
+  (O'Donoghue & Candes 2015); gradient ``2 (Theta G - Z D)``; a reference solver.
 * :func:`l1l1_admm` -- ADMM on the split ``e = z - D theta``, ``w = theta`` (Yang & Zhang
   2011, "Alternating direction algorithms for l1-problems in compressive sensing"):
   the theta-step solves with the fixed matrix ``(D^T D + I)^{-1}`` (factorised once, it
@@ -42,7 +49,7 @@ import numpy as np
 
 from ..errors import MocapValueError
 
-__all__ = ["soft_threshold", "lasso_fista", "l1l1_admm", "lipschitz_constant", "l1l1_factor",
+__all__ = ["soft_threshold", "lasso_fista", "lasso_admm", "gram_eig", "l1l1_admm", "lipschitz_constant", "l1l1_factor",
            "lasso_objective", "l1l1_objective"]
 
 
@@ -146,6 +153,74 @@ def lasso_fista(Z, D, lam, *, n_iter: int = 200, tol: float = 1e-5, Theta0=None,
             if float(np.abs(dT).max(initial=0.0)) <= tol * scale:
                 break
     return Theta
+
+
+def gram_eig(D: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Eigendecomposition ``(evals, V)`` of ``G = D^T D`` (float64), for :func:`lasso_admm`."""
+    D = np.asarray(D, dtype=np.float64)
+    ev, V = np.linalg.eigh(D.T @ D)
+    return np.maximum(ev, 0.0), V
+
+
+def lasso_admm(Z, D, lam, *, rho: float | None = None, n_iter: int = 40, tol: float = 1e-4,
+               eig: tuple[np.ndarray, np.ndarray] | None = None, dtype=np.float64,
+               check_every: int = 10) -> np.ndarray:
+    """Solve eq. (4) ``min ||z_s - D theta_s||^2 + lam ||theta_s||_1`` for all windows by ADMM.
+
+    Split ``theta = w`` with scaled dual u (Boyd et al. 2011, Sec. 6.4)::
+
+        theta <- (2G + rho I)^{-1} (2 D^T z + rho (w - u))
+        w     <- soft(theta + u, lam / rho)
+        u     <- u + theta - w
+
+    Parameters
+    ----------
+    Z : (S, n) windows.  D : (n, K) dictionary.
+    lam : >= 0, scalar or (S,) per window (data units).
+    rho : penalty (one for all windows, since it enters the K x K matrix); default
+        ``rho_factor * median(lam)`` with rho_factor 0.5 (measured to converge fastest on
+        motion dictionaries for lam between 0.05 and 4 cm), floored at 1e-6 ||G||.
+    n_iter : maximum iterations.  tol : stop when, for every window, the primal residual
+        ``||theta - w||`` and the dual residual ``rho ||w - w_prev||`` are both below
+        ``tol * max(1, ||w||)`` (checked every ``check_every`` iterations).
+    eig : cached :func:`gram_eig` of D.
+    dtype : float64 (default) or float32 for the iterations.
+
+    Returns
+    -------
+    Theta : (S, K) codes (the w variable: exactly sparse).
+    """
+    Z, D, dt = _check(Z, D, dtype)
+    S, K = Z.shape[0], D.shape[1]
+    lamc = _lam_column(lam, S, dt)
+    ev, V = gram_eig(D) if eig is None else eig
+    top = float(ev.max(initial=0.0))
+    if rho is None:
+        rho = 0.5 * float(np.median(lamc))
+    rho = max(float(rho), 1e-6 * max(top, 1e-300))
+    if not np.isfinite(rho) or rho <= 0:
+        raise MocapValueError(f"rho must be a positive number, got {rho!r}")
+    Q = ((V / (2.0 * ev + rho)) @ V.T).astype(dt)            # (2G + rho I)^{-1}
+    B = (2.0 * (Z @ D)) @ Q
+    rQ = (rho * Q).astype(dt)
+    thr = lamc / dt.type(rho)
+    W = np.zeros((S, K), dtype=dt)
+    U = np.zeros((S, K), dtype=dt)
+    for it in range(int(n_iter)):
+        Th = B + (W - U) @ rQ
+        Wn = soft_threshold(Th + U, thr)
+        R = Th - Wn
+        U += R
+        if (it + 1) % check_every == 0:
+            scale = np.maximum(1.0, np.sqrt((Wn.astype(np.float64) ** 2).sum(1)))
+            r = np.sqrt((R.astype(np.float64) ** 2).sum(1))
+            sd = rho * np.sqrt(((Wn - W).astype(np.float64) ** 2).sum(1))
+            W = Wn
+            if np.all(r <= tol * scale) and np.all(sd <= tol * scale):
+                break
+        else:
+            W = Wn
+    return W
 
 
 def l1l1_factor(D: np.ndarray) -> np.ndarray:
