@@ -176,16 +176,30 @@ def cmd_denoise(a: argparse.Namespace) -> int:
 
 def cmd_train(a: argparse.Namespace) -> int:
     from . import denoise
-
-    method = denoise.get(a.method, **parse_params(a.param))
-    motions = []
-    for p in a.clips:
-        motions.append(_read(p, a.skeleton))
-    with stage(f"training {a.method} on {len(motions)} clips", enable=not a.quiet):
-        method.fit(motions)
     from .io._atomic import check_output_path
 
-    check_output_path(a.output, tuple(a.clips), overwrite=a.force)
+    params = parse_params(a.param)
+    sources = list(a.clips) + ([a.data] if a.data else [])
+    if not sources:
+        raise MocapError("give training clips (CLIPS...) or --data DIR")
+    check_output_path(a.output, tuple(a.clips), overwrite=a.force or a.resume)
+    if a.method in ("bra", "bra-p"):
+        # neural methods: their own trainer (progress bar, checkpoints, resume)
+        from .neural.train import train_cli
+
+        train_cli(sources if len(sources) > 1 else sources[0], a.output, method=a.method,
+                  resume=a.resume, progress=not a.quiet, exclude=a.exclude or (), **params)
+        return 0
+    method = denoise.get(a.method, **params)
+    from .batch import find_inputs
+
+    paths: list[str] = []
+    for src in sources:
+        paths += [str(p) for p in find_inputs(Path(src))] if Path(src).is_dir() else [src]
+    paths = [p for p in paths if Path(p).stem not in set(a.exclude or ())]
+    motions = [_read(p, a.skeleton) for p in paths]
+    with stage(f"training {a.method} on {len(motions)} clips", enable=not a.quiet):
+        method.fit(motions)
     method.save(a.output)
     print(f"wrote {a.output} ({a.method} trained on {len(motions)} clips, "
           f"{sum(m.n_frames for m in motions)} frames)")
@@ -356,9 +370,12 @@ def build_parser() -> argparse.ArgumentParser:
     s.set_defaults(func=cmd_denoise)
 
     s = sub.add_parser("train", help="train a data-driven method on clean clips and save the model")
-    s.add_argument("clips", nargs="+")
+    s.add_argument("clips", nargs="*", help="clean training clips")
+    s.add_argument("--data", help="folder of training clips (searched recursively)")
     s.add_argument("--method", required=True)
     s.add_argument("--param", action="append", metavar="NAME=VALUE")
+    s.add_argument("--exclude", action="append", metavar="STEM", help="hold out clips by file stem")
+    s.add_argument("--resume", action="store_true", help="neural methods: continue from OUTPUT.ckpt")
     s.add_argument("-o", "--output", required=True)
     common(s)
     s.set_defaults(func=cmd_train)

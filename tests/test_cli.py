@@ -68,3 +68,16 @@ def test_bench_smoke_quick(tmp_path, capsys):
     assert {r["method"] for r in rows} >= {"gaussian", "spline"}
     for r in rows:
         assert np.isfinite(r["value"]) and r["unit"] == "cm"
+
+
+def test_train_then_denoise_with_model(clip, tmp_path, capsys):
+    model = tmp_path / "walk.npz"
+    assert main(["train", "--method", "kalman-learned", str(clip), "-o", str(model), "-q"]) == 0
+    noisy = tmp_path / "noisy.amc"
+    assert main(["corrupt", str(clip), str(noisy), "--gaussian-cm", "1", "-q"]) == 0
+    out = tmp_path / "out.amc"
+    assert main(["denoise", str(noisy), str(out), "--method", "kalman-learned", "--model", str(model), "-q"]) == 0
+    assert io.read(out).n_frames == 471
+    # a data-driven method without a model is refused with advice
+    assert main(["denoise", str(noisy), str(tmp_path / "x.amc"), "--method", "kalman-learned"]) == 2
+    assert "mocapkit train" in capsys.readouterr().err
