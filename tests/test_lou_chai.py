@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from mocapkit import Motion, Skeleton, denoise
-from mocapkit.bodyframe import (body_transform, find_hips, from_body_frame, mirror_local,
+from mocapkit.bodyframe import (find_hips, from_body_frame, mirror_local,
                                 mirror_permutation, to_body_frame)
 from mocapkit.errors import MocapError, MocapValueError, NotFittedError
 from mocapkit.solvers import robust_bases as rb

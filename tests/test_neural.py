@@ -284,3 +284,22 @@ def test_shipped_checkpoint_denoises_a_bundled_clip():
     noisy2, _ = corrupt.missing(noisy, ratio=0.3, seed=2)
     out2 = m.denoise(noisy2)
     assert np.isfinite(out2.positions).all() and metrics.rmse(truth, out2) < metrics.rmse(truth, noisy)
+
+
+def test_train_cli_small_run_writes_checkpoint_and_resumes(tmp_path):
+    from mocapkit.datasets import BUNDLED_DIR
+
+    clips = sorted(BUNDLED_DIR.rglob("09_06.amc")) + sorted(BUNDLED_DIR.rglob("16_15.amc"))
+    if not clips:
+        pytest.skip("bundled CMU clips not present")
+    out = tmp_path / "m.pt"
+    logs: list[str] = []
+    TR.train_cli(clips, out, method="bra", hidden=8, steps_denoise=3, checkpoint_every=2, threads=1,
+                 random_offsets=True, progress=False, log=logs.append, exclude=["16_15"])
+    assert out.is_file() and (tmp_path / "m.pt.ckpt").is_file()
+    m = denoise.base.Denoiser.load(out)
+    assert m.name == "bra" and m.bundle_.meta["training"]["motions"] == ["09_06"]
+    TR.train_cli(clips, out, method="bra", hidden=8, steps_denoise=5, checkpoint_every=2, threads=1,
+                 random_offsets=True, progress=False, log=logs.append, exclude=["16_15"], resume=True)
+    assert any("resumed from" in s and "step 3" in s for s in logs)
+    assert Bundle.load(out).meta["training"]["steps_denoise"] == 5

@@ -112,7 +112,7 @@ def overlap_mean(R: np.ndarray, T: int, M: int) -> np.ndarray:
 # ---------------------------------------------------------------------------------------
 # noise detection
 # ---------------------------------------------------------------------------------------
-def detect_noise(X: np.ndarray, *, outlier_detect_ratio: float = 0.02, n_sigmas: float = 5.0,
+def detect_noise(X: np.ndarray, *, outlier_detect_ratio: float = 0.015, n_sigmas: float = 3.5,
                  floor_cm: float = 1.0, mixed_sigma_cm: float = 0.1) -> dict[str, Any]:
     """Classify the noise of a (T, C) local-frame matrix (cm): gaussian / outliers / mixed.
 
@@ -195,6 +195,8 @@ class XiaoSparse(Denoiser):
     n_jobs : parallel training processes (default 1; 2 trains two poselets at a time).
     code_iter : ADMM iterations for eq. (4) (default 40).
     admm_iter : ADMM iterations for eq. (5) (default 80).
+    rank_tol : singular values of a dictionary below sqrt(rank_tol) s_max are dropped
+        for coding (default 1e-6; 0 = exact; see :mod:`mocapkit.solvers.sparse_coding`).
     dtype : ``'float32'`` (default, faster) or ``'float64'`` for the coding step.
     smooth_frame : estimate the local frame from smoothed tracks (default True).
     random_state : seed of K-SVD initialisation.
@@ -211,7 +213,8 @@ class XiaoSparse(Denoiser):
                  noise: str = "auto", lam: float | None = None, lam_factor: float = 4.0,
                  lam_l1: float = 0.1, center: bool = True, max_train_windows: int = 8000,
                  n_jobs: int = 1, code_iter: int = 40, admm_iter: int = 80,
-                 dtype: str = "float32", smooth_frame: bool = True, random_state: int = 0):
+                 rank_tol: float = 1e-6, dtype: str = "float32", smooth_frame: bool = True,
+                 random_state: int = 0):
         self.window = window
         self.n_atoms = n_atoms
         self.sparsity = sparsity
@@ -225,6 +228,7 @@ class XiaoSparse(Denoiser):
         self.n_jobs = n_jobs
         self.code_iter = code_iter
         self.admm_iter = admm_iter
+        self.rank_tol = rank_tol
         self.dtype = dtype
         self.smooth_frame = smooth_frame
         self.random_state = random_state
@@ -251,7 +255,7 @@ class XiaoSparse(Denoiser):
             raise MocapValueError(f"{self.name}: noise must be one of {NOISE_TYPES}, got {self.noise!r}")
         if self.dtype not in ("float32", "float64"):
             raise MocapValueError(f"{self.name}: dtype must be 'float32' or 'float64', got {self.dtype!r}")
-        for what in ("lam_factor", "lam_l1"):
+        for what in ("lam_factor", "lam_l1", "rank_tol"):
             v = getattr(self, what)
             if not (isinstance(v, (int, float)) and np.isfinite(v) and v >= 0):
                 raise MocapValueError(f"{self.name}: {what} must be a non-negative number, got {v!r}")
@@ -319,25 +323,15 @@ class XiaoSparse(Denoiser):
         return self
 
     # -- denoising -----------------------------------------------------------------------
-    def _solvers(self):
-        """Per-dictionary precomputations, cached in memory (not saved): the dictionary in
-        the coding dtype, the eigendecomposition of its Gram matrix (lasso ADMM) and the
-        ADMM factor of eq. (5) (computed on first use)."""
-        if getattr(self, "_cache", None) is None or len(self._cache) != len(self.dictionaries_):
-            from ..solvers.sparse_coding import gram_eig
+    def _solvers(self) -> list:
+        """Truncated SVD of every dictionary (:func:`mocapkit.solvers.sparse_coding.dictionary_svd`
+        with ``rank_tol``), cached in memory (not saved)."""
+        key = (float(self.rank_tol), len(self.dictionaries_))
+        if getattr(self, "_cache", None) is None or self._cache[0] != key:
+            from ..solvers.sparse_coding import dictionary_svd
 
-            dt = np.dtype(self.dtype)
-            self._cache = [{"D": np.asarray(D, dtype=dt), "eig": gram_eig(D), "F": None}
-                           for D in self.dictionaries_]
-        return self._cache
-
-    def _factor(self, i: int) -> np.ndarray:
-        from ..solvers.sparse_coding import l1l1_factor
-
-        c = self._solvers()[i]
-        if c["F"] is None:
-            c["F"] = l1l1_factor(np.asarray(self.dictionaries_[i], dtype=np.float64)).astype(self.dtype)
-        return c["F"]
+            self._cache = (key, [dictionary_svd(D, float(self.rank_tol)) for D in self.dictionaries_])
+        return self._cache[1]
 
     def _code_part(self, i: int, X: np.ndarray, kind: str, lam2: float) -> np.ndarray:
         """Denoise one poselet matrix X (T, d) in the local frame; returns (T, d)."""
@@ -345,19 +339,20 @@ class XiaoSparse(Denoiser):
 
         M = int(self.window)
         T = X.shape[0]
-        c = self._solvers()[i]
+        sv = self._solvers()[i]
+        D = self.dictionaries_[i]
         mu = np.asarray(self.means_[i], dtype=np.float64)
         dt = np.dtype(self.dtype)
         Z = (lagged_windows(X, M) - mu).astype(dt)
         if kind in ("outliers", "mixed"):
-            W = l1l1_admm(Z, c["D"], float(self.lam_l1), n_iter=int(self.admm_iter), tol=1e-4,
-                          factor=self._factor(i), dtype=dt)
-            X = overlap_mean(W @ c["D"].T + mu, T, M)
+            W = l1l1_admm(Z, D, float(self.lam_l1), n_iter=int(self.admm_iter), tol=1e-4,
+                          svd=sv, dtype=dt, balance_every=5)
+            X = overlap_mean(sv.reconstruct(W) + mu, T, M)
             if kind == "outliers":
                 return X
             Z = (lagged_windows(X, M) - mu).astype(dt)
-        Th = lasso_admm(Z, c["D"], lam2, n_iter=int(self.code_iter), tol=1e-4, eig=c["eig"], dtype=dt)
-        return overlap_mean(Th @ c["D"].T + mu, T, M)
+        Th = lasso_admm(Z, D, lam2, n_iter=int(self.code_iter), tol=1e-4, svd=sv, dtype=dt)
+        return overlap_mean(sv.reconstruct(Th) + mu, T, M)
 
     def denoise(self, motion: Motion) -> Motion:
         """Denoise (and gap-fill) ``motion`` with the learned dictionaries (Alg. 1)."""

@@ -487,10 +487,18 @@ def read(path: str | os.PathLike, *, units: str | float | None = None, end_sites
     """
     path = Path(path)
     text = read_text(path)
-    nodes, ch, frame_time = _parse(path, text)
+    try:
+        nodes, ch, frame_time = _parse(path, text)
+    except RecursionError:          # the hierarchy parser recurses once per nesting level
+        raise MocapFormatError(path, "the joint hierarchy is nested too deeply (more than several "
+                                     "hundred levels)") from None
     unit = _resolve_units(units, nodes, path)
     f = unit["factor_to_cm"]
-    X, _ = forward_kinematics(nodes, ch)
+    with np.errstate(over="ignore", invalid="ignore"):
+        X, _ = forward_kinematics(nodes, ch)
+        X = X * f
+    if not np.isfinite(X).all():
+        raise MocapFormatError(path, "offsets or channel values so large that joint positions overflow")
     keep, names, parents = _joint_table(nodes, end_sites)
     offsets = np.array([nodes[k].offset for k in keep]) * f
     skeleton = Skeleton(tuple(names), np.array(parents, dtype=int), offsets)
@@ -498,7 +506,7 @@ def read(path: str | os.PathLike, *, units: str | float | None = None, end_sites
             "end_sites_as_joints": bool(end_sites)}
     source = {"path": str(path), "format": "bvh", "units": unit, "bvh": meta,
               "per_frame": {"channels": ch}}
-    return Motion(X[:, keep] * f, skeleton, 1.0 / frame_time, None, source)
+    return Motion(X[:, keep], skeleton, 1.0 / frame_time, None, source)
 
 
 def node_positions(motion: Motion) -> tuple[tuple[str, ...], np.ndarray]:

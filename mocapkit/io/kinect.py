@@ -257,8 +257,11 @@ def read(path: str | os.PathLike, *, n_joints: int | None = None, fps: float = 1
     F = F[:, perm]
     raw = F[..., :3]
     obs = ~(raw == 0).all(axis=2)
-    f, unit = _resolve_units(units, raw, obs, path)
-    P = raw * f
+    with np.errstate(over="ignore", invalid="ignore"):
+        f, unit = _resolve_units(units, raw, obs, path)
+        P = raw * f
+    if not np.isfinite(P[obs]).all():
+        raise MocapFormatError(path, "coordinates so large that they overflow when converted to cm")
     P = np.where(obs[..., None], P, np.nan)
     # skeleton: parent-first order, offsets = median bone vectors (cm)
     idx = {nm: j for j, nm in enumerate(motion_order)}

@@ -25,7 +25,10 @@ with the Welsch function ``rho(r) = p²/2 (1 - exp(-r²/p²))`` (eq. 9) and bina
 alpha (0 = missing, eq. 16). :func:`robust_filter` alternates (Sec. 3.4.3):
 
 * coefficient step (eqs. 12-13): ``c_s = Eᵀ z_s`` for every window -- M matrix products
-  ``Z[m:m+S] @ E_m`` (E_m = the L rows of E for window frame m), no window copies;
+  ``Z[m:m+S] @ E_m`` (E_m = the L rows of E for window frame m), no window copies; the
+  step and the overlap-add below form one fixed linear map, which
+  :class:`WindowProjector` can also apply exactly as a multichannel FIR filter by FFT
+  (cost independent of K; the default for long clips);
 * motion step (eqs. 14-15): one IRLS step per outer iteration. Welsch is concave in r²,
   so ``rho(r) <= const + ½ w r²`` with ``w = exp(-r0²/p²) = rho'(r0)/r0`` at the current
   residual r0 (half-quadratic majoriser); minimising the majoriser plus the bases term
@@ -46,10 +49,15 @@ alpha (0 = missing, eq. 16). :func:`robust_filter` alternates (Sec. 3.4.3):
 
 Stopping: relative change of J below ``tol`` or ``max_iter`` iterations (paper: 10-20).
 ``p = inf`` gives rho(r) = r²/2 (plain least squares, the non-robust reference).
+
+Missing entries (alpha = 0, eq. 16) are only moved by the averaging of window
+reconstructions, a slow Jacobi-type iteration for long gaps; :func:`robust_filter`
+therefore also sets them to their exact minimiser of J (conjugate gradients) before and
+after the alternation (``fill_iter``; same objective, each step decreases J).
 """
 from __future__ import annotations
 
-from typing import Iterable, Sequence
+from typing import Iterable
 
 import numpy as np
 
@@ -119,11 +127,12 @@ def lag_covariance(clips: Iterable[np.ndarray], M: int, *, method: str = "lag",
     method : how DᵀD is accumulated (all give the same matrix up to rounding):
 
         * ``'lag'`` (default) -- never forms D. Block (m, m+d) of DᵀD is
-          ``sum_{t=m}^{m+S-1} x_t x_{t+d}ᵀ``: for each lag d = 0..M-1 one product
-          ``X[:S]ᵀ X[d:d+S]`` gives block (0, d); the other blocks on that block
-          diagonal differ from it only by the first m terms removed and m terms past S
-          added, obtained from cumulative sums of the M-1 outer products at each end.
-          Cost ``M S L²`` flops (M times less than DᵀD) and O((ML)²) memory.
+          ``sum_{t=m}^{m+S-1} x_t x_{t+d}ᵀ``: block (0, d) is ``X[:S]ᵀ X[d:d+S]`` (all d
+          in one product with the zero-copy window view); every other block on that
+          block diagonal differs from it only by the first m terms removed and m terms
+          past S added -- outer products of each clip's first and last M-1 frames,
+          summed over clips and cumulated once at the end. Cost ``2 M S L²`` flops (M/2
+          times less than DᵀD) and O((ML)²) memory.
         * ``'chunked'`` -- forms ``chunk`` rows of D at a time (a zero-copy view) and adds
           their Gram matrix: ``S (ML)²`` flops, O(chunk ML) extra memory.
         * ``'dense'`` -- forms D for the whole clip (reference; O(S ML) memory).

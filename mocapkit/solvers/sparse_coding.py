@@ -18,21 +18,27 @@ Yang & Zhang (ref. [59]).  Here all windows (rows of ``Z``, shape (S, n)) are so
 *together* as one matrix problem, so every iteration is a few dense matrix products
 over all windows and no Python loop runs per window:
 
-* :func:`lasso_admm` -- ADMM on the split ``theta = w`` (Boyd et al. 2011, Sec. 6.4):
-  the theta-step is the exact ridge solve ``(2G + rho I)^{-1} (2 D^T z + rho (w - u))``
-  with ``G = D^T D``, applied to all windows as one (S, K) x (K, K) product; the matrix
-  comes from one cached eigendecomposition of G for any rho.  Learned dictionaries of
-  smooth motion windows are very ill-conditioned (eigenvalues of G from ~0 to ~K/2), so
-  this converges in tens of iterations where FISTA needs hundreds (measured in
-  docs/results/xiao.md); it is the default of the denoisers.
-* :func:`lasso_fista` -- FISTA (Beck & Teboulle 2009) with per-window adaptive restart
-  (O'Donoghue & Candes 2015); gradient ``2 (Theta G - Z D)``; a reference solver.
+* :func:`lasso_admm` -- ADMM on the split ``theta = w`` (Boyd et al. 2011, Sec. 6.4): the
+  theta-step is the exact ridge solve ``(2 D^T D + rho I)^{-1} (2 D^T z + rho (w - u))``.
+  Learned dictionaries of smooth motion windows are very ill-conditioned (eigenvalues of
+  ``D^T D`` from ~0 to ~K/2), so this converges in tens of iterations where FISTA needs
+  hundreds (docs/results/xiao.md); it is the denoisers' solver.
 * :func:`l1l1_admm` -- ADMM on the split ``e = z - D theta``, ``w = theta`` (Yang & Zhang
-  2011, "Alternating direction algorithms for l1-problems in compressive sensing"):
-  the theta-step solves with the fixed matrix ``(D^T D + I)^{-1}`` (factorised once, it
-  does not depend on the penalty rho), the e- and w-steps are soft thresholds.  Because
-  the factorisation is rho-free, each window has its own penalty ``rho``, adapted by
-  residual balancing (Boyd et al. 2011, Sec. 3.4.1).
+  2011, "Alternating direction algorithms for l1-problems in compressive sensing"): the
+  theta-step solves with ``(D^T D + I)^{-1}``, which does not depend on the penalty rho,
+  so every window has its own rho, adapted by residual balancing (Boyd et al. Sec. 3.4.1).
+* :func:`lasso_fista` -- FISTA (Beck & Teboulle 2009) with per-window adaptive restart
+  (O'Donoghue & Candes 2015); gradient ``2 (Theta D^T D - Z D)``; a reference solver.
+
+Both ADMM solvers work with the thin SVD ``D = P diag(s) V^T`` (:func:`dictionary_svd`,
+computed once per dictionary): the K x K inverses become ``I - V diag(.) V^T``, so an
+iteration costs O(S r (n + K)) with r = rank(D) instead of O(S K^2).  With
+``rank_tol > 0`` singular values below ``sqrt(rank_tol) * s_max`` are dropped, i.e. the
+problem is solved exactly for the truncated dictionary ``D_r = P_r diag(s_r) V_r^T``
+(``||D - D_r||_2 <= sqrt(rank_tol) s_max``); motion dictionaries have fast-decaying
+spectra (rank ~100 of 512 at rank_tol = 1e-6), which makes coding several times faster
+without measurable loss (docs/results/xiao.md).  ``rank_tol=0`` (default of the
+functions) keeps every non-zero singular value: the exact problem.
 
 Note the paper's objectives have no 1/2 in front of the squared loss (eq. 4).  Units:
 for eq. (4) ``lam`` has the units of the data (cm here: ||.||^2 is cm^2, ||theta||_1 cm);
@@ -49,8 +55,8 @@ import numpy as np
 
 from ..errors import MocapValueError
 
-__all__ = ["soft_threshold", "lasso_fista", "lasso_admm", "gram_eig", "l1l1_admm", "lipschitz_constant", "l1l1_factor",
-           "lasso_objective", "l1l1_objective"]
+__all__ = ["soft_threshold", "lasso_fista", "lasso_admm", "l1l1_admm", "dictionary_svd",
+           "DictionarySVD", "lipschitz_constant", "lasso_objective", "l1l1_objective"]
 
 
 def soft_threshold(X: np.ndarray, t) -> np.ndarray:
@@ -155,35 +161,79 @@ def lasso_fista(Z, D, lam, *, n_iter: int = 200, tol: float = 1e-5, Theta0=None,
     return Theta
 
 
-def gram_eig(D: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Eigendecomposition ``(evals, V)`` of ``G = D^T D`` (float64), for :func:`lasso_admm`."""
-    D = np.asarray(D, dtype=np.float64)
-    ev, V = np.linalg.eigh(D.T @ D)
-    return np.maximum(ev, 0.0), V
+class DictionarySVD:
+    """Thin (optionally truncated) SVD ``D_r = P diag(s) V^T`` of a dictionary D (n, K).
+
+    Attributes: ``P`` (n, r), ``s`` (r,), ``V`` (K, r) in float64, ``rank`` r, ``dropped``
+    (largest dropped singular value, 0 if none).  :meth:`cast` gives the factors in
+    another dtype (cached).
+    """
+
+    def __init__(self, D: np.ndarray, rank_tol: float = 0.0):
+        D = np.asarray(D, dtype=np.float64)
+        if D.ndim != 2:
+            raise MocapValueError(f"dictionary must be a 2-D (n, K) array, got shape {D.shape}")
+        P, sv, Vt = np.linalg.svd(D, full_matrices=False)
+        top = float(sv[0]) if sv.size else 0.0
+        cut = max(float(rank_tol), 0.0) ** 0.5 * top
+        keep = sv > max(cut, top * max(D.shape) * np.finfo(np.float64).eps)
+        self.P, self.s, self.V = P[:, keep], sv[keep], Vt[keep].T
+        self.rank = int(keep.sum())
+        self.dropped = float(sv[~keep].max(initial=0.0))
+        self.shape = D.shape
+        self._cast: dict = {}
+
+    def cast(self, dtype) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        dt = np.dtype(dtype)
+        if dt not in self._cast:
+            self._cast[dt] = (self.P.astype(dt), self.s.astype(dt), self.V.astype(dt))
+        return self._cast[dt]
+
+    def reconstruct(self, Theta: np.ndarray) -> np.ndarray:
+        """``Theta D_r^T`` (S, n), computed as ((Theta V) diag(s)) P^T."""
+        P, s, V = self.cast(Theta.dtype)
+        return ((Theta @ V) * s) @ P.T
+
+
+def dictionary_svd(D: np.ndarray, rank_tol: float = 0.0) -> DictionarySVD:
+    """:class:`DictionarySVD` of D, dropping singular values below sqrt(rank_tol) s_max."""
+    return DictionarySVD(D, rank_tol)
+
+
+def _svd_for(D: np.ndarray, svd: DictionarySVD | None) -> DictionarySVD:
+    if svd is None:
+        return DictionarySVD(D)
+    if svd.shape != D.shape:
+        raise MocapValueError(f"svd is for a {svd.shape} dictionary, not {D.shape}")
+    return svd
 
 
 def lasso_admm(Z, D, lam, *, rho: float | None = None, n_iter: int = 40, tol: float = 1e-4,
-               eig: tuple[np.ndarray, np.ndarray] | None = None, dtype=np.float64,
+               svd: DictionarySVD | None = None, dtype=np.float64,
                check_every: int = 10) -> np.ndarray:
     """Solve eq. (4) ``min ||z_s - D theta_s||^2 + lam ||theta_s||_1`` for all windows by ADMM.
 
     Split ``theta = w`` with scaled dual u (Boyd et al. 2011, Sec. 6.4)::
 
-        theta <- (2G + rho I)^{-1} (2 D^T z + rho (w - u))
+        theta <- (2 D^T D + rho I)^{-1} (2 D^T z + rho (w - u))
         w     <- soft(theta + u, lam / rho)
         u     <- u + theta - w
+
+    With ``D = P diag(s) V^T``: ``(2 D^T D + rho I)^{-1} = (I - V diag(2s^2/(2s^2+rho)) V^T)/rho``
+    and ``(2 D^T D + rho I)^{-1} 2 D^T z = V diag(2s/(2s^2+rho)) P^T z``, so an iteration
+    costs two (S, K) x (K, r) products.
 
     Parameters
     ----------
     Z : (S, n) windows.  D : (n, K) dictionary.
     lam : >= 0, scalar or (S,) per window (data units).
-    rho : penalty (one for all windows, since it enters the K x K matrix); default
-        ``rho_factor * median(lam)`` with rho_factor 0.5 (measured to converge fastest on
-        motion dictionaries for lam between 0.05 and 4 cm), floored at 1e-6 ||G||.
+    rho : penalty (one for all windows); default ``0.5 * median(lam)`` (measured to
+        converge fastest on motion dictionaries for lam between 0.05 and 4 cm), floored
+        at 1e-6 s_max^2.
     n_iter : maximum iterations.  tol : stop when, for every window, the primal residual
         ``||theta - w||`` and the dual residual ``rho ||w - w_prev||`` are both below
         ``tol * max(1, ||w||)`` (checked every ``check_every`` iterations).
-    eig : cached :func:`gram_eig` of D.
+    svd : cached :func:`dictionary_svd` of D (its truncation defines the problem solved).
     dtype : float64 (default) or float32 for the iterations.
 
     Returns
@@ -192,22 +242,25 @@ def lasso_admm(Z, D, lam, *, rho: float | None = None, n_iter: int = 40, tol: fl
     """
     Z, D, dt = _check(Z, D, dtype)
     S, K = Z.shape[0], D.shape[1]
+    sv = _svd_for(D, svd)
     lamc = _lam_column(lam, S, dt)
-    ev, V = gram_eig(D) if eig is None else eig
-    top = float(ev.max(initial=0.0))
+    top = float(sv.s.max(initial=0.0)) ** 2
     if rho is None:
         rho = 0.5 * float(np.median(lamc))
     rho = max(float(rho), 1e-6 * max(top, 1e-300))
-    if not np.isfinite(rho) or rho <= 0:
+    if not np.isfinite(rho):
         raise MocapValueError(f"rho must be a positive number, got {rho!r}")
-    Q = ((V / (2.0 * ev + rho)) @ V.T).astype(dt)            # (2G + rho I)^{-1}
-    B = (2.0 * (Z @ D)) @ Q
-    rQ = (rho * Q).astype(dt)
+    P, s, V = sv.cast(dt)
+    s64 = sv.s
+    f_b = (2.0 * s64 / (2.0 * s64 ** 2 + rho)).astype(dt)
+    f_q = (2.0 * s64 ** 2 / (2.0 * s64 ** 2 + rho)).astype(dt)
+    B = ((Z @ P) * f_b) @ V.T                      # (2D^TD + rho I)^{-1} 2 D^T z
     thr = lamc / dt.type(rho)
     W = np.zeros((S, K), dtype=dt)
     U = np.zeros((S, K), dtype=dt)
     for it in range(int(n_iter)):
-        Th = B + (W - U) @ rQ
+        X = W - U
+        Th = B + X - ((X @ V) * f_q) @ V.T
         Wn = soft_threshold(Th + U, thr)
         R = Th - Wn
         U += R
@@ -223,19 +276,9 @@ def lasso_admm(Z, D, lam, *, rho: float | None = None, n_iter: int = 40, tol: fl
     return W
 
 
-def l1l1_factor(D: np.ndarray) -> np.ndarray:
-    """``(D^T D + I)^{-1}`` (K, K), the fixed matrix of the ADMM theta-step."""
-    D = np.asarray(D, dtype=np.float64)
-    n, K = D.shape
-    # Woodbury when n < K: (I + D^T D)^{-1} = I - D^T (I + D D^T)^{-1} D
-    if n < K:
-        return np.eye(K) - D.T @ np.linalg.solve(np.eye(n) + D @ D.T, D)
-    return np.linalg.inv(np.eye(K) + D.T @ D)
-
-
 def l1l1_admm(Z, D, lam, *, n_iter: int = 300, tol: float = 1e-5, rho=None,
-              factor: np.ndarray | None = None, dtype=np.float64, balance_every: int = 10,
-              balance_until: int = 200, Theta0=None, return_residual: bool = False):
+              svd: DictionarySVD | None = None, dtype=np.float64, balance_every: int = 10,
+              balance_until: int = 200, return_residual: bool = False):
     """Solve eq. (5) ``min ||z_s - D theta_s||_1 + lam ||theta_s||_1`` for all windows at once.
 
     ADMM on ``min ||e||_1 + lam ||w||_1  s.t.  D theta + e = z,  theta = w`` (scaled
@@ -246,10 +289,14 @@ def l1l1_admm(Z, D, lam, *, n_iter: int = 300, tol: float = 1e-5, rho=None,
         w     <- soft(theta + v, lam/rho)
         u     <- u + D theta + e - z;     v <- v + theta - w
 
-    Each window has its own rho (initially ``1 / mean|z_s|``), doubled or halved every
-    ``balance_every`` iterations when its primal and dual residuals differ by more than
-    10x (the duals are rescaled accordingly), during the first ``balance_until``
-    iterations only (a penalty that keeps changing can break convergence).
+    With ``D = P diag(s) V^T``: ``a = (z - e - u) P``, ``b = (w - v) V``,
+    ``c = a s/(1+s^2) - b s^2/(1+s^2)``, ``theta = (w - v) + c V^T`` and
+    ``D theta = (b + c) s P^T`` -- four (S, .) x (., r) products per iteration.
+    The theta-step does not involve rho, so each window has its own rho (initially
+    ``1 / mean|z_s|``), doubled or halved every ``balance_every`` iterations when its
+    primal and dual residuals differ by more than 10x (duals rescaled accordingly),
+    during the first ``balance_until`` iterations only (a penalty that keeps changing
+    can break convergence).
 
     Parameters
     ----------
@@ -257,8 +304,7 @@ def l1l1_admm(Z, D, lam, *, n_iter: int = 300, tol: float = 1e-5, rho=None,
     n_iter : maximum iterations.  tol : stop when every window's primal and dual
         residual norms are below ``tol * max(1, ||z_s||)``.
     rho : initial penalty, scalar or (S,); default ``1 / mean|z_s|``.
-    factor : precomputed :func:`l1l1_factor` of ``D``.
-    Theta0 : optional warm start (S, K).
+    svd : cached :func:`dictionary_svd` of D.
     return_residual : also return the sparse residual ``e`` (S, n) -- the outliers found.
 
     Returns
@@ -269,10 +315,13 @@ def l1l1_admm(Z, D, lam, *, n_iter: int = 300, tol: float = 1e-5, rho=None,
     Z, D, dt = _check(Z, D, dtype)
     S, n = Z.shape
     K = D.shape[1]
+    sv = _svd_for(D, svd)
     lam = _lam_column(lam, S, dt)
-    Minv = (l1l1_factor(D) if factor is None else np.asarray(factor)).astype(dt, copy=False)
-    A = Minv @ D.T                                # (K, n): theta = (z - e - u) A^T + (w - v) Minv
-    zscale = np.abs(Z).mean(axis=1, keepdims=True)
+    P, s, V = sv.cast(dt)
+    s64 = sv.s
+    f_a = (s64 / (1.0 + s64 ** 2)).astype(dt)
+    f_b = (s64 ** 2 / (1.0 + s64 ** 2)).astype(dt)
+    zscale = np.abs(Z).mean(axis=1, keepdims=True).astype(np.float64)
     if rho is None:
         rho_v = 1.0 / np.maximum(zscale, 1e-12 * max(float(zscale.max(initial=0.0)), 1e-300))
     else:
@@ -280,26 +329,30 @@ def l1l1_admm(Z, D, lam, *, n_iter: int = 300, tol: float = 1e-5, rho=None,
         if np.any(~(rho_v > 0)):
             raise MocapValueError("rho must be positive")
     rho_v = np.array(rho_v, dtype=dt)
-    W = np.zeros((S, K), dtype=dt) if Theta0 is None else np.array(Theta0, dtype=dt)
-    E = Z - W @ D.T
+    W = np.zeros((S, K), dtype=dt)
+    E = Z.copy()
     U = np.zeros((S, n), dtype=dt)
-    V = np.zeros((S, K), dtype=dt)
+    Vd = np.zeros((S, K), dtype=dt)
     znorm = np.maximum(np.sqrt((Z.astype(np.float64) ** 2).sum(1)), 1.0)
     for it in range(int(n_iter)):
-        Theta = (Z - E - U) @ A.T + (W - V) @ Minv
-        DT = Theta @ D.T
+        X = W - Vd
+        a = (Z - E - U) @ P
+        b = X @ V
+        c = a * f_a - b * f_b
+        Theta = X + c @ V.T
+        DT = ((b + c) * s) @ P.T
         E_old, W_old = E, W
         E = soft_threshold(Z - DT - U, 1.0 / rho_v)
-        W = soft_threshold(Theta + V, lam / rho_v)
+        W = soft_threshold(Theta + Vd, lam / rho_v)
         R1 = DT + E - Z
         R2 = Theta - W
         U = U + R1
-        V = V + R2
+        Vd = Vd + R2
         if (it + 1) % balance_every == 0 or it == int(n_iter) - 1:
             r = np.sqrt((R1.astype(np.float64) ** 2).sum(1) + (R2.astype(np.float64) ** 2).sum(1))
             dE, dW = E - E_old, W - W_old
-            sdual = rho_v[:, 0].astype(np.float64) * np.sqrt(
-                (((dE @ D) - dW).astype(np.float64) ** 2).sum(1))
+            DtdE = (((dE @ P) * s) @ V.T)
+            sdual = rho_v[:, 0].astype(np.float64) * np.sqrt(((DtdE - dW).astype(np.float64) ** 2).sum(1))
             if np.all(r <= tol * znorm) and np.all(sdual <= tol * znorm):
                 break
             if it >= balance_until:
@@ -309,7 +362,7 @@ def l1l1_admm(Z, D, lam, *, n_iter: int = 300, tol: float = 1e-5, rho=None,
             f = np.where(up, 2.0, np.where(down, 0.5, 1.0)).astype(dt)[:, None]
             rho_v = rho_v * f
             U = U / f
-            V = V / f
+            Vd = Vd / f
     if return_residual:
         return W, E
     return W

@@ -193,6 +193,14 @@ def write_report(json_path, md_path, note: str = "") -> str:
     for m in methods:
         out.append(f"| {m} | " + " | ".join(fmt(get.get(("all", m, k))) for k in ("R", "B", "S", "P")) + " |")
     out.append("| paper BRA-P | " + " | ".join(f"{PAPER[k]:g}" for k in ("R", "B", "S", "P")) + " |")
+    bp = {k: get.get(("all", "bra-p", k)) for k in PAPER}
+    if all(bp.values()):
+        ok = lambda c: "met" if c else "NOT met"  # noqa: E731
+        out += ["", "Issue 7 targets for the shipped bra-p: "
+                f"B <= {PAPER['B']} ({ok(bp['B']['value'] <= PAPER['B'])}, {bp['B']['value']:.3f}); "
+                f"S <= {PAPER['S']} ({ok(bp['S']['value'] <= PAPER['S'])}, {bp['S']['value']:.3f}); "
+                f"R within 25 % of {PAPER['R']} ({ok(abs(bp['R']['value'] / PAPER['R'] - 1) <= 0.25)}, "
+                f"{bp['R']['value']:.3f})."]
     tr = get.get(("clean", "truth", "S"))
     if tr:
         out += ["", f"Smoothness S of the clean clips themselves: {fmt(tr)}."]

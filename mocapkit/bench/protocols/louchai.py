@@ -14,8 +14,9 @@ freedom per frame. Here:
   skeleton and is left out); test folds 35_01, 131_02, 05_01 (quick: 35_01).
   Running -- the only CMU run is 09_06 (141 frames); the 15 HDM05
   ``jogLeftCircle4StepsRstart`` clips (five actors, same ASF joint names) make the
-  running set: folds "HDM_tr_015" (an HDM05 jog held out) and "09_06" (the CMU run,
-  trained on all HDM05 jogs: another database and subject). Hopping/jumping (for
+  running set: folds "HDM_tr_<n>" (the last jog of HDM05 actor tr held out, the other
+  actor-tr jog stays in training) and "09_06" (the CMU run, trained on all HDM05 jogs:
+  another database and subject). Hopping/jumping (for
   Fig. 9b) -- CMU 131_03 (test), trained on 131_04, 131_07, 131_08, 01_01.
   Skeletons of different subjects are handled by the body frame and the height
   normalisation of ``lou-chai`` (one model per behaviour, not per skeleton; the paper's
