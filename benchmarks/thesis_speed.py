@@ -293,8 +293,9 @@ def md_protocols(part: dict) -> str:
                   "entries); rgloss: blocks of 10 markers x 60 frames removing ~30 % of the "
                   "entries. RMSE over the imperfect (missing + noisy) entries (eq. 4.16), cm; "
                   "`corrupted-input` = RMSE of the noisy observed entries before cleaning.", ""]
-        lines += _mean_table([r for r in rows if r["metric"] in ("rmse_imperfect",)],
-                             "rmse_imperfect", "RMSE on imperfect entries, mean over clips")
+        imp = [dict(r, metric="rmse_imperfect") if r["metric"] == "rmse_noisy_observed" else r
+               for r in rows if r["metric"] in ("rmse_imperfect", "rmse_noisy_observed")]
+        lines += _mean_table(imp, "rmse_imperfect", "RMSE on imperfect entries, mean over clips")
         lines += _mean_table([r for r in rows if r["metric"] == "rmse_all"], "rmse_all",
                              "RMSE on all entries, mean over clips")
     lines += ["## Per-clip results", ""]

@@ -159,8 +159,10 @@ def cmd_corrupt(a: argparse.Namespace) -> int:
 def cmd_denoise(a: argparse.Namespace) -> int:
     from . import denoise, io
 
-    name = a.method or denoise.DEFAULT_METHOD
-    method = _method(name, parse_params(a.param), a.model)
+    if a.method is None and a.model is None:
+        method = denoise.default(**parse_params(a.param))
+    else:
+        method = _method(a.method or "auto", parse_params(a.param), a.model)
     m = _read(a.input, a.skeleton)
     io._atomic.check_output_path(a.output, (a.input,), overwrite=a.force)
     with stage(f"denoising {m.n_frames} frames with {method.name}", enable=not a.quiet):
@@ -226,7 +228,8 @@ def cmd_methods(a: argparse.Namespace) -> int:
 
     for name, cls in denoise.available().items():
         flag = "train" if cls.needs_training else "     "
-        default = " (default)" if name == denoise.DEFAULT_METHOD else ""
+        default = (f" (default, {', '.join(f'{k}={v}' for k, v in denoise.DEFAULT_PARAMS.items())})"
+                   if name == denoise.DEFAULT_METHOD else "")
         print(f"{name:<22} {flag}  {cls.description}{default}")
     return 0
 
@@ -285,8 +288,13 @@ def cmd_report(a: argparse.Namespace) -> int:
 def cmd_batch(a: argparse.Namespace) -> int:
     from .batch import DEFAULT_PATTERNS, run_batch
 
-    summ = run_batch(a.in_dir, a.out_dir, method=a.method or __import__("mocapkit.denoise").denoise.DEFAULT_METHOD,
-                     params=parse_params(a.param), model=a.model, workers=a.workers,
+    from . import denoise
+
+    params = parse_params(a.param)
+    if a.method is None and a.model is None:
+        params = {**denoise.DEFAULT_PARAMS, **params}
+    summ = run_batch(a.in_dir, a.out_dir, method=a.method or denoise.DEFAULT_METHOD,
+                     params=params, model=a.model, workers=a.workers,
                      scheduler=a.scheduler, patterns=a.include or DEFAULT_PATTERNS,
                      progress=not a.quiet)
     for r in summ.results:

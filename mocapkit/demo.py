@@ -39,7 +39,7 @@ def main(argv: list[str] | None = None) -> int:
     clean = io.read(bundled("16_15.amc"))
     noisy, mask = corrupt.combine(clean, STEPS, seed=0)
     name = a.method or denoise.DEFAULT_METHOD
-    method = denoise.get(name)
+    method = denoise.get(name) if a.method else denoise.default()
     cleaned = method.denoise(noisy)
     print(f"clip: CMU 16_15 walk, {clean.n_frames} frames @ {clean.fps:g} fps, "
           f"{clean.n_joints} joints, height {clean.height():.0f} cm")

@@ -13,8 +13,18 @@ import importlib
 
 from .base import Denoiser, available, get, register  # noqa: F401
 
-DEFAULT_METHOD = "gaussian"
-"""Method used by ``mocapkit denoise`` when none is named (see docs/methods.md)."""
+DEFAULT_METHOD = "kalman-cv"
+DEFAULT_PARAMS = {"gate": 5.0}
+"""Method (and settings) used when none is named: the constant-velocity RTS smoother with a
+5-sigma outlier gate was the most accurate general-purpose method on mixed corruption
+(2 cm noise + 5 % 15 cm spikes + 10 % missing: 0.66 cm RMSE on three bundled CMU clips,
+vs 0.96 for gaussian+median and 1.18 for SLRA; see docs/methods.md), needs no training
+and fills gaps."""
+
+
+def default(**params):
+    """The default method, with ``params`` overriding its default settings."""
+    return get(DEFAULT_METHOD, **{**DEFAULT_PARAMS, **params})
 
 _FAMILIES = ("filters", "kalman", "lowrank", "bases", "sparse", "wavelet", "thesis", "neural")
 

@@ -919,37 +919,51 @@ def read(path: str | os.PathLike, *, skeleton: str | os.PathLike | None = None,
     if not asf_path.is_file():
         raise MocapFormatError(asf_path, "skeleton file not found")
     asf = read_asf(asf_path)
-    comp = _Compiled(asf)
+    with np.errstate(over="ignore", invalid="ignore"):
+        comp = _Compiled(asf)
     f = cm_per_unit(asf, units)
     text = _read_text(path)
     if text.lstrip().startswith(":version") or ":bonedata" in text[:4096]:
         raise MocapFormatError(path, "this is an ASF skeleton, not an AMC motion", 1)
     dofs, angle_rad, meta = _parse_amc(path, text, comp, asf_path)
-    P = forward_kinematics(comp, dofs, angle_rad, f)
+    P, sk = _finite_pose(path, asf_path, comp, dofs, angle_rad, f)
     src = {"path": str(path), "format": "amc", "skeleton_path": str(asf_path),
            "units": _units_info(asf, f, units), "asf": asf, "amc": meta,
            "dof_names": list(comp.dof_names), "per_frame": {"dofs": dofs}}
-    return Motion(P, comp.skeleton(f), fps, None, src)
+    return Motion(P, sk, fps, None, src)
+
+
+def _finite_pose(path, asf_path, comp: _Compiled, dofs: np.ndarray, angle_rad: bool, f: float):
+    """Forward kinematics and skeleton; numbers so large that they overflow are a format error
+    (never positions silently turned into missing entries)."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        P = forward_kinematics(comp, dofs, angle_rad, f)
+        sk = comp.skeleton(f)
+    if not (np.isfinite(P).all() and np.isfinite(sk.offsets).all()):
+        raise MocapFormatError(asf_path if not np.isfinite(sk.offsets).all() else path,
+                               "lengths, offsets or angles so large that joint positions overflow")
+    return P, sk
 
 
 def read_asf_motion(path: str | os.PathLike, *, units: float | str | None = None) -> Motion:
     """The ASF rest pose as a 1-frame Motion (root at the ASF ``position``, all angles zero)."""
     path = Path(path)
     asf = read_asf(path)
-    comp = _Compiled(asf)
+    with np.errstate(over="ignore", invalid="ignore"):
+        comp = _Compiled(asf)
     f = cm_per_unit(asf, units)
     dofs = np.zeros((1, comp.n_dofs))
     for k, ch in enumerate(comp.root_order):
         if ch[0] == "T":
             dofs[0, k] = asf["root"]["position"]["XYZ".index(ch[1])]
-    P = forward_kinematics(comp, dofs, comp.angle_rad, f)
+    P, sk = _finite_pose(path, path, comp, dofs, comp.angle_rad, f)
     meta = {"header": [":FULLY-SPECIFIED", ":RADIANS" if comp.angle_rad else ":DEGREES"],
             "fully_specified": True, "angle": asf["units"]["angle"], "first_frame": 1,
             "bone_order": ["root"] + [b["name"] for b in asf["bones"] if b["dof"]]}
     src = {"path": str(path), "format": "asf", "skeleton_path": str(path),
            "units": _units_info(asf, f, units), "asf": asf, "amc": meta,
            "dof_names": list(comp.dof_names), "per_frame": {"dofs": dofs}}
-    return Motion(P, comp.skeleton(f), 120.0, None, src)
+    return Motion(P, sk, 120.0, None, src)
 
 
 # ======================================================================================

@@ -150,6 +150,9 @@ def _check_parameters(path: Path, sec: bytes, le: str) -> None:
             if typ not in (-1, 1, 2, 4) or ndim > 7:
                 raise MocapFormatError(path, f"corrupted C3D parameters: {where} has data type {typ} "
                                        f"and {ndim} dimensions")
+            if typ == -1 and ndim == 0:              # ezc3d segfaults on a scalar character parameter
+                raise MocapFormatError(path, f"corrupted C3D parameters: {where} is character data "
+                                       f"without dimensions")
             dims = sec[k + 2:k + 2 + ndim]
             if len(dims) != ndim:
                 raise MocapFormatError(path, f"corrupted C3D parameters: {where} is truncated")
