@@ -32,8 +32,7 @@ def require_torch():
     except ImportError:
         raise MissingDependencyError(
             "the neural methods (bra, bra-p) need PyTorch, which is not installed: "
-            f"{INSTALL_HINT} (CPU build: pip install torch==2.13.0 --index-url "
-            "https://download.pytorch.org/whl/cpu)") from None
+            f"{INSTALL_HINT} (prefer a CPU build of torch 2.13.0)") from None
     return torch
 
 
