@@ -331,40 +331,67 @@ def l1l1_admm(Z, D, lam, *, n_iter: int = 300, tol: float = 1e-5, rho=None,
         if np.any(~(rho_v > 0)):
             raise MocapValueError("rho must be positive")
     rho_v = np.array(rho_v, dtype=dt)
+    # Scaled duals kept as N = -u and C = v; with the soft threshold written as
+    # soft(y, t) = y - clip(y, -t, t) the updates collapse to (exact algebra):
+    #   e-step:  Ye = z - D theta + N;  N' = clip(Ye, +-1/rho);  e = Ye - N'
+    #   w-step:  Y = theta + C;         C' = clip(Y, +-lam/rho); w = Y - C'
+    # and the next theta-step needs only  z - e - u = D theta - N + 2 N'  and
+    # w - v = Y - 2 C'.
     W = np.zeros((S, K), dtype=dt)
     E = Z.copy()
-    U = np.zeros((S, n), dtype=dt)
-    Vd = np.zeros((S, K), dtype=dt)
+    N = np.zeros((S, n), dtype=dt)           # -u
+    C = np.zeros((S, K), dtype=dt)           # v
+    Ain = Z - E + N                          # z - e - u
+    X = W - C                                # w - v
+    te = (1.0 / rho_v).astype(dt)
+    tw = (lam / rho_v).astype(dt)
     znorm = np.maximum(np.sqrt((Z.astype(np.float64) ** 2).sum(1)), 1.0)
+    check = True
     for it in range(int(n_iter)):
-        X = W - Vd
-        a = (Z - E - U) @ P
+        a = Ain @ P
         b = X @ V
         c = a * f_a - b * f_b
-        Theta = X + c @ V.T
+        Theta = c @ V.T
+        Theta += X
         DT = ((b + c) * s) @ P.T
-        E_old, W_old = E, W
-        E = soft_threshold(Z - DT - U, 1.0 / rho_v)
-        W = soft_threshold(Theta + Vd, lam / rho_v)
-        R1 = DT + E - Z
-        R2 = Theta - W
-        U = U + R1
-        Vd = Vd + R2
-        if (it + 1) % balance_every == 0 or it == int(n_iter) - 1:
-            r = np.sqrt((R1.astype(np.float64) ** 2).sum(1) + (R2.astype(np.float64) ** 2).sum(1))
-            dE, dW = E - E_old, W - W_old
-            DtdE = (((dE @ P) * s) @ V.T)
+        Ye = Z - DT
+        Ye += N
+        Nn = np.clip(Ye, -te, te)
+        Y = Theta + C
+        Cn = np.clip(Y, -tw, tw)
+        check = (it + 1) % balance_every == 0 or it == int(n_iter) - 1
+        if check:
+            E_new = Ye - Nn
+            W_new = Y - Cn
+            # primal residuals: D theta + e - z = u' - u = N - N';  theta - w = C' - C
+            r = np.sqrt(((N - Nn).astype(np.float64) ** 2).sum(1) + ((Cn - C).astype(np.float64) ** 2).sum(1))
+            dE, dW = E_new - E, W_new - W
+            DtdE = ((dE @ P) * s) @ V.T
             sdual = rho_v[:, 0].astype(np.float64) * np.sqrt(((DtdE - dW).astype(np.float64) ** 2).sum(1))
+            E, W = E_new, W_new
+            N, C = Nn, Cn
             if np.all(r <= tol * znorm) and np.all(sdual <= tol * znorm):
                 break
-            if it >= balance_until:
-                continue
-            up = r > 10.0 * sdual
-            down = sdual > 10.0 * r
-            f = np.where(up, 2.0, np.where(down, 0.5, 1.0)).astype(dt)[:, None]
-            rho_v = rho_v * f
-            U = U / f
-            Vd = Vd / f
+            if it < balance_until:
+                up = r > 10.0 * sdual
+                down = sdual > 10.0 * r
+                f = np.where(up, 2.0, np.where(down, 0.5, 1.0)).astype(dt)[:, None]
+                if np.any(f != 1):
+                    rho_v = rho_v * f
+                    te = (1.0 / rho_v).astype(dt)
+                    tw = (lam / rho_v).astype(dt)
+                    N = N / f
+                    C = C / f
+            Ain = Z - E + N
+            X = W - C
+        else:
+            Ain = DT - N
+            Ain += 2.0 * Nn
+            X = Y - 2.0 * Cn
+            N, C = Nn, Cn
+    if not check:
+        W = Y - Cn
+        E = Ye - Nn
     if return_residual:
         return W, E
     return W
