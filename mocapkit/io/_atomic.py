@@ -35,23 +35,34 @@ def check_output_path(path: str | os.PathLike, inputs: tuple = (), overwrite: bo
     return p
 
 
-def atomic_write(path: str | os.PathLike, write: Callable[[IO], None], *, binary: bool = False) -> None:
-    """Call ``write(f)`` on a temp file in the target folder, fsync, then rename to ``path``."""
-    p = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.parent or ".")
+def _finish(tmp: str, target: Path, body: Callable[[], None]) -> None:
+    """Run ``body`` (which fills ``tmp``), then give ``tmp`` normal permissions and rename it
+    onto ``target``; on any failure remove ``tmp`` and re-raise."""
     try:
-        with os.fdopen(fd, "wb" if binary else "w", **({} if binary else {"encoding": "utf-8", "newline": "\n"})) as f:
-            write(f)
-            f.flush()
-            os.fsync(f.fileno())
+        body()
         os.chmod(tmp, _umask_mode())
-        os.replace(tmp, p)
+        os.replace(tmp, target)
     except BaseException:
         try:
             os.unlink(tmp)
         except FileNotFoundError:
             pass
         raise
+
+
+def atomic_write(path: str | os.PathLike, write: Callable[[IO], None], *, binary: bool = False) -> None:
+    """Call ``write(f)`` on a temp file in the target folder, fsync, then rename to ``path``."""
+    p = Path(path)
+    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.parent or ".")
+
+    def body() -> None:
+        opts = {} if binary else {"encoding": "utf-8", "newline": "\n"}
+        with os.fdopen(fd, "wb" if binary else "w", **opts) as f:
+            write(f)
+            f.flush()
+            os.fsync(f.fileno())
+
+    _finish(tmp, p, body)
 
 
 def atomic_write_path(path: str | os.PathLike, write_to: Callable[[str], None], suffix: str = "") -> None:
@@ -59,15 +70,10 @@ def atomic_write_path(path: str | os.PathLike, write_to: Callable[[str], None], 
     p = Path(path)
     fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=suffix or p.suffix, dir=p.parent or ".")
     os.close(fd)
-    try:
+
+    def body() -> None:
         write_to(tmp)
         with open(tmp, "rb+") as f:
             os.fsync(f.fileno())
-        os.chmod(tmp, _umask_mode())
-        os.replace(tmp, p)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise
+
+    _finish(tmp, p, body)

@@ -109,10 +109,12 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from ._rotations import axis_rotation
 from ..errors import MocapFormatError, MocapValueError
 from ..motion import Motion
 from ..skeleton import Skeleton
 from ._atomic import atomic_write
+from ._text import read_text as _read_text
 
 __all__ = ["read", "read_asf", "read_asf_motion", "write", "write_asf", "find_skeleton",
            "forward_kinematics", "inverse_kinematics", "cm_per_unit", "CMU_CM_PER_UNIT"]
@@ -130,18 +132,6 @@ _SEARCH_PARENT_LEVELS = 2
 # ======================================================================================
 # ASF parsing
 # ======================================================================================
-def _read_text(path) -> str:
-    try:
-        raw = Path(path).read_bytes()
-    except OSError as e:
-        raise MocapFormatError(path, f"cannot read file ({e.strerror})") from None
-    if b"\x00" in raw[:65536]:
-        raise MocapFormatError(path, "binary content (NUL bytes) where a text file was expected")
-    try:
-        text = raw.decode("utf-8")
-    except UnicodeDecodeError:
-        text = raw.decode("latin-1")          # HDM05 comment lines carry latin-1 bytes
-    return text.lstrip("\ufeff")
 
 
 def _num(tok: str, path, line: int, what: str) -> float:
@@ -431,15 +421,7 @@ def cm_per_unit(asf: dict, units: float | str | None = None) -> float:
 # ======================================================================================
 def _axis_rot(axis: int, ang: np.ndarray) -> np.ndarray:
     """Rotation matrices (..., 3, 3) about axis 0/1/2 by ``ang`` radians (column vectors)."""
-    c, s = np.cos(ang), np.sin(ang)
-    R = np.zeros(np.shape(ang) + (3, 3))
-    i, j = [(1, 2), (2, 0), (0, 1)][axis]
-    R[..., axis, axis] = 1.0
-    R[..., i, i] = c
-    R[..., j, j] = c
-    R[..., i, j] = -s
-    R[..., j, i] = s
-    return R
+    return axis_rotation(axis, ang)
 
 
 def _euler_matrix(order: str, angles_xyz: np.ndarray) -> np.ndarray:

@@ -77,6 +77,7 @@ from typing import Any
 
 import numpy as np
 
+from ._rotations import axis_rotation
 from ..errors import MocapFormatError, MocapValueError
 from ..motion import Motion
 from ..skeleton import Skeleton
@@ -264,16 +265,7 @@ class _HierarchyParser:
 # ----------------------------------------------------------------------------------------
 def _axis_rot(axis: int, deg: np.ndarray) -> np.ndarray:
     """Rotation matrices (T, 3, 3) about one coordinate axis by ``deg`` degrees (T,)."""
-    a = np.deg2rad(deg)
-    c, s = np.cos(a), np.sin(a)
-    R = np.zeros(a.shape + (3, 3))
-    i, j = (axis + 1) % 3, (axis + 2) % 3
-    R[..., axis, axis] = 1.0
-    R[..., i, i] = c
-    R[..., j, j] = c
-    R[..., i, j] = -s
-    R[..., j, i] = s
-    return R
+    return axis_rotation(axis, np.deg2rad(deg))
 
 
 def _layout(nodes: list[_Node]):

@@ -365,7 +365,8 @@ def l1l1_admm(Z, D, lam, *, n_iter: int = 300, tol: float = 1e-5, rho=None,
             W_new = Y - Cn
             # primal residuals: D theta + e - z = u' - u = N - N';  theta - w = C' - C
             r = np.sqrt(((N - Nn).astype(np.float64) ** 2).sum(1) + ((Cn - C).astype(np.float64) ** 2).sum(1))
-            dE, dW = E_new - E, W_new - W
+            # previous iterate: w = (w - v) + v,  e = z - (z - e - u) - u
+            dE, dW = E_new - (Z - Ain + N), W_new - (X + C)
             DtdE = ((dE @ P) * s) @ V.T
             sdual = rho_v[:, 0].astype(np.float64) * np.sqrt(((DtdE - dW).astype(np.float64) ** 2).sum(1))
             E, W = E_new, W_new
