@@ -321,7 +321,10 @@ class XiaoSparse(Denoiser):
             import multiprocessing as mp
             from concurrent.futures import ProcessPoolExecutor
 
-            with ProcessPoolExecutor(max_workers=n_jobs, mp_context=mp.get_context("spawn")) as ex:
+            # 'fork' (POSIX): children inherit the arrays and need no re-import of the
+            # caller's __main__ (a script without a main guard would break 'spawn')
+            ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
+            with ProcessPoolExecutor(max_workers=n_jobs, mp_context=ctx) as ex:
                 results = list(ex.map(_train_part, *zip(*jobs)))
         else:
             results = [_train_part(*j) for j in jobs]
@@ -422,4 +425,3 @@ class XiaoSparseFullPose(XiaoSparse):
     name = "xiao-sparse-fullpose"
     description = "Xiao et al. 2015 with one K-SVD dictionary for the whole pose (Table 2 comparison)"
     _fullpose = True
-    clean_tolerance_cm = 1.5

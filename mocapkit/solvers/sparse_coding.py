@@ -278,7 +278,18 @@ def lasso_admm(Z, D, lam, *, rho: float | None = None, n_iter: int = 40, tol: fl
     return W
 
 
-def l1l1_admm(Z, D, lam, *, n_iter: int = 300, tol: float = 1e-5, rho=None,
+def _clip(Y: np.ndarray, t) -> np.ndarray:
+    """clip(Y, -t, t) with a scalar t when possible (numpy's clip is ~7x faster with
+    scalar bounds than with per-row (S, 1) bounds)."""
+    t = np.asarray(t)
+    if t.size == 1 or np.all(t == t.flat[0]):
+        tt = Y.dtype.type(t.flat[0])
+        return np.clip(Y, -tt, tt)
+    t = t.astype(Y.dtype)
+    return np.minimum(np.maximum(Y, -t), t)
+
+
+def l1l1_admm(Z, D, lam, *, n_iter: int = 300, tol: float = 1e-5, rho: float | None = None,
               svd: DictionarySVD | None = None, dtype=np.float64, balance_every: int = 10,
               balance_until: int = 200, return_residual: bool = False):
     """Solve eq. (5) ``min ||z_s - D theta_s||_1 + lam ||theta_s||_1`` for all windows at once.
@@ -294,18 +305,22 @@ def l1l1_admm(Z, D, lam, *, n_iter: int = 300, tol: float = 1e-5, rho=None,
     With ``D = P diag(s) V^T``: ``a = (z - e - u) P``, ``b = (w - v) V``,
     ``c = a s/(1+s^2) - b s^2/(1+s^2)``, ``theta = (w - v) + c V^T`` and
     ``D theta = (b + c) s P^T`` -- four (S, .) x (., r) products per iteration.
-    The theta-step does not involve rho, so each window has its own rho (initially
-    ``1 / mean|z_s|``), doubled or halved every ``balance_every`` iterations when its
-    primal and dual residuals differ by more than 10x (duals rescaled accordingly),
-    during the first ``balance_until`` iterations only (a penalty that keeps changing
-    can break convergence).
+
+    Eq. (5) is positively homogeneous (z -> c z gives theta -> c theta), so every window
+    is divided by its mean absolute value first and the solution scaled back: the
+    problem is unchanged, and one penalty rho (default 1) then suits all windows, so the
+    soft thresholds have scalar thresholds (much faster).  rho is doubled or halved every
+    ``balance_every`` iterations when the total primal and dual residuals differ by
+    more than 10x (duals rescaled accordingly; Boyd et al. 2011 Sec. 3.4.1), during the
+    first ``balance_until`` iterations only (a penalty that keeps changing can break
+    convergence).
 
     Parameters
     ----------
     Z : (S, n) windows.  D : (n, K) dictionary.  lam : >= 0 (dimensionless), scalar or (S,).
     n_iter : maximum iterations.  tol : stop when every window's primal and dual
-        residual norms are below ``tol * max(1, ||z_s||)``.
-    rho : initial penalty, scalar or (S,); default ``1 / mean|z_s|``.
+        residual norms (of the normalised problem) are below ``tol * max(1, ||z_s||)``.
+    rho : initial penalty of the normalised problem (default 1).
     svd : cached :func:`dictionary_svd` of D.
     return_residual : also return the sparse residual ``e`` (S, n) -- the outliers found.
 
@@ -323,14 +338,12 @@ def l1l1_admm(Z, D, lam, *, n_iter: int = 300, tol: float = 1e-5, rho=None,
     s64 = sv.s
     f_a = (s64 / (1.0 + s64 ** 2)).astype(dt)
     f_b = (s64 ** 2 / (1.0 + s64 ** 2)).astype(dt)
-    zscale = np.abs(Z).mean(axis=1, keepdims=True).astype(np.float64)
-    if rho is None:
-        rho_v = 1.0 / np.maximum(zscale, 1e-12 * max(float(zscale.max(initial=0.0)), 1e-300))
-    else:
-        rho_v = np.broadcast_to(np.asarray(rho, dtype=np.float64).reshape(-1, 1), (S, 1))
-        if np.any(~(rho_v > 0)):
-            raise MocapValueError("rho must be positive")
-    rho_v = np.array(rho_v, dtype=dt)
+    zscale = np.abs(Z.astype(np.float64)).mean(axis=1, keepdims=True)
+    zscale = np.where(zscale > 0, zscale, 1.0)
+    Z = (Z / zscale).astype(dt)
+    rho = 1.0 if rho is None else float(rho)
+    if not (np.isfinite(rho) and rho > 0):
+        raise MocapValueError(f"rho must be a positive number, got {rho!r}")
     # Scaled duals kept as N = -u and C = v; with the soft threshold written as
     # soft(y, t) = y - clip(y, -t, t) the updates collapse to (exact algebra):
     #   e-step:  Ye = z - D theta + N;  N' = clip(Ye, +-1/rho);  e = Ye - N'
@@ -343,8 +356,6 @@ def l1l1_admm(Z, D, lam, *, n_iter: int = 300, tol: float = 1e-5, rho=None,
     C = np.zeros((S, K), dtype=dt)           # v
     Ain = Z - E + N                          # z - e - u
     X = W - C                                # w - v
-    te = (1.0 / rho_v).astype(dt)
-    tw = (lam / rho_v).astype(dt)
     znorm = np.maximum(np.sqrt((Z.astype(np.float64) ** 2).sum(1)), 1.0)
     check = True
     for it in range(int(n_iter)):
@@ -356,9 +367,9 @@ def l1l1_admm(Z, D, lam, *, n_iter: int = 300, tol: float = 1e-5, rho=None,
         DT = ((b + c) * s) @ P.T
         Ye = Z - DT
         Ye += N
-        Nn = np.clip(Ye, -te, te)
+        Nn = _clip(Ye, 1.0 / rho)
         Y = Theta + C
-        Cn = np.clip(Y, -tw, tw)
+        Cn = _clip(Y, lam / rho)
         check = (it + 1) % balance_every == 0 or it == int(n_iter) - 1
         if check:
             E_new = Ye - Nn
@@ -368,21 +379,18 @@ def l1l1_admm(Z, D, lam, *, n_iter: int = 300, tol: float = 1e-5, rho=None,
             # previous iterate: w = (w - v) + v,  e = z - (z - e - u) - u
             dE, dW = E_new - (Z - Ain + N), W_new - (X + C)
             DtdE = ((dE @ P) * s) @ V.T
-            sdual = rho_v[:, 0].astype(np.float64) * np.sqrt(((DtdE - dW).astype(np.float64) ** 2).sum(1))
+            sdual = rho * np.sqrt(((DtdE - dW).astype(np.float64) ** 2).sum(1))
             E, W = E_new, W_new
             N, C = Nn, Cn
             if np.all(r <= tol * znorm) and np.all(sdual <= tol * znorm):
                 break
             if it < balance_until:
-                up = r > 10.0 * sdual
-                down = sdual > 10.0 * r
-                f = np.where(up, 2.0, np.where(down, 0.5, 1.0)).astype(dt)[:, None]
-                if np.any(f != 1):
-                    rho_v = rho_v * f
-                    te = (1.0 / rho_v).astype(dt)
-                    tw = (lam / rho_v).astype(dt)
-                    N = N / f
-                    C = C / f
+                rt, st = float(np.sqrt((r ** 2).sum())), float(np.sqrt((sdual ** 2).sum()))
+                f = 2.0 if rt > 10.0 * st else (0.5 if st > 10.0 * rt else 1.0)
+                if f != 1.0:
+                    rho *= f
+                    N = N / dt.type(f)
+                    C = C / dt.type(f)
             Ain = Z - E + N
             X = W - C
         else:
@@ -393,6 +401,7 @@ def l1l1_admm(Z, D, lam, *, n_iter: int = 300, tol: float = 1e-5, rho=None,
     if not check:
         W = Y - Cn
         E = Ye - Nn
+    W = W * zscale.astype(dt)
     if return_residual:
-        return W, E
+        return W, E * zscale.astype(dt)
     return W

@@ -26,27 +26,34 @@ _COLORS = ["#2b7bba", "#d6604d", "#1a9850", "#8073ac", "#e08214", "#4d4d4d"]
 
 def _payload(motions: Sequence[Motion], labels: Sequence[str], max_fps: float) -> dict:
     ref = motions[0]
-    step = max(1, int(round(ref.fps / max_fps)))
-    P0 = ref.positions[::step]
-    # centre horizontally on the first frame's root; keep vertical as is
-    centre = np.nanmean(P0.reshape(-1, 3), axis=0)
+    step = _step(ref, max_fps)
+    # follow camera: every frame is shifted so the reference root is at the origin in the
+    # two horizontal axes (the vertical axis, the largest rest-pose extent, is kept)
+    up = int(np.argmax(np.ptp(ref.skeleton.rest_positions(), axis=0))) if ref.n_joints > 1 else 1
+    root = ref.positions[::step, 0].copy()
+    root = np.where(np.isfinite(root), root, np.nanmean(ref.positions[:, 0], axis=0))
+    root[:, up] = np.nanmin(ref.positions[..., up]) + 0.5 * np.nanmax(np.ptp(ref.positions[..., up], axis=1))
     out = {"fps": ref.fps / step, "parents": ref.skeleton.parents.tolist(),
            "names": list(ref.skeleton.names), "motions": []}
     for m, lab, col in zip(motions, labels, _COLORS * 4):
-        P = np.round(m.positions[::step] - centre, 1)
+        P = np.round(m.positions[::step] - root[:, None, :], 1)
         P = np.where(np.isfinite(P), P, None)
         out["motions"].append({"label": lab, "color": col, "positions": P.tolist(),
                                "missing": (~m.observed[::step]).astype(int).tolist()})
     return out
 
 
-def _errors(truth: Motion, others: Sequence[Motion]) -> tuple[list, list, list]:
+def _step(m: Motion, max_fps: float) -> int:
+    return max(1, int(round(m.fps / max_fps)))
+
+
+def _errors(truth: Motion, others: Sequence[Motion], step: int) -> tuple[list, list, list]:
     per_frame, per_joint, table = [], [], []
     from .. import metrics
 
     for m in others:
         d = np.linalg.norm(m.positions - truth.positions, axis=2)     # (T, J) cm
-        per_frame.append(np.round(np.nanmean(d, axis=1), 3).tolist())
+        per_frame.append(np.round(np.nanmean(d[::step], axis=1), 3).tolist())
         per_joint.append(np.round(np.nanmean(d, axis=0), 3).tolist())
         try:
             table.append({k: v for k, v in metrics.all_metrics(truth, m).items()})
@@ -71,7 +78,7 @@ def render_report(motions: Sequence[Motion], labels: Sequence[str] | None = None
     errs = {"per_frame": [], "per_joint": [], "labels": labels[1:]}
     rows_html = ""
     if truth_first and len(motions) > 1:
-        pf, pj, table = _errors(ref, motions[1:])
+        pf, pj, table = _errors(ref, motions[1:], _step(ref, max_fps))
         errs.update(per_frame=pf, per_joint=pj)
         keys = sorted({k for t in table for k in t})
         rows_html = "<tr><th>metric</th>" + "".join(f"<th>{html.escape(l)}</th>" for l in labels[1:]) + "<th>unit</th></tr>"
@@ -130,10 +137,10 @@ function mk(label){const d=document.createElement('div');d.className='view';d.in
 function rebuild(){views.innerHTML='';canv.length=0;
  if(document.getElementById('overlay').checked){mk(D.motions.map(m=>m.label).join(' + '));}
  else D.motions.forEach(m=>mk(m.label));draw();}
-let scale=1;{let lo=1e9,hi=-1e9;D.motions[0].positions.forEach(fr=>fr.forEach(p=>{if(p[0]!==null){lo=Math.min(lo,...p);hi=Math.max(hi,...p);}}));scale=300/Math.max(1,hi-lo);}
+let scale=1;{let lo=1e9,hi=-1e9;/* body extent after the follow camera */D.motions[0].positions.forEach(fr=>fr.forEach(p=>{if(p[0]!==null){lo=Math.min(lo,...p);hi=Math.max(hi,...p);}}));scale=280/Math.max(1,hi-lo);}
 function proj(p,c){const cy=Math.cos(yaw),sy=Math.sin(yaw),cp=Math.cos(pitch),sp=Math.sin(pitch);
  const x=cy*p[0]+sy*p[2],z=-sy*p[0]+cy*p[2];const y=cp*p[1]-sp*z;
- return [c.width/2+x*scale*zoom,c.height*0.55-y*scale*zoom];}
+ return [c.width/2+x*scale*zoom,c.height*0.5-y*scale*zoom];}
 function drawMotion(ctx,c,m){const fr=m.positions[f],miss=m.missing[f];ctx.strokeStyle=m.color;ctx.lineWidth=2;
  D.parents.forEach((p,j)=>{if(p<0||fr[j][0]===null||fr[p][0]===null)return;const a=proj(fr[j],c),b=proj(fr[p],c);
   ctx.beginPath();ctx.moveTo(a[0],a[1]);ctx.lineTo(b[0],b[1]);ctx.stroke();});

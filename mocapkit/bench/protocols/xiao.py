@@ -388,17 +388,17 @@ def params(ctx: Context) -> Iterator[Row]:
     for M in Ms:
         model, tsec = fitted("xiao-sparse", xiao_params(ctx, window=M), key_d, fit_d)
         for cond, steps in sweep_conds:
-            yield Row("xiao-params", "dance (validation 05_03)", cond, "xiao-sparse", "per_frame_rmse", "cm",
+            yield Row("xiao-params", "dance (validation 05_03)", cond, f"xiao-sparse window={M}", "per_frame_rmse", "cm",
                       _score(model, val_d, steps, 7), extra={"param": "window", "window": M,
                                                                "n_atoms": model.n_atoms, "train_s": round(tsec, 1)})
     for K in Ks:
         model, tsec = fitted("xiao-sparse", xiao_params(ctx, n_atoms=K), key_d, fit_d)
         for cond, steps in sweep_conds:
-            yield Row("xiao-params", "dance (validation 05_03)", cond, "xiao-sparse", "per_frame_rmse", "cm",
+            yield Row("xiao-params", "dance (validation 05_03)", cond, f"xiao-sparse n_atoms={K}", "per_frame_rmse", "cm",
                       _score(model, val_d, steps, 7), extra={"param": "n_atoms", "window": model.window,
                                                                "n_atoms": K, "train_s": round(tsec, 1)})
     # lambda (the defaults' tuning)
-    lam_factors = (0.1, 0.3, 1.0) if quick else (0.05, 0.1, 0.2, 0.3, 0.5, 1.0, 2.0)
+    lam_factors = (0.03, 0.1, 0.3) if quick else (0.01, 0.03, 0.05, 0.1, 0.2, 0.3, 1.0)
     lam_l1s = (0.03, 0.1, 0.3) if quick else (0.01, 0.03, 0.1, 0.3, 1.0)
     gauss = conditions(ctx, ("snr20",) if quick else ("snr40", "snr30", "snr20", "snr10", "mixed"))
     outl = conditions(ctx, ("outliers10",) if quick else ("outliers10", "outliers15", "outliers20", "outliers25"))
@@ -415,12 +415,12 @@ def params(ctx: Context) -> Iterator[Row]:
         for cond, steps in gauss:
             for lf in lam_factors:
                 model.set_params(lam_factor=lf, noise="mixed" if cond == "mixed" else "gaussian")
-                yield Row("xiao-params", label, cond, "xiao-sparse", "per_frame_rmse", "cm",
+                yield Row("xiao-params", label, cond, f"xiao-sparse lam_factor={lf:g}", "per_frame_rmse", "cm",
                           _score(model, val_a, steps, 11), extra={"param": "lam_factor", "lam_factor": lf})
         model.set_params(**defaults)
         for cond, steps in outl:
             for l1 in lam_l1s:
                 model.set_params(lam_l1=l1, noise="outliers")
-                yield Row("xiao-params", label, cond, "xiao-sparse", "per_frame_rmse", "cm",
+                yield Row("xiao-params", label, cond, f"xiao-sparse lam_l1={l1:g}", "per_frame_rmse", "cm",
                           _score(model, val_a, steps, 11), extra={"param": "lam_l1", "lam_l1": l1})
         model.set_params(**defaults)
