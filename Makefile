@@ -26,7 +26,7 @@ demo: $(STAMP)
 	$(PY) -m mocapkit.demo --out demo_out
 
 test: $(STAMP)
-	$(PY) -m pytest -x -q -p no:cacheprovider
+	$(PY) -m pytest -x -p no:cacheprovider
 
 fuzz: $(STAMP)
 	MOCAPKIT_FUZZ_EXAMPLES=2000 $(PY) -m pytest -q tests -k fuzz

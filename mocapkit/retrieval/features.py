@@ -72,15 +72,9 @@ KEYPOINTS = ("root", "neck", "head",
              "lshoulder", "lelbow", "lwrist", "rshoulder", "relbow", "rwrist",
              "lhip", "lknee", "lankle", "rhip", "rknee", "rankle")
 
-# Side-stripped name patterns per keypoint, tried in order (exact name first, then
-# "contains"); the shallowest matching joint on each side wins.
-_LIMB_PATTERNS = {
-    "shoulder": ("arm", "shldr", "shoulder", "clavicle"),
-    "elbow": ("elbow", "forearm", "humerus"),
-    "wrist": ("wrist", "radius", "hand"),
-    "knee": ("knee", "shin", "leg", "femur"),
-    "ankle": ("ankle", "tibia", "foot"),
-}
+# Side-stripped name patterns of the shoulder joint, tried in order (exact name first,
+# then "contains"); the shallowest matching joint on each side wins.
+_LIMB_PATTERNS = {"shoulder": ("arm", "shldr", "shoulder", "clavicle")}
 PLANES = ((0, 1), (0, 2), (1, 2))          # xy, xz, yz
 
 
@@ -121,24 +115,56 @@ def _ancestors(sk: Skeleton, j: int) -> list[int]:
     return out
 
 
+def _next_on_chain(sk: Skeleton, j: int, reach: np.ndarray, tiny: float) -> int | None:
+    """Child of ``j`` leading to its farthest descendant, skipping zero-length bones."""
+    while True:
+        kids = [int(c) for c in np.flatnonzero(sk.parents == j)]
+        if not kids:
+            return None
+        c = max(kids, key=lambda c: (reach[c] + np.linalg.norm(sk.offsets[c]), -c))
+        if np.linalg.norm(sk.offsets[c]) > tiny:
+            return c
+        j = c
+
+
 def find_keypoints(skeleton: Skeleton) -> np.ndarray | None:
-    """Joint index of each of the 15 :data:`KEYPOINTS`, by name, or None (module doc)."""
+    """Joint index of each of the 15 :data:`KEYPOINTS`, by name and tree, or None.
+
+    Hips: :func:`mocapkit.bodyframe.find_hips`; shoulders by name (``arm``, ``shldr``,
+    ``shoulder``, ``clavicle``; ``humerus`` when the hips came out as ``femur`` -- a BVH
+    conversion of an ASF skeleton, whose joints sit at bone *starts*); elbow/knee and
+    wrist/ankle are the next two joints down the limb chain (the child leading to the
+    farthest descendant, zero-length bones skipped); head = a midline joint named
+    ``head``; neck = the lowest common ancestor of the shoulders.
+    """
     from ..bodyframe import find_hips
 
     sk = skeleton
-    roots = np.flatnonzero(sk.parents < 0)
-    root = int(roots[0])
+    J = sk.n_joints
+    root = int(np.flatnonzero(sk.parents < 0)[0])
     hips = find_hips(sk)
-    if hips is None or _side(sk.names[hips[0]]) is None:
+    if hips is None or _side(sk.names[hips[0]]) is None or J < 15:
         return None
-    used = {root, *hips}
-    found = {"lhip": hips[0], "rhip": hips[1]}
-    for part in ("shoulder", "elbow", "wrist", "knee", "ankle"):
-        pr = _sided(sk, _LIMB_PATTERNS[part], used)
-        if pr is None:
-            return None
-        found["l" + part], found["r" + part] = pr
-        used.update(pr)
+    rest = sk.rest_positions()
+    tiny = 1e-3 * max(float(np.ptp(rest, axis=0).max()), 1e-9)
+    reach = np.zeros(J)                                  # farthest descendant distance
+    for j in range(J - 1, 0, -1):
+        p = sk.parents[j]
+        if p >= 0:
+            reach[p] = max(reach[p], reach[j] + np.linalg.norm(sk.offsets[j]))
+    bvh_of_asf = _strip(sk.names[hips[0]]) == "femur"
+    pats = ("humerus",) if bvh_of_asf else _LIMB_PATTERNS["shoulder"]
+    sh = _sided(sk, pats, {root, *hips})
+    if sh is None:
+        return None
+    found = {"lhip": hips[0], "rhip": hips[1], "lshoulder": sh[0], "rshoulder": sh[1]}
+    for side, s in (("l", 0), ("r", 1)):
+        for prox, mid, dist in (("shoulder", "elbow", "wrist"), ("hip", "knee", "ankle")):
+            m = _next_on_chain(sk, found[side + prox], reach, tiny)
+            d = None if m is None else _next_on_chain(sk, m, reach, tiny)
+            if d is None:
+                return None
+            found[side + mid], found[side + dist] = m, d
     heads = [j for j, n in enumerate(sk.names) if "head" in n.lower() and _side(n) is None]
     if not heads:
         return None
@@ -148,8 +174,7 @@ def find_keypoints(skeleton: Skeleton) -> np.ndarray | None:
     common = [j for j in a if j in b]
     if not common:
         return None
-    neck = common[0]
-    found.update(root=root, head=head, neck=neck)
+    found.update(root=root, head=head, neck=common[0])
     idx = np.array([found[k] for k in KEYPOINTS], dtype=int)
     if len(set(idx.tolist())) != len(idx):
         return None
