@@ -4,7 +4,7 @@ Usage: ``python benchmarks/xiao_speed.py [--data DIR] [--out FILE.md]``
 
 Measures, with one BLAS thread (threadpoolctl):
 
-1. K-SVD training of the five poselet dictionaries (K = 512, M = 15, T_s = 8, 10
+1. K-SVD training of the five poselet dictionaries (K = 512, M = 21, T_s = 8, 10
    iterations, <= 8000 windows per poselet) on the dance training clips (CMU 05_02,
    05_03, 05_07), serial (``n_jobs=1``) and with two processes (``n_jobs=2``);
 2. denoising throughput (frames per second, wall clock and process CPU time, best of 3)
@@ -55,7 +55,7 @@ def run(data_dir=None, log=print) -> tuple[str, list[dict]]:
     train = [io.read(d05 / f"05_0{i}.amc") for i in (2, 3, 7)]
     test = io.read(d05 / "05_05.amc")
     rows: list[dict] = []
-    lines = ["### Training (K-SVD, 5 poselets, K = 512, M = 15, T_s = 8, 10 iterations)", "",
+    lines = ["### Training (K-SVD, 5 poselets, K = 512, M = 21, T_s = 8, 10 iterations)", "",
              "| n_jobs | training windows / poselet | seconds (wall) |", "|---:|---:|---:|"]
     model = None
     for n_jobs in (1, 2):

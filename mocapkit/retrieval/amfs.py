@@ -40,7 +40,7 @@ reproduces the printed step (it climbs to the largest ratio). Both are reported 
 Baselines (Sec. 5.3.1)
 ----------------------
 * :func:`laplacian_score` -- He, Cai & Niyogi 2005 (kNN heat-kernel graph; smaller better).
-* :func:`spec_score` -- Zhao & Liu 2007 SPEC, normalised-Laplacian score phi_2 (smaller better).
+* :func:`spec_score` -- Zhao & Liu 2007 SPEC, spectrum-based score phi_3 (larger better).
 * :func:`udfs_score` -- Yang, Shen, Ma, Huang & Zhou 2011 UDFS: ``min tr(W^T M W) +
   gamma ||W||_{2,1}``, ``W^T W = I``, M from local discriminative scatter; iteratively
   reweighted eigenproblem; score = row norms of W (larger better).
@@ -312,20 +312,27 @@ def laplacian_score(F, k: int = 5) -> np.ndarray:
     return np.where(den > 1e-300, num / np.maximum(den, 1e-300), np.inf)
 
 
-def spec_score(F, k: int = 5) -> np.ndarray:
-    """SPEC phi_2 of every feature (Zhao & Liu 2007, eq. 8); smaller = better."""
+def spec_score(F, n_clusters: int = 10, *, k: int = 5) -> np.ndarray:
+    """SPEC feature ranking phi_3 (Zhao & Liu 2007, Sec. 3.2); larger = better.
+
+    ``phi_3(f) = sum_{j=2}^{kappa} (2 - lambda_j) (f^_T xi_j)^2`` with (lambda_j, xi_j) the
+    eigenpairs of the normalised Laplacian of the kNN heat-kernel graph (ascending),
+    ``f^ = D^{1/2} f / ||D^{1/2} f||`` and kappa = ``n_clusters``. (SPEC's phi_2 is
+    algebraically the Laplacian score, so phi_3 is the variant that adds something.)
+    """
     F = _as_rows(F)
+    N = F.shape[0]
     S = _heat_graph(F, k)
     deg = np.asarray(S.sum(axis=1)).ravel()
     dh = np.sqrt(deg)
-    Ln = sp.eye(F.shape[0]) - sp.diags(1 / dh) @ S @ sp.diags(1 / dh)
+    Ln = np.eye(N) - (S.toarray() / dh[:, None]) / dh[None, :]
+    lam, xi = np.linalg.eigh(0.5 * (Ln + Ln.T))
+    kap = int(min(max(n_clusters, 2), N))
     Fh = dh[:, None] * F
     nrm = np.linalg.norm(Fh, axis=0)
     Fh = np.divide(Fh, nrm, out=np.zeros_like(Fh), where=nrm > 0)
-    xi = dh / np.linalg.norm(dh)
-    num = feature_quadratic(Fh, Ln)
-    den = 1.0 - (xi @ Fh) ** 2
-    return np.where((nrm > 0) & (den > 1e-12), num / np.maximum(den, 1e-12), np.inf)
+    proj = xi[:, 1:kap].T @ Fh                                   # (kappa-1, D)
+    return ((2.0 - lam[1:kap])[:, None] * proj ** 2).sum(axis=0)
 
 
 def udfs_score(F, n_clusters: int = 10, *, k: int = 5, gamma: float = 0.1, lam: float = 1e-3,
@@ -333,12 +340,18 @@ def udfs_score(F, n_clusters: int = 10, *, k: int = 5, gamma: float = 0.1, lam: 
     """UDFS (Yang et al. 2011, Algorithm 1) feature scores ||w_j||; larger = better.
 
     ``M = X (sum_i S_i H (X~_i^T X~_i + lam I)^{-1} H S_i^T) X^T`` with X~_i the centred
-    neighbourhood (k + 1 points); ``gamma`` and ``lam`` are relative to the mean of
-    diag(M) and of the local Gram diagonals (scale-free).
+    neighbourhood (k + 1 points); then ``D = I`` and repeat: ``W`` = the c = ``n_clusters``
+    eigenvectors of ``M + gamma D`` with the smallest eigenvalues, ``D_jj = 1 / (2 ||w_j||)``.
+    ``gamma`` and ``lam`` are relative to the mean of diag(M) and of the local Gram
+    diagonals (scale-free). M has rank <= N, so with ``M = U^T U`` (U: N x D) the
+    eigenvectors come from Lanczos on ``(M + gamma D)^{-1}`` applied by the Woodbury
+    identity: O(N D) per product, no D x D matrix.
     """
+    from scipy.sparse.linalg import LinearOperator, eigsh
+
     F = _as_rows(F)
     N, D = F.shape
-    c = int(min(max(n_clusters, 1), D))
+    c = int(min(max(n_clusters, 1), D - 1))
     idx = knn_indices(F, k + 1)
     kk = idx.shape[1]
     H = np.eye(kk) - 1.0 / kk
@@ -347,16 +360,25 @@ def udfs_score(F, n_clusters: int = 10, *, k: int = 5, gamma: float = 0.1, lam: 
     lam_abs = lam * max(float(np.trace(G, axis1=1, axis2=2).mean() / kk), 1e-12)
     G[:, np.arange(kk), np.arange(kk)] += lam_abs
     B = H @ np.linalg.inv(G) @ H
-    Lu = _assemble(0.5 * (B + np.swapaxes(B, 1, 2)), idx, N)
-    Mx = F.T @ np.asarray(Lu @ F)
-    Mx = 0.5 * (Mx + Mx.T)
-    g = gamma * max(float(np.mean(np.diag(Mx))), 1e-12)
-    from scipy.linalg import eigh
-
+    Lu = _assemble(0.5 * (B + np.swapaxes(B, 1, 2)), idx, N).toarray()
+    ev, Q = np.linalg.eigh(0.5 * (Lu + Lu.T))
+    U = np.sqrt(np.maximum(ev, 0.0))[:, None] * (Q.T @ F)          # M = U^T U
+    g = gamma * max(float((U ** 2).sum() / D), 1e-12)               # gamma * mean diag(M)
     Dg = np.ones(D)
     W = None
+    rng = np.random.default_rng(0)
     for _ in range(int(n_iter)):
-        _, W = eigh(Mx + g * np.diag(Dg), subset_by_index=(0, c - 1))
+        pinv = 1.0 / (g * Dg)
+        Up = U * pinv[None, :]
+        C = np.linalg.inv(np.eye(N) + Up @ U.T)
+
+        def mv(x, pinv=pinv, Up=Up, C=C):
+            x = np.asarray(x).reshape(-1)
+            return pinv * x - Up.T @ (C @ (Up @ x))
+
+        op = LinearOperator((D, D), matvec=mv, dtype=np.float64)
+        v0 = W[:, 0] if W is not None else rng.standard_normal(D)
+        _, W = eigsh(op, k=c, which="LA", v0=v0, tol=1e-6)
         rn = np.linalg.norm(W, axis=1)
         Dg = 1.0 / (2.0 * np.maximum(rn, 1e-8))
     return np.linalg.norm(W, axis=1)
