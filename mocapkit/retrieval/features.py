@@ -219,11 +219,17 @@ def _resample_linear(X: np.ndarray, fps: float, new_fps: float) -> np.ndarray:
     return X[lo] * (1 - w) + X[hi] * w
 
 
-def prepare(motion: Motion, *, max_fps: float = 30.0, keypoints: bool = True) -> Prepared:
+def prepare(motion: Motion, *, max_fps: float = 30.0, keypoints: bool = True,
+            smooth_s: float = 0.0, heading: str = "start") -> Prepared:
     """Canonical, size-normalised keypoint trajectories of ``motion`` (module doc).
 
+    ``smooth_s``: Gaussian smoothing (sigma in seconds) after gap filling, 0 = none.
+    ``heading``: lateral axis from the hips over the first 0.5 s (``'start'``), over the
+    whole clip (``'mean'``), or ``'none'`` (keep the file's horizontal axes).
     Raises MocapValueError when no joint is observed in any frame (nothing to describe).
     """
+    if heading not in ("start", "mean", "none"):
+        raise MocapValueError(f"heading must be 'start', 'mean' or 'none', got {heading!r}")
     if not isinstance(motion, Motion):
         raise MocapValueError(f"expected a Motion, got {type(motion).__name__}")
     obs = motion.observed
@@ -236,6 +242,10 @@ def prepare(motion: Motion, *, max_fps: float = 30.0, keypoints: bool = True) ->
     if fps > max_fps * 1.01 and T > 1:
         X = _resample_linear(X, fps, max_fps)
         fps = float(max_fps)
+    if smooth_s > 0 and X.shape[0] > 2:
+        from .. import signal
+
+        X = signal.gaussian(X, sigma=max(float(smooth_s) * fps, 1e-3))
     P = X.reshape(-1, J, 3)
     idx = find_keypoints(motion.skeleton) if keypoints else None
     from ..bodyframe import find_hips, up_axis_of
@@ -266,9 +276,11 @@ def prepare(motion: Motion, *, max_fps: float = 30.0, keypoints: bool = True) ->
     e_up = np.zeros(3)
     e_up[up] = 1.0
     lat = np.zeros(3)
-    if li is not None:
-        n0 = max(1, int(round(0.5 * fps)))
+    if li is not None and heading != "none":
+        n0 = max(1, int(round(0.5 * fps))) if heading == "start" else P.shape[0]
         lat = (P[:n0, li] - P[:n0, ri]).mean(axis=0)
+    elif heading == "none":
+        lat[0 if up != 0 else 1] = 1.0
     lat = lat - lat[up] * e_up
     if np.linalg.norm(lat) < 1e-9:
         lat = np.zeros(3)

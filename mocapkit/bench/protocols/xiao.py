@@ -61,7 +61,6 @@ development gave the same choice).
 """
 from __future__ import annotations
 
-import time
 import warnings
 from pathlib import Path
 from typing import Any, Iterator
