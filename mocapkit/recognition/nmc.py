@@ -214,8 +214,14 @@ def window_features(p: Prepared, window: int, stride: int, *, bins: int = 8,
     pose = (cq[win[:, 1]] - cq[win[:, 0]]) / n
     root_disp = P[win[:, 1] - 1, 0] - P[win[:, 0], 0]
     pose[:, :3] = root_disp
-    w1, w2 = weights
-    return np.concatenate([w1 * _l2(Hw), w2 * _l2(_split(pose))], axis=1)
+    blocks = [_l2(Hw), _l2(_split(pose))]
+    if len(weights) > 2:
+        from ..retrieval.features import gpf
+
+        Gf = gpf(p)
+        cg = np.vstack([np.zeros((1, Gf.shape[1])), np.cumsum(Gf, axis=0)])
+        blocks.append(_l2(_split((cg[win[:, 1]] - cg[win[:, 0]]) / n)))
+    return np.concatenate([w * b for w, b in zip(weights, blocks)], axis=1)
 
 
 def _bow(G: np.ndarray, owner: np.ndarray, pos: np.ndarray, n_seq: int,
@@ -256,7 +262,8 @@ class NMCClassifier:
     def __init__(self, *, window: int = 10, stride: int = 5, n_clusters: int = 128,
                  lam1: float = 1e-3, lam2: float = 1e-2, n_neighbors: int = 5,
                  max_iter: int = 150, eta: float = 0.5, transductive: bool = True,
-                 bow_levels: Sequence[int] = (1, 2), C: float = 10.0, seed: int = 0):
+                 bow_levels: Sequence[int] = (1, 2), C: float = 10.0,
+                 block_weights: Sequence[float] = (1.0, 1.0), seed: int = 0):
         self.window = window
         self.stride = stride
         self.n_clusters = n_clusters
@@ -268,6 +275,7 @@ class NMCClassifier:
         self.transductive = transductive
         self.bow_levels = tuple(bow_levels)
         self.C = C
+        self.block_weights = tuple(block_weights)
         self.seed = seed
 
     def _windows(self, seqs: Sequence) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -277,7 +285,7 @@ class NMCClassifier:
             f = p.fps / 15.0
             M = max(2, int(round(self.window * f)))
             st = max(1, int(round(self.stride * f)))
-            Fw = window_features(p, M, st)
+            Fw = window_features(p, M, st, weights=self.block_weights)
             w = sliding_windows(p.n_frames, M, st)
             feats.append(Fw)
             owner.append(np.full(len(Fw), i))
@@ -321,6 +329,8 @@ class NMCClassifier:
         self.Z_ = Z
         scale = float((Ftr ** 2).sum() / len(Ftr))
         self.lam1_abs_ = self.lam1 * scale
+        if self.test_bow_ is None:     # inductive: train bags coded exactly like test bags
+            G = encode_windows(Ftr.T, Z, lam1=self.lam1_abs_, eta=self.eta)
         Btr = np.sqrt(_bow(G, otr, ptr, n_tr, self.bow_levels))
         self.clf_ = self._classifier().fit(Btr, labels)
         self.classes_ = self.clf_.classes_

@@ -63,9 +63,10 @@ class Descriptor:
     mode: str
 
 
-def describe(motion: Motion, *, max_fps: float = 30.0, levels: Sequence[int] = (1, 2, 4)) -> Descriptor:
+def describe(motion: Motion, *, max_fps: float = 30.0, levels: Sequence[int] = (1, 2, 4),
+             smooth_s: float = 0.0) -> Descriptor:
     """HOD (``normalize='none'``) and GPF frames of one motion (see :mod:`.features`)."""
-    p = prepare(motion, max_fps=max_fps)
+    p = prepare(motion, max_fps=max_fps, smooth_s=smooth_s)
     return Descriptor(hod=hod(p, levels=levels, normalize="none"), gpf=gpf(p), mode=p.mode)
 
 
