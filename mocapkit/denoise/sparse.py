@@ -61,7 +61,7 @@ Decisions where the paper is silent (each is a parameter):
 * Coding uses the truncated SVD of each dictionary (``rank_tol``), float32 and 20 (l2/l1)
   / 30 (l1/l1) ADMM iterations: measured on the validation folds, more iterations or
   exact arithmetic change the error by a few hundredths of a cm.  BLAS runs with one
-  thread inside :meth:`denoise`; ``n_jobs`` codes the poselets in parallel threads.
+  thread inside :meth:`denoise`; ``n_jobs`` codes the poselets in parallel processes.
 * Missing samples are filled by a cubic spline per channel before denoising, so the
   method also fills gaps (not part of the paper).
 * Clips shorter than the window are padded by repeating their end frames.
@@ -216,8 +216,9 @@ class XiaoSparse(Denoiser):
     lam_l1 : lambda of eq. (5), dimensionless (default 0.1).
     center : subtract the mean training window per poselet (default True).
     max_train_windows : K-SVD training windows per poselet (default 8000, strided).
-    n_jobs : parallel workers over poselets: processes for K-SVD training, threads for
-        denoising (default 1; the paper's parallel mode, Sec. 3.3 / Table 2).
+    n_jobs : parallel worker processes over poselets, for K-SVD training and for denoising
+        (default 1; the paper's parallel mode, Sec. 3.3 / Table 2; needs ``fork``, i.e.
+        POSIX -- elsewhere denoising runs serially).
     code_iter : ADMM iterations for eq. (4) (default 20).
     admm_iter : ADMM iterations for eq. (5) (default 30).
     rank_tol : singular values of a dictionary below sqrt(rank_tol) s_max are dropped
@@ -389,6 +390,9 @@ class XiaoSparse(Denoiser):
 
     def denoise(self, motion: Motion) -> Motion:
         """Denoise (and gap-fill) ``motion`` with the learned dictionaries (Alg. 1)."""
+        import time
+
+        t_start = time.perf_counter()
         self._check_fitted()
         self._validate()
         from .filters import filled_matrix
@@ -416,33 +420,72 @@ class XiaoSparse(Denoiser):
         parts = [perm[np.asarray(j, dtype=np.int64)] for j in self.parts_]
         self._solvers()                                  # build the cache before any thread
         jobs = [(i, L[:, joints].reshape(T, -1)) for i, joints in enumerate(parts)]
-        n_threads = min(int(self.n_jobs), len(jobs))
+        n_workers = min(int(self.n_jobs), len(jobs))
         from threadpoolctl import threadpool_limits
 
-        # one BLAS thread per worker: the products are (S x K) x (K x r) with r ~ 100, where
-        # BLAS threading gains little and, on a busy machine, oversubscription cost us 10x;
-        # parallelism comes from n_jobs (poselets in threads, the paper's parallel mode)
+        # One BLAS thread: the products are (S x K) x (K x r) with r ~ 100, where BLAS
+        # threading gains little and, on a busy machine, oversubscription cost us 10x.
+        # Parallelism comes from n_jobs: poselets coded in forked worker processes (the
+        # paper's parallel mode; threads do not help: this OpenBLAS serialises calls made
+        # from several threads when it is limited to one thread).
         with threadpool_limits(1):
-            if n_threads > 1:
-                from concurrent.futures import ThreadPoolExecutor
-
-                with ThreadPoolExecutor(max_workers=n_threads) as ex:
-                    coded = list(ex.map(lambda job: self._code_part(job[0], job[1], kind, lam2), jobs))
+            part_s = []
+            if n_workers > 1 and _can_fork():
+                coded = _code_parallel(self, jobs, kind, lam2, n_workers)
             else:
-                coded = [self._code_part(i, Xi, kind, lam2) for i, Xi in jobs]
+                coded, part_s = [], []
+                for i, Xi in jobs:
+                    t0 = time.perf_counter()
+                    coded.append(self._code_part(i, Xi, kind, lam2))
+                    part_s.append(time.perf_counter() - t0)
         for joints, Yi in zip(parts, coded):
             acc[:, joints] += Yi.reshape(T, len(joints), 3)
             cnt[joints] += 1
         if np.any(cnt == 0):
             raise MocapValueError(f"{self.name}: some joints are in no poselet")
         out = to_global(acc / cnt[None, :, None], frame)[:T0]
-        self._last_info = {**info, "lam": lam2, "lam_l1": float(self.lam_l1)}
+        self._last_info = {**info, "lam": lam2, "lam_l1": float(self.lam_l1),
+                           "seconds": time.perf_counter() - t_start, "part_seconds": part_s}
         return motion.with_positions(out)
 
     @property
     def last_info(self) -> dict[str, Any]:
-        """What the last :meth:`denoise` call detected and used (noise type, sigma, lambdas)."""
+        """What the last :meth:`denoise` call detected and used: noise ``type``,
+        ``outlier_fraction``, ``sigma_cm``, ``lam``, ``lam_l1``, wall ``seconds`` and, when
+        the poselets were coded serially, ``part_seconds`` (coding time per poselet)."""
         return dict(getattr(self, "_last_info", {}))
+
+
+_WORKER_MODEL: list = []
+
+
+def _can_fork() -> bool:
+    import multiprocessing as mp
+
+    return "fork" in mp.get_all_start_methods()
+
+
+def _code_worker(i: int, X: np.ndarray, kind: str, lam2: float) -> np.ndarray:
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(1):
+        return _WORKER_MODEL[0]._code_part(i, X, kind, lam2)
+
+
+def _code_parallel(model: "XiaoSparse", jobs: list, kind: str, lam2: float, n_workers: int) -> list:
+    """Code the poselets in ``n_workers`` forked processes (the model is inherited by
+    fork, only the poselet matrices travel); largest poselets are submitted first."""
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor
+
+    _WORKER_MODEL[:] = [model]
+    try:
+        order = sorted(range(len(jobs)), key=lambda k: -jobs[k][1].size)
+        with ProcessPoolExecutor(max_workers=n_workers, mp_context=mp.get_context("fork")) as ex:
+            futs = {k: ex.submit(_code_worker, jobs[k][0], jobs[k][1], kind, lam2) for k in order}
+            return [futs[k].result() for k in range(len(jobs))]
+    finally:
+        _WORKER_MODEL.clear()
 
 
 @register

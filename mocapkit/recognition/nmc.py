@@ -49,7 +49,7 @@ import scipy.sparse as sp
 
 from ..errors import MocapValueError, NotFittedError
 from ..motion import Motion
-from ..retrieval.features import PLANES, Prepared, prepare, sliding_windows
+from ..retrieval.features import PLANES, Prepared, orientation_bins, prepare, sliding_windows
 
 __all__ = ["knn_graph", "nmf_objective", "gonmf", "encode_windows", "window_features",
            "NMCClassifier"]
@@ -194,13 +194,9 @@ def window_features(p: Prepared, window: int, stride: int, *, bins: int = 8,
     nP = len(PLANES)
     # HOD contributions per displacement: (T-1, K*nP*bins)
     if T > 1:
-        D = np.diff(P, axis=0)
-        a = np.stack([D[..., i] for i, _ in PLANES], -1)
-        b = np.stack([D[..., j] for _, j in PLANES], -1)
-        ang = np.mod(np.arctan2(b, a), 2 * np.pi)
-        bi = np.minimum((ang * (bins / (2 * np.pi))).astype(int), bins - 1)
+        bi, w = orientation_bins(np.diff(P, axis=0), bins)
         C = np.zeros((T - 1, K, nP, bins))
-        np.put_along_axis(C, bi[..., None], np.hypot(a, b)[..., None], axis=3)
+        np.put_along_axis(C, bi[..., None], w[..., None], axis=3)
         C = C.reshape(T - 1, -1)
         cs = np.vstack([np.zeros((1, C.shape[1])), np.cumsum(C, axis=0)])
         s, e = win[:, 0], np.maximum(win[:, 1] - 1, win[:, 0])

@@ -335,7 +335,7 @@ def spec_score(F, n_clusters: int = 10, *, k: int = 5) -> np.ndarray:
     return ((2.0 - lam[1:kap])[:, None] * proj ** 2).sum(axis=0)
 
 
-def udfs_score(F, n_clusters: int = 10, *, k: int = 5, gamma: float = 0.1, lam: float = 1e-3,
+def udfs_score(F, n_clusters: int = 10, *, k: int = 5, gamma: float = 0.01, lam: float = 1.0,
                n_iter: int = 15) -> np.ndarray:
     """UDFS (Yang et al. 2011, Algorithm 1) feature scores ||w_j||; larger = better.
 

@@ -66,7 +66,7 @@ from ..errors import MocapValueError
 from ..motion import Motion, fill_gaps_linear
 from ..skeleton import Skeleton, _side
 
-__all__ = ["KEYPOINTS", "Prepared", "find_keypoints", "prepare", "hod", "hod_dim", "gpf",
+__all__ = ["KEYPOINTS", "Prepared", "find_keypoints", "prepare", "hod", "hod_dim", "gpf", "orientation_bins",
            "GPFCodebook", "pyramid_segments", "sliding_windows"]
 
 KEYPOINTS = ("root", "neck", "head",
@@ -303,6 +303,22 @@ def pyramid_segments(n: int, levels: Sequence[int] = (1, 2, 4)) -> np.ndarray:
     return np.stack([np.minimum((t * int(L)) // max(n, 1), int(L) - 1) for L in levels])
 
 
+def orientation_bins(D: np.ndarray, bins: int = 8) -> tuple[np.ndarray, np.ndarray]:
+    """Orientation bin and length of displacements ``D`` (..., 3) on the xy, xz, yz planes.
+
+    Returns (bin, length), each (..., 3): angle = atan2(second, first coordinate of the
+    plane) in [0, 2 pi); bin b covers [b, b+1) * 2 pi / bins (an angle on a boundary, up to
+    1e-9 of a bin, goes to the upper bin). Lengths below 1e-9 (rounding noise of a still
+    joint) count as 0, so they cannot fill a normalised histogram.
+    """
+    a = np.stack([D[..., i] for i, _ in PLANES], axis=-1)
+    b = np.stack([D[..., j] for _, j in PLANES], axis=-1)
+    ang = np.mod(np.arctan2(b, a), 2 * np.pi)
+    bi = np.floor(ang * (bins / (2 * np.pi)) + 1e-9).astype(int) % bins
+    w = np.hypot(a, b)
+    return bi, np.where(w > 1e-9, w, 0.0)
+
+
 def hod_dim(n_joints: int, levels: Sequence[int] = (1, 2, 4), bins: int = 8) -> int:
     return int(sum(levels)) * n_joints * len(PLANES) * bins
 
@@ -332,12 +348,7 @@ def hod(positions: np.ndarray | Prepared, *, levels: Sequence[int] = (1, 2, 4), 
     out = []
     if T < 2:
         return np.zeros(hod_dim(K, levels, bins))
-    D = np.diff(P, axis=0)                                        # (T-1, K, 3)
-    a = np.stack([D[..., i] for i, _ in PLANES], axis=-1)         # (T-1, K, 3 planes)
-    b = np.stack([D[..., j] for _, j in PLANES], axis=-1)
-    ang = np.mod(np.arctan2(b, a), 2 * np.pi)
-    w = np.hypot(a, b)
-    bi = np.minimum((ang * (bins / (2 * np.pi))).astype(int), bins - 1)
+    bi, w = orientation_bins(np.diff(P, axis=0), bins)           # (T-1, K, 3 planes)
     n = T - 1
     segs = pyramid_segments(n, levels)
     cell = (np.arange(K)[:, None] * nP + np.arange(nP)[None, :]) * bins   # (K, planes)

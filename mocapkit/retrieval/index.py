@@ -92,7 +92,7 @@ class RetrievalModel:
     """
 
     def __init__(self, method: str = "amfs", *, d: int | float | str = 0.3, n_words: int = 128,
-                 k: int = 5, mu: float = 1.0, r: float = 2.0, n_clusters: int | None = None,
+                 k: int = 5, mu: float = 0.1, r: float = 2.0, n_clusters: int | None = None,
                  d_grid: Sequence[int] = (200, 400, 800, 1200, 1600), max_fit: int = 3000,
                  seed: int = 0):
         if method not in METHODS:
@@ -318,11 +318,14 @@ class MotionIndex:
         k = int(min(max(int(k), 1), len(self)))
         d2 = self._sq[None, :] - 2.0 * (q @ self.emb.T).astype(np.float64) + (q.astype(np.float64) ** 2).sum(1)[:, None]
         d2 = np.maximum(d2, 0.0)
-        part = np.argpartition(d2, k - 1, axis=1)[:, :k]
-        pd = np.take_along_axis(d2, part, axis=1)
-        o = np.argsort(pd, axis=1, kind="stable")
+        kk = int(min(len(self), k + 8))                         # a few spare candidates
+        part = np.argpartition(d2, kk - 1, axis=1)[:, :kk]
+        # exact distances of the candidates (the expansion above cancels badly near 0)
+        diff = self.emb[part].astype(np.float64) - q.astype(np.float64)[:, None, :]
+        pd = np.sqrt((diff ** 2).sum(axis=2))
+        o = np.lexsort((part, pd), axis=1)[:, :k]
         idx = np.take_along_axis(part, o, axis=1)
-        dist = np.sqrt(np.take_along_axis(pd, o, axis=1))
+        dist = np.take_along_axis(pd, o, axis=1)
         return (idx[0], dist[0]) if single else (idx, dist)
 
     def search(self, query: Motion | Descriptor, k: int = 10) -> list[tuple[str, float]]:

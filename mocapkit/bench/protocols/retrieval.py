@@ -1,0 +1,281 @@
+"""Protocols of the thesis' retrieval and recognition chapters (seed 003, Ch. 5-6).
+
+* ``amfs-retrieval`` -- Sec. 5.3: HDM05 (the thesis' cross-actor setting: 2 actors'
+  clips are the database, the other 3 actors' clips the queries; every one of the 10
+  actor pairs in the full run) and MSR-Action3D (a random half of each class is the
+  database, the rest the queries; 5 seeds). Per method: mAP, P@1, P@5, P@10 (fractions,
+  mean +- std over splits). Methods: ``amfs`` (ascending scores, the misprint fix),
+  ``amfs-desc`` (Algorithm 4 as printed), ``hod`` and ``gpf`` (single views, all
+  features), ``concat`` (both views), ``laplacian``, ``spec``, ``udfs``. Everything is
+  learnt on the database only (codebook, selection); d is chosen per method and split by
+  leave-one-out mAP inside the database over ``d_grid``. Euclidean ranking (as the thesis).
+  The thesis gives retrieval results only as figures (no paper_value).
+* ``nmc-recognition`` -- Sec. 6.3.4: MSR-Action3D, a random half of each class for
+  training, the rest for testing (5 seeds); methods ``nmc`` (windows of all clips clustered
+  together, thesis), ``nmc-inductive`` (clustering on training windows only) and
+  ``classifier`` (the skeleton-sequence reference, :mod:`mocapkit.recognition.classifier`);
+  metric ``accuracy`` (fraction), paper 0.9333 for ``nmc``. The full run writes the
+  confusion matrix of ``nmc`` (summed over seeds) to ``docs/results/nmc_confusion.png``
+  (``ctx.options['figures_dir']`` overrides; quick runs write none unless given).
+* ``recognition-cross-subject`` -- MSR-Action3D cross-subject split (odd subjects train,
+  even subjects test), the field's usual benchmark; same methods; NMC over 3 NMF seeds.
+
+MSR-Action3D: 567 files, one (a13_s09_e02) has no tracked frame and is skipped (rows say
+``n_clips``). Files are read and described once per process (module cache).
+``ctx.quick``: one split per data set, a 64-word codebook, d-grid (400, 800), smaller NMF.
+"""
+from __future__ import annotations
+
+import itertools
+import re
+import time
+from pathlib import Path
+from typing import Any, Iterator
+
+import numpy as np
+
+from ..core import Context, Row, protocol
+
+MSR_ACTIONS = ("high arm wave", "horizontal arm wave", "hammer", "hand catch", "forward punch",
+               "high throw", "draw x", "draw tick", "draw circle", "hand clap", "two hand wave",
+               "side-boxing", "bend", "forward kick", "side kick", "jogging", "tennis swing",
+               "tennis serve", "golf swing", "pick up & throw")
+METHODS = ("amfs", "amfs-desc", "hod", "gpf", "concat", "laplacian", "spec", "udfs")
+NMC_PAPER = 0.9333
+_CACHE: dict[Any, Any] = {}
+
+
+def _one_thread():
+    try:
+        from threadpoolctl import threadpool_limits
+
+        return threadpool_limits(1)
+    except ImportError:                                    # pragma: no cover
+        import contextlib
+
+        return contextlib.nullcontext()
+
+
+def _motions(ctx: Context, which: str) -> list[tuple[str, Any, Any, Any]]:
+    """[(path, label, group, Motion)] of a data set (read once per process)."""
+    from ... import io
+
+    root = ctx.need_data()
+    key = ("motions", str(root), which)
+    if key in _CACHE:
+        return _CACHE[key]
+    out = []
+    if which == "msr":
+        for f in sorted((root / "msr_action3d" / "skeleton3d").glob("a*_s*_e*_skeleton3D.txt")):
+            a, s, _ = re.findall(r"a(\d+)_s(\d+)_e(\d+)", f.name)[0]
+            out.append((str(f), f"a{a}", int(s), io.read(f)))
+    else:
+        for f in sorted((root / "hdm05" / "asfamc").glob("*/HDM_*.amc")):
+            out.append((str(f), f.parent.name, re.findall(r"HDM_([a-z]{2})_", f.name)[0], io.read(f)))
+    if not out:
+        from ...errors import MocapValueError
+
+        raise MocapValueError(f"no {which} files under {root}")
+    _CACHE[key] = out
+    return out
+
+
+def _cached(ctx: Context, which: str, kind: str):
+    """Per-clip objects computed once: 'desc' (retrieval descriptors) or 'prep' (recognition)."""
+    from ...errors import MocapError
+    from ...recognition.classifier import SMOOTH_S, sequence_features
+    from ...retrieval.features import prepare
+    from ...retrieval.index import describe
+
+    key = (kind, str(ctx.data_dir), which)
+    if key not in _CACHE:
+        items, labels, groups, skipped = [], [], [], []
+        for path, lab, grp, m in _motions(ctx, which):
+            try:
+                if kind == "desc":
+                    items.append(describe(m))
+                else:
+                    p = prepare(m, smooth_s=SMOOTH_S)
+                    items.append((p, sequence_features(p)))
+            except MocapError:
+                skipped.append(path)
+                continue
+            labels.append(lab)
+            groups.append(grp)
+        _CACHE[key] = (items, np.array(labels), np.array(groups), skipped)
+    return _CACHE[key]
+
+
+def _class_halves(labels: np.ndarray, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    first = np.zeros(len(labels), bool)
+    for c in np.unique(labels):
+        i = np.flatnonzero(labels == c)
+        rng.shuffle(i)
+        first[i[:len(i) // 2]] = True
+    return np.flatnonzero(first), np.flatnonzero(~first)
+
+
+def _rows(name: str, clip: str, condition: str, method: str, vals: dict[str, list[float]],
+          secs: list[float], extra: dict, paper: dict | None = None) -> Iterator[Row]:
+    for metric, v in vals.items():
+        v = np.asarray(v, float)
+        yield Row(name, clip, condition, method, metric, "fraction", float(v.mean()),
+                  paper_value=(paper or {}).get(metric), seconds=float(np.mean(secs)),
+                  std=float(v.std()) if len(v) > 1 else None, n=len(v), extra=dict(extra))
+
+
+# ------------------------------------------------------------------------- retrieval
+@protocol("amfs-retrieval", "Thesis Ch. 5: AMFS vs single views and feature-selection baselines, "
+          "HDM05 (2 actors db / 3 query) and MSR-Action3D (half per class), mAP and P@k")
+def amfs_retrieval(ctx: Context) -> Iterator[Row]:
+    from ...retrieval.evaluate import pairwise_distances, retrieval_scores
+    from ...retrieval.features import GPFCodebook
+    from ...retrieval.index import RetrievalModel
+
+    quick = ctx.quick
+    methods = tuple(ctx.options.get("methods", METHODS))
+    d_grid = tuple(ctx.options.get("d_grid", (400, 800) if quick else (200, 400, 800, 1200, 1600)))
+    n_words = int(ctx.options.get("n_words", 64 if quick else 128))
+    for ds in ("hdm05", "msr-action3d"):
+        which = "hdm" if ds == "hdm05" else "msr"
+        descs, labels, groups, skipped = _cached(ctx, which, "desc")
+        if which == "hdm":
+            actors = sorted(set(groups.tolist()))
+            pairs = list(itertools.combinations(actors, 2))
+            pairs = pairs[:1] if quick else pairs
+            splits = [(np.flatnonzero(np.isin(groups, p)), np.flatnonzero(~np.isin(groups, p)), "+".join(p))
+                      for p in pairs]
+            cond = f"db = 2 actors, queries = other 3 ({len(splits)} actor pair{'s' if len(splits) > 1 else ''})"
+        else:
+            seeds = range(ctx.seed, ctx.seed + (1 if quick else int(ctx.options.get("seeds", 5))))
+            splits = [(*_class_halves(labels, s), f"seed {s}") for s in seeds]
+            cond = f"db = random half of each class ({len(splits)} seed{'s' if len(splits) > 1 else ''})"
+        res: dict[str, dict[str, list]] = {m: {"mAP": [], "P@1": [], "P@5": [], "P@10": []} for m in methods}
+        secs: dict[str, list] = {m: [] for m in methods}
+        info: dict[str, list] = {m: [] for m in methods}
+        for db, q, tag in splits:
+            with _one_thread():
+                cb = GPFCodebook(n_words, seed=ctx.seed).fit([descs[i].gpf for i in db])
+                for m in methods:
+                    t0 = time.perf_counter()
+                    d = 0.3 if m in ("hod", "gpf", "concat") else "auto"
+                    model = RetrievalModel(m, d=d, d_grid=d_grid, seed=ctx.seed).fit(
+                        [descs[i] for i in db], labels[db], codebook=cb)
+                    E = model.embed(descs)
+                    sc = retrieval_scores(pairwise_distances(E[q], E[db]), labels[q], labels[db])
+                    secs[m].append(time.perf_counter() - t0)
+                    for k in res[m]:
+                        res[m][k].append(sc[k])
+                    amfs = getattr(model, "amfs_", None)
+                    info[m].append({"split": tag, "d": int(model.d_),
+                                    "alpha": None if amfs is None else [round(float(a), 4) for a in amfs.alpha_],
+                                    "iterations": None if amfs is None else int(amfs.n_iter_)})
+        for m in methods:
+            extra = {"n_db": int(len(splits[0][0])), "n_queries": int(len(splits[0][1])),
+                     "n_clips": int(len(descs)), "skipped": skipped, "splits": info[m]}
+            yield from _rows("amfs-retrieval", ds, cond, m, res[m], secs[m], extra)
+
+
+# ----------------------------------------------------------------------- recognition
+def _recognition(ctx: Context, name: str, splits: list[tuple[np.ndarray, np.ndarray, int]],
+                 cond: str, confusion_png: str | None) -> Iterator[Row]:
+    from ...recognition.classifier import SkeletonClassifier
+    from ...recognition.nmc import NMCClassifier
+
+    items, labels, _, skipped = _cached(ctx, "msr", "prep")
+    P = [it[0] for it in items]
+    Xc = np.stack([it[1] for it in items])
+    quick = ctx.quick
+    nmc_kw = dict(n_clusters=64, max_iter=60) if quick else {}
+    nmc_kw.update(ctx.options.get("nmc", {}))
+    acc: dict[str, list] = {"nmc": [], "nmc-inductive": [], "classifier": []}
+    secs: dict[str, list] = {k: [] for k in acc}
+    classes = np.unique(labels)
+    conf = np.zeros((len(classes), len(classes)), int)
+    for tr, te, seed in splits:
+        ptr, pte = [P[i] for i in tr], [P[i] for i in te]
+        with _one_thread():
+            t0 = time.perf_counter()
+            m = NMCClassifier(seed=seed, **nmc_kw).fit(ptr, labels[tr], test_seqs=pte)
+            pred = m.predict()
+            secs["nmc"].append(time.perf_counter() - t0)
+            acc["nmc"].append(float((pred == labels[te]).mean()))
+            ci = np.searchsorted(classes, labels[te])
+            np.add.at(conf, (ci, np.searchsorted(classes, pred)), 1)
+            t0 = time.perf_counter()
+            m2 = NMCClassifier(seed=seed, transductive=False, **nmc_kw).fit(ptr, labels[tr])
+            acc["nmc-inductive"].append(float((m2.predict(pte) == labels[te]).mean()))
+            secs["nmc-inductive"].append(time.perf_counter() - t0)
+            t0 = time.perf_counter()
+            c = SkeletonClassifier().fit_features(Xc[tr], labels[tr])
+            acc["classifier"].append(float((c.predict_features(Xc[te]) == labels[te]).mean()))
+            secs["classifier"].append(time.perf_counter() - t0)
+    extra = {"n_train": int(len(splits[0][0])), "n_test": int(len(splits[0][1])),
+             "n_clips": len(P), "skipped": skipped}
+    for meth, v in acc.items():
+        e = dict(extra, per_split=[round(x, 4) for x in v])
+        if meth == "nmc":
+            e["confusion"] = conf.tolist()
+            e["classes"] = classes.tolist()
+        yield from _rows(name, "msr-action3d", cond, meth, {"accuracy": v}, secs[meth], e,
+                         {"accuracy": NMC_PAPER} if meth == "nmc" and name == "nmc-recognition" else None)
+    if confusion_png:
+        _plot_confusion(conf, classes, confusion_png, f"NMC on MSR-Action3D ({cond})")
+
+
+def _plot_confusion(conf: np.ndarray, classes: np.ndarray, path: str, title: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = [MSR_ACTIONS[int(c[1:]) - 1] if re.fullmatch(r"a\d\d", str(c)) else str(c) for c in classes]
+    R = conf / np.maximum(conf.sum(axis=1, keepdims=True), 1)
+    fig, ax = plt.subplots(figsize=(9, 8))
+    ax.imshow(R, cmap="Blues", vmin=0, vmax=1)
+    ax.set_xticks(range(len(names)), names, rotation=90, fontsize=7)
+    ax.set_yticks(range(len(names)), names, fontsize=7)
+    for i, j in zip(*np.nonzero(R >= 0.005)):
+        ax.text(j, i, f"{R[i, j]:.2f}", ha="center", va="center", fontsize=5,
+                color="white" if R[i, j] > 0.6 else "black")
+    ax.set_xlabel("predicted")
+    ax.set_ylabel("true")
+    ax.set_title(title, fontsize=9)
+    fig.tight_layout()
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def _figures_dir(ctx: Context) -> Path | None:
+    if "figures_dir" in ctx.options:
+        return Path(ctx.options["figures_dir"])
+    if ctx.quick:
+        return None
+    return Path(__file__).resolve().parents[3] / "docs" / "results"
+
+
+@protocol("nmc-recognition", "Thesis Sec. 6.3: NMF-based motion clustering + bag of words on "
+          "MSR-Action3D, random half of each class for training; accuracy (paper 0.9333)")
+def nmc_recognition(ctx: Context) -> Iterator[Row]:
+    _, labels, _, _ = _cached(ctx, "msr", "prep")
+    seeds = range(ctx.seed, ctx.seed + (1 if ctx.quick else int(ctx.options.get("seeds", 5))))
+    splits = [(*_class_halves(labels, s), s) for s in seeds]
+    fd = _figures_dir(ctx)
+    yield from _recognition(ctx, "nmc-recognition", splits,
+                            f"random half of each class ({len(splits)} seed{'s' if len(splits) > 1 else ''})",
+                            None if fd is None else str(fd / "nmc_confusion.png"))
+
+
+@protocol("recognition-cross-subject", "MSR-Action3D cross-subject split (odd subjects train, "
+          "even test): NMC and the skeleton classifier, accuracy")
+def recognition_cross_subject(ctx: Context) -> Iterator[Row]:
+    _, labels, groups, _ = _cached(ctx, "msr", "prep")
+    tr, te = np.flatnonzero(groups % 2 == 1), np.flatnonzero(groups % 2 == 0)
+    seeds = range(ctx.seed, ctx.seed + (1 if ctx.quick else int(ctx.options.get("seeds", 3))))
+    fd = _figures_dir(ctx)
+    yield from _recognition(ctx, "recognition-cross-subject", [(tr, te, s) for s in seeds],
+                            f"subjects 1,3,5,7,9 train / 2,4,6,8,10 test ({len(seeds)} NMF seed"
+                            f"{'s' if len(seeds) > 1 else ''})",
+                            None if fd is None else str(fd / "nmc_confusion_cross_subject.png"))
