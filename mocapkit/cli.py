@@ -329,6 +329,52 @@ def cmd_plot(a: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_index(a: argparse.Namespace) -> int:
+    from .retrieval.index import build_index
+
+    d: Any = parse_value(a.d) if a.d != "auto" else "auto"
+    res = build_index(a.source, a.output, progress=not a.quiet, method=a.method, d=d,
+                      n_words=a.words, overwrite=a.force, seed=a.seed)
+    print(f"wrote {res['output']} ({res['n_indexed']} clips, {res['d']} selected features, "
+          f"{len(res['skipped'])} skipped, {res['seconds']:.1f} s)")
+    return 0
+
+
+def cmd_search(a: argparse.Namespace) -> int:
+    from .retrieval.index import MotionIndex, describe
+
+    index = MotionIndex.load(a.index)
+    t0 = time.perf_counter()
+    hits = index.search(describe(_read(a.query, a.skeleton)), k=a.k)
+    dt = time.perf_counter() - t0
+    if a.json:
+        print(json.dumps([{"rank": i + 1, "path": p, "distance": d} for i, (p, d) in enumerate(hits)], indent=1))
+        return 0
+    labels = dict(zip(index.paths, index.labels))
+    w = max([len(labels.get(p, "")) for p, _ in hits] + [5])
+    print(f"{'rank':>4}  {'distance':>9}  {'label':<{w}}  file")
+    for i, (p, d) in enumerate(hits, 1):
+        print(f"{i:>4}  {d:9.4f}  {labels.get(p, ''):<{w}}  {p}")
+    if not a.quiet:
+        print(f"({len(index)} clips searched in {dt * 1000:.0f} ms)", file=sys.stderr)
+    return 0
+
+
+def cmd_classify(a: argparse.Namespace) -> int:
+    from .recognition.classifier import SkeletonClassifier, train_classifier
+
+    if a.model == "train":
+        if not a.output:
+            raise MocapError("classify train DATA -o MODEL: give -o/--output for the model file")
+        res = train_classifier(a.file, a.output, progress=not a.quiet, C=a.C, overwrite=a.force)
+        print(f"wrote {res['output']} ({res['n_train']} clips, {len(res['classes'])} classes, "
+              f"training accuracy {res['train_accuracy']:.3f}, {len(res['skipped'])} skipped)")
+        return 0
+    label, conf = SkeletonClassifier.load(a.model).predict(_read(a.file, a.skeleton))
+    print(json.dumps({"label": label, "confidence": conf}) if a.json else f"{label}\t{conf:.3f}")
+    return 0
+
+
 # -- parser ----------------------------------------------------------------------------------
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
@@ -448,6 +494,37 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--no-truth", action="store_true", help="the first file is an input, not the truth")
     common(s)
     s.set_defaults(func=cmd_report)
+
+    s = sub.add_parser("index", help="index a motion library for similarity search: index build DIR -o lib.idx")
+    s.add_argument("action", choices=["build"])
+    s.add_argument("source", help="folder of motion files (searched recursively)")
+    s.add_argument("-o", "--output", required=True, help="index file to write (.idx)")
+    s.add_argument("--method", default="amfs",
+                   help="feature selection: amfs (default), hod, gpf, concat, laplacian, spec, udfs")
+    s.add_argument("--d", default="0.3", help="selected features: count, fraction of all, or 'auto' "
+                   "(leave-one-out mAP on labels taken from file names)")
+    s.add_argument("--words", type=int, default=128, help="pose codebook size (default 128)")
+    s.add_argument("--seed", type=int, default=0)
+    common(s)
+    s.set_defaults(func=cmd_index)
+
+    s = sub.add_parser("search", help="the k indexed clips most similar to a query file")
+    s.add_argument("index", help="index file from 'mocapkit index build'")
+    s.add_argument("query", help="motion file")
+    s.add_argument("-k", type=int, default=10, help="number of results (default 10)")
+    s.add_argument("--json", action="store_true")
+    common(s)
+    s.set_defaults(func=cmd_search)
+
+    s = sub.add_parser("classify", help="action label and confidence of a file: classify MODEL FILE "
+                                        "(train a model: classify train DATA_DIR -o model.npz)")
+    s.add_argument("model", help="model file (.npz), or 'train'")
+    s.add_argument("file", help="motion file to classify (with 'train': folder of labelled clips)")
+    s.add_argument("-o", "--output", help="with 'train': model file to write")
+    s.add_argument("--C", type=float, default=1.0, help="with 'train': inverse L2 strength (default 1)")
+    s.add_argument("--json", action="store_true")
+    common(s)
+    s.set_defaults(func=cmd_classify)
     return p
 
 

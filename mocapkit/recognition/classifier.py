@@ -132,6 +132,7 @@ class SkeletonClassifier:
         return E / E.sum(axis=1, keepdims=True)
 
     def predict_features(self, X: np.ndarray) -> np.ndarray:
+        self._check()
         return self.classes_[np.argmax(self.predict_proba_features(X), axis=1)]
 
     def predict(self, motion: Motion | Prepared) -> tuple[str, float]:
@@ -164,7 +165,10 @@ class SkeletonClassifier:
             header = json.loads(str(st["header"]))
         except Exception as e:
             raise MocapFormatError(p, f"not a mocapkit classifier model ({type(e).__name__})") from None
-        if header.get("format") != "mocapkit-classifier" or header.get("version") != MODEL_FORMAT_VERSION:
+        if header.get("format") != "mocapkit-classifier":
+            raise MocapFormatError(p, f"not a mocapkit classifier model (it holds a {header.get('format')!r}); "
+                                      "train one with 'mocapkit classify train DATA -o MODEL'")
+        if header.get("version") != MODEL_FORMAT_VERSION:
             raise MocapFormatError(p, f"classifier format {header.get('format')} v{header.get('version')} "
                                       f"is not supported (expected v{MODEL_FORMAT_VERSION})")
         m = cls(**header["params"])

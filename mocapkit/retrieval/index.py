@@ -360,7 +360,10 @@ class MotionIndex:
             header = json.loads(str(st["header"]))
         except (KeyError, ValueError):
             raise MocapFormatError(p, "not a mocapkit index file (no header)") from None
-        if header.get("format") != "mocapkit-index" or header.get("version") != INDEX_FORMAT_VERSION:
+        if header.get("format") != "mocapkit-index":
+            raise MocapFormatError(p, f"not a mocapkit index file (it holds a {header.get('format')!r}); "
+                                      "build one with 'mocapkit index build'")
+        if header.get("version") != INDEX_FORMAT_VERSION:
             raise MocapFormatError(p, f"index format {header.get('format')} v{header.get('version')} "
                                       f"is not supported (expected v{INDEX_FORMAT_VERSION}); rebuild it")
         model = RetrievalModel.from_state(header["params"], st)
