@@ -212,7 +212,7 @@ def _svd_for(D: np.ndarray, svd: DictionarySVD | None) -> DictionarySVD:
 
 def lasso_admm(Z, D, lam, *, rho: float | None = None, n_iter: int = 40, tol: float = 1e-4,
                svd: DictionarySVD | None = None, dtype=np.float64,
-               check_every: int = 10) -> np.ndarray:
+               check_every: int = 10, return_info: bool = False):
     """Solve eq. (4) ``min ||z_s - D theta_s||^2 + lam ||theta_s||_1`` for all windows by ADMM.
 
     Split ``theta = w`` with scaled dual u (Boyd et al. 2011, Sec. 6.4)::
@@ -237,10 +237,13 @@ def lasso_admm(Z, D, lam, *, rho: float | None = None, n_iter: int = 40, tol: fl
         ``tol * max(1, ||w||)`` (checked every ``check_every`` iterations).
     svd : cached :func:`dictionary_svd` of D (its truncation defines the problem solved).
     dtype : float64 (default) or float32 for the iterations.
+    return_info : also return a convergence report (:func:`_admm_info`): iterations run,
+        largest relative primal / dual residual at the last check, ``converged``.
 
     Returns
     -------
-    Theta : (S, K) codes (the w variable: exactly sparse).
+    Theta : (S, K) codes (the w variable: exactly sparse); with ``return_info``
+        ``(Theta, info)``.
     """
     Z, D, dt = _check(Z, D, dtype)
     S, K = Z.shape[0], D.shape[1]
@@ -260,22 +263,35 @@ def lasso_admm(Z, D, lam, *, rho: float | None = None, n_iter: int = 40, tol: fl
     thr = lamc / dt.type(rho)
     W = np.zeros((S, K), dtype=dt)
     U = np.zeros((S, K), dtype=dt)
-    for it in range(int(n_iter)):
+    n_iter = int(n_iter)
+    rmax = smax = float("inf")
+    it = -1
+    for it in range(n_iter):
         X = W - U
         Th = B + X - ((X @ V) * f_q) @ V.T
         Wn = soft_threshold(Th + U, thr)
         R = Th - Wn
         U += R
-        if (it + 1) % check_every == 0:
+        if (it + 1) % check_every == 0 or it == n_iter - 1:
             scale = np.maximum(1.0, np.sqrt((Wn.astype(np.float64) ** 2).sum(1)))
-            r = np.sqrt((R.astype(np.float64) ** 2).sum(1))
-            sd = rho * np.sqrt(((Wn - W).astype(np.float64) ** 2).sum(1))
+            rmax = float((np.sqrt((R.astype(np.float64) ** 2).sum(1)) / scale).max(initial=0.0))
+            smax = float((rho * np.sqrt(((Wn - W).astype(np.float64) ** 2).sum(1)) / scale).max(initial=0.0))
             W = Wn
-            if np.all(r <= tol * scale) and np.all(sd <= tol * scale):
+            if rmax <= tol and smax <= tol:
                 break
         else:
             W = Wn
+    if return_info:
+        return W, _admm_info(it + 1, n_iter, rmax, smax, tol)
     return W
+
+
+def _admm_info(iters: int, n_iter: int, rmax: float, smax: float, tol: float) -> dict:
+    """Convergence report of a batched ADMM run: ``n_iter`` run (of ``max_iter``),
+    ``primal`` / ``dual``: largest relative residual over the windows at the last check
+    (the quantities compared with ``tol``), ``converged``: both <= ``tol``."""
+    return {"n_iter": int(iters), "max_iter": int(n_iter), "primal": float(rmax), "dual": float(smax),
+            "tol": float(tol), "converged": bool(rmax <= tol and smax <= tol)}
 
 
 def _clip(Y: np.ndarray, t) -> np.ndarray:
@@ -291,7 +307,7 @@ def _clip(Y: np.ndarray, t) -> np.ndarray:
 
 def l1l1_admm(Z, D, lam, *, n_iter: int = 300, tol: float = 1e-5, rho: float | None = None,
               svd: DictionarySVD | None = None, dtype=np.float64, balance_every: int = 10,
-              balance_until: int = 200, return_residual: bool = False):
+              balance_until: int = 200, return_residual: bool = False, return_info: bool = False):
     """Solve eq. (5) ``min ||z_s - D theta_s||_1 + lam ||theta_s||_1`` for all windows at once.
 
     ADMM on ``min ||e||_1 + lam ||w||_1  s.t.  D theta + e = z,  theta = w`` (scaled
@@ -323,11 +339,14 @@ def l1l1_admm(Z, D, lam, *, n_iter: int = 300, tol: float = 1e-5, rho: float | N
     rho : initial penalty of the normalised problem (default 1).
     svd : cached :func:`dictionary_svd` of D.
     return_residual : also return the sparse residual ``e`` (S, n) -- the outliers found.
+    return_info : also return a convergence report (iterations run, largest relative
+        primal / dual residual at the last check -- always made at the last iteration --,
+        ``converged``), appended last to the returned tuple.
 
     Returns
     -------
     Theta : (S, K) codes (the w variable, exactly sparse); with ``return_residual``
-        ``(Theta, E)``.
+        ``(Theta, E)``; with ``return_info`` ``(..., info)``.
     """
     Z, D, dt = _check(Z, D, dtype)
     S, n = Z.shape
@@ -358,6 +377,8 @@ def l1l1_admm(Z, D, lam, *, n_iter: int = 300, tol: float = 1e-5, rho: float | N
     X = W - C                                # w - v
     znorm = np.maximum(np.sqrt((Z.astype(np.float64) ** 2).sum(1)), 1.0)
     check = True
+    rmax = smax = float("inf")
+    it = -1
     for it in range(int(n_iter)):
         a = Ain @ P
         b = X @ V
@@ -382,7 +403,9 @@ def l1l1_admm(Z, D, lam, *, n_iter: int = 300, tol: float = 1e-5, rho: float | N
             sdual = rho * np.sqrt(((DtdE - dW).astype(np.float64) ** 2).sum(1))
             E, W = E_new, W_new
             N, C = Nn, Cn
-            if np.all(r <= tol * znorm) and np.all(sdual <= tol * znorm):
+            rmax = float((r / znorm).max(initial=0.0))
+            smax = float((sdual / znorm).max(initial=0.0))
+            if rmax <= tol and smax <= tol:
                 break
             if it < balance_until:
                 rt, st = float(np.sqrt((r ** 2).sum())), float(np.sqrt((sdual ** 2).sum()))
@@ -402,6 +425,9 @@ def l1l1_admm(Z, D, lam, *, n_iter: int = 300, tol: float = 1e-5, rho: float | N
         W = Y - Cn
         E = Ye - Nn
     W = W * zscale.astype(dt)
+    out = (W,)
     if return_residual:
-        return W, E * zscale.astype(dt)
-    return W
+        out += (E * zscale.astype(dt),)
+    if return_info:
+        out += (_admm_info(it + 1, int(n_iter), rmax, smax, tol),)
+    return out if len(out) > 1 else W
