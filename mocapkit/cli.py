@@ -528,11 +528,33 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+@contextmanager
+def _one_line_warnings(command: str) -> Iterator[None]:
+    """Show ConvergenceWarnings as one ``mocapkit CMD: warning: ...`` line on stderr (no
+    file name / source line) inside the block; other warnings keep Python's format."""
+    import warnings
+
+    from .errors import ConvergenceWarning
+
+    with warnings.catch_warnings():
+        original = warnings.showwarning
+
+        def show(message, category, filename, lineno, file=None, line=None):
+            if issubclass(category, ConvergenceWarning):
+                print(f"mocapkit {command}: warning: {message}", file=sys.stderr)
+            else:
+                original(message, category, filename, lineno, file, line)
+
+        warnings.showwarning = show
+        yield
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     a = parser.parse_args(argv)
     try:
-        return int(a.func(a) or 0)
+        with _one_line_warnings(a.command):
+            return int(a.func(a) or 0)
     except MocapError as e:
         print(f"mocapkit {a.command}: error: {e}", file=sys.stderr)
         return EXIT_BAD_INPUT

@@ -42,3 +42,12 @@ class NotFittedError(MocapError, RuntimeError):
 
 class MissingDependencyError(MocapError, ImportError):
     """An optional dependency (e.g. torch for the neural methods) is not installed."""
+
+
+class ConvergenceWarning(UserWarning):
+    """An iterative solver stopped at its iteration cap before meeting its tolerance.
+
+    The result is still returned (finite, usable) but may be less accurate; the message
+    names the method, the iterations used, the final residual vs. the tolerance and the
+    parameter to raise (usually ``max_iter``).
+    """

@@ -1025,6 +1025,10 @@ def _rts_multi(Y0, used, F, Q, H, R, b, x, P, return_cov, tol=1e-8):
     return xs, used
 
 
+_RTS_BLOCK = 4096
+"""Frames per block of the vectorised RTS gain computation in :func:`_rts_scalar`."""
+
+
 def _rts_scalar(Y, M, F, Q, R, x0, P0, gt):
     """Fast path of :func:`rts_smoother` for n <= 2 states, one scalar observation of the
     first state and a transition shared by the batch: the 2 x 2 algebra is written out on
@@ -1091,27 +1095,32 @@ def _rts_scalar(Y, M, F, Q, R, x0, P0, gt):
         p00 = p00 - k0 * p00
         XF[t, 0] = x0_; XF[t, 1] = x1_
         PF[t, 0] = p00; PF[t, 1] = p01; PF[t, 2] = p11
-    # RTS gains for all t at once: G = Pf Fᵀ Pp[t+1]⁻¹ (vectorised over time, no loop)
-    a00, a01, a11 = PF[:-1, 0], PF[:-1, 1], PF[:-1, 2]
-    c00 = a00 * f00 + a01 * f01; c01 = a00 * f10 + a01 * f11          # Pf Fᵀ (2x2, not symmetric)
-    c10 = a01 * f00 + a11 * f01; c11 = a01 * f10 + a11 * f11
-    b00, b01, b11 = PP[1:, 0], PP[1:, 1], PP[1:, 2]
-    det = b00 * b11 - b01 * b01
-    i00, i01, i11 = b11 / det, -b01 / det, b00 / det
-    g00 = c00 * i00 + c01 * i01; g01 = c00 * i01 + c01 * i11
-    g10 = c10 * i00 + c11 * i01; g11 = c10 * i01 + c11 * i11
-    # predicted means x_pred[t+1] = F x_f[t]
-    xp0 = f00 * XF[:-1, 0] + f01 * XF[:-1, 1]
-    xp1 = f10 * XF[:-1, 0] + f11 * XF[:-1, 1]
+    # RTS gains G = Pf Fᵀ Pp[t+1]⁻¹ vectorised over blocks of frames (no per-frame algebra);
+    # blocks of _RTS_BLOCK frames keep the ~20 temporaries at O(block x B) instead of
+    # O(T x B) (100,000 frames x 93 channels: 1.9 GB -> ~0.6 GB peak), same arithmetic.
     s0, s1 = XF[-1, 0].copy(), XF[-1, 1].copy()
     XS = np.empty((T, 2, B))
     XS[-1, 0] = s0; XS[-1, 1] = s1
-    for t in range(T - 2, -1, -1):
-        d0 = s0 - xp0[t]
-        d1 = s1 - xp1[t]
-        s0 = XF[t, 0] + g00[t] * d0 + g01[t] * d1
-        s1 = XF[t, 1] + g10[t] * d0 + g11[t] * d1
-        XS[t, 0] = s0; XS[t, 1] = s1
+    for lo in range(((T - 2) // _RTS_BLOCK) * _RTS_BLOCK, -1, -_RTS_BLOCK):
+        hi = min(lo + _RTS_BLOCK, T - 1)                 # gains for t in [lo, hi)
+        a00, a01, a11 = PF[lo:hi, 0], PF[lo:hi, 1], PF[lo:hi, 2]
+        c00 = a00 * f00 + a01 * f01; c01 = a00 * f10 + a01 * f11      # Pf Fᵀ (2x2, not symmetric)
+        c10 = a01 * f00 + a11 * f01; c11 = a01 * f10 + a11 * f11
+        b00, b01, b11 = PP[lo + 1:hi + 1, 0], PP[lo + 1:hi + 1, 1], PP[lo + 1:hi + 1, 2]
+        det = b00 * b11 - b01 * b01
+        i00, i01, i11 = b11 / det, -b01 / det, b00 / det
+        g00 = c00 * i00 + c01 * i01; g01 = c00 * i01 + c01 * i11
+        g10 = c10 * i00 + c11 * i01; g11 = c10 * i01 + c11 * i11
+        # predicted means x_pred[t+1] = F x_f[t]
+        xp0 = f00 * XF[lo:hi, 0] + f01 * XF[lo:hi, 1]
+        xp1 = f10 * XF[lo:hi, 0] + f11 * XF[lo:hi, 1]
+        for t in range(hi - 1, lo - 1, -1):
+            k = t - lo
+            d0 = s0 - xp0[k]
+            d1 = s1 - xp1[k]
+            s0 = XF[t, 0] + g00[k] * d0 + g01[k] * d1
+            s1 = XF[t, 1] + g10[k] * d0 + g11[k] * d1
+            XS[t, 0] = s0; XS[t, 1] = s1
     return np.moveaxis(XS, 1, 2), used
 
 

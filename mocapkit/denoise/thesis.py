@@ -10,8 +10,10 @@
 
 The maths lives in :mod:`mocapkit.solvers.completion` and :mod:`mocapkit.solvers.llc`;
 these classes handle Motions, masks and body parts.  Solver diagnostics (iterations,
-convergence) go to ``out.source["solver"]``; a solver that stops before converging also
-warns (RuntimeWarning).
+convergence) go to ``out.source["solver"]`` and, for tsmc / trnn / dynammo, to the
+method's ``convergence_`` summary (see :func:`mocapkit.denoise.lowrank.report_convergence`);
+a solver that stops before converging also warns once per ``denoise()`` call
+(:class:`mocapkit.errors.ConvergenceWarning`, which is here also a RuntimeWarning).
 
 Which entries are refilled: ``tsmc``/``trnn`` take the observed mask (optionally narrowed
 by trust-data detection, ``detect=True``) and return the low-rank model everywhere
@@ -80,6 +82,16 @@ def _output(motion: Motion, A: np.ndarray, known: np.ndarray, keep: bool,
         A[km] = X[km]
     out = motion.with_matrix(A)
     return out.with_source(solver=solver)
+
+
+def _record(den: Denoiser, info: dict[str, Any], key: str) -> None:
+    """``den.convergence_`` from a solver's info dict (the solver itself already warned)."""
+    from .lowrank import report_convergence
+
+    report_convergence(den, iterations=info["iterations"], converged=info["converged"],
+                       residual=info[key], tol=float(den.tol), max_iter=int(den.max_iter),
+                       criterion="max relative residual / change" if key == "criterion"
+                       else "relative change of the filled values", warn=False)
 
 
 def _info(name: str, info: dict[str, Any]) -> dict[str, Any]:
@@ -456,6 +468,7 @@ class _MatrixCompletion(Denoiser):
         if not np.isfinite(unit) or unit <= 0:
             raise MocapValueError(f"{self.name}: unit_cm must be a positive number, got {self.unit_cm!r}")
         A, info = self._solve(X / unit, km)
+        _record(self, info, "criterion")
         A *= unit
         never = ~km.any(axis=0)
         if never.any():
@@ -615,6 +628,7 @@ class DynaMMo(Denoiser):
         A, info = _cp.lds_em_complete(X, km, k=int(self.k), max_iter=int(self.max_iter),
                                       tol=float(self.tol), estep=str(self.estep),
                                       return_info=True)
+        _record(self, info, "change")
         never = ~km.any(axis=0)
         if never.any():
             A[:, never] = 0.0

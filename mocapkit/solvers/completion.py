@@ -50,7 +50,7 @@ from typing import Any, Callable
 import numpy as np
 from scipy import fft as _fft
 
-from ..errors import MocapValueError
+from ..errors import ConvergenceWarning, MocapValueError
 
 __all__ = ["second_difference_matrix", "smooth_solve", "estimate_rank", "soft_threshold",
            "tsmc", "trnn", "lds_em_complete"]
@@ -229,9 +229,15 @@ def _rel(a: float, b: float) -> float:
     return a / b if b > 0 else a
 
 
+class SolverConvergenceWarning(ConvergenceWarning, RuntimeWarning):
+    """:class:`~mocapkit.errors.ConvergenceWarning` of these solvers; also a RuntimeWarning,
+    the category they used before ConvergenceWarning existed (kept for compatibility)."""
+
+
 def _not_converged(name: str, it: int, crit: float, tol: float) -> None:
-    warnings.warn(f"{name}: not converged after {it} iterations (criterion {crit:.2e} > "
-                  f"tol {tol:.1e}); raise max_iter or tol", RuntimeWarning, stacklevel=4)
+    warnings.warn(f"{name}: not converged after {it} iterations (max_iter={it}; criterion "
+                  f"{crit:.2e} > tol {tol:.1e}); raise max_iter (e.g. max_iter={2 * max(it, 1)}) "
+                  f"or tol", SolverConvergenceWarning, stacklevel=4)
 
 
 # --------------------------------------------------------------------------------------

@@ -302,7 +302,9 @@ def svt(X: Any, mask: Any = None, tau: float | None = None, delta: float | None 
 
     Returns
     -------
-    A : (m, n) estimate; with ``return_info`` also a dict (iterations, converged, rank).
+    A : (m, n) estimate; with ``return_info`` also a dict (iterations, converged, rank,
+    residual = the final value of the stopping criterion compared with ``tol``, criterion =
+    its name, fit_ratio = ``||P_Omega(A - X)||_F / eps`` for eps > 0 (must end <= 1.001), else 0).
     Initial "kicking" ``Y_0 = k_0 delta P_Omega(X)`` with ``k_0 = ceil(tau / (delta
     ||P_Omega X||_2))`` (Sec. 5.1.1) skips the first iterations that return 0.
     """
@@ -314,7 +316,8 @@ def svt(X: Any, mask: Any = None, tau: float | None = None, delta: float | None 
     normX = float(np.linalg.norm(X))
     if normX == 0.0:
         A = np.zeros_like(X)
-        return (A, {"iterations": 0, "converged": True, "rank": 0}) if return_info else A
+        return (A, {"iterations": 0, "converged": True, "rank": 0, "residual": 0.0,
+                    "criterion": "exact"}) if return_info else A
     if tau is None:
         tau = np.sqrt(m * n) * normX / np.sqrt(n_obs)
     if delta is None:
@@ -327,7 +330,8 @@ def svt(X: Any, mask: Any = None, tau: float | None = None, delta: float | None 
         A = _svt_full(X, tau, eps)
         if return_info:
             return A, {"iterations": 0, "converged": True,
-                       "rank": int(np.linalg.matrix_rank(A)) if A.any() else 0}
+                       "rank": int(np.linalg.matrix_rank(A)) if A.any() else 0,
+                       "residual": 0.0, "criterion": "closed form"}
         return A
     if method not in ("auto", "iterative"):
         raise MocapValueError(f"method must be 'auto' or 'iterative', got {method!r}")
@@ -339,27 +343,33 @@ def svt(X: Any, mask: Any = None, tau: float | None = None, delta: float | None 
     Y = k0 * delta * X
     s = float(np.linalg.norm(Y)) if eps > 0 else 0.0
     A = np.zeros_like(X)
-    converged, it, rank = False, 0, 0
+    converged, it, rank, crit, fit = False, 0, 0, float("inf"), 0.0
     for it in range(1, max_iter + 1):
         A_new, rank = shrink_singular_values(Y, tau, svd)
         R = P(X - A_new)
         res = float(np.linalg.norm(R))
         if eps == 0.0:
             A = A_new
-            if res / normX < tol:
+            crit = res / normX
+            if crit < tol:
                 converged = True
                 break
             Y = Y + delta * R
         else:
             change = float(np.linalg.norm(A_new - A)) / max(float(np.linalg.norm(A_new)), 1e-300)
             A = A_new
+            crit = change if it > 1 else float("inf")
+            fit = res / eps
             if it > 1 and change < tol and res <= eps * (1 + 1e-3):
                 converged = True
                 break
             Y, s = _proj_soc(Y + delta * R, s - delta * eps)
             Y = P(Y)
     if return_info:
-        return A, {"iterations": it, "converged": converged, "rank": int(rank)}
+        return A, {"iterations": it, "converged": converged, "rank": int(rank),
+                   "residual": float(crit), "fit_ratio": float(fit),
+                   "criterion": ("relative residual ||P(X - A)|| / ||P X||" if eps == 0.0
+                                 else "relative change of A")}
     return A
 
 
@@ -388,7 +398,7 @@ def _svt_full(X: np.ndarray, tau: float, eps: float) -> np.ndarray:
 # robust PCA by inexact ALM (Lin, Chen & Ma 2010)
 # --------------------------------------------------------------------------------------
 def _ialm_batch(D: np.ndarray, mask: np.ndarray | None, lam: np.ndarray, tol: float,
-                max_iter: int, rho: float, svd: str
+                max_iter: int, rho: float, svd: str, crit_out: np.ndarray | None = None
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Inexact ALM (Lin et al. 2010, Alg. 5) on a stack D (p, m, n); unobserved D entries are 0.
 
@@ -399,6 +409,8 @@ def _ialm_batch(D: np.ndarray, mask: np.ndarray | None, lam: np.ndarray, tol: fl
     (not penalised) on unobserved entries, i.e. the constraint is P_Omega(A + E) = P_Omega(D)
     and Y stays 0 there.  A matrix stops updating once ``||D - A - E||_F / ||D||_F < tol``;
     the batch is compacted when fewer than half of its matrices are still running.
+    ``crit_out`` (optional, shape (p,)) receives each matrix's last relative residual
+    ``||D - A - E||_F / ||D||_F`` (0 for an all-zero matrix, inf if never iterated).
     """
     p = D.shape[0]
     normF = np.linalg.norm(D, axis=(1, 2))
@@ -413,6 +425,8 @@ def _ialm_batch(D: np.ndarray, mask: np.ndarray | None, lam: np.ndarray, tol: fl
     E = np.zeros_like(D)
     iters = np.zeros(p, dtype=int)
     converged = normF == 0
+    if crit_out is not None:
+        crit_out[...] = np.where(converged, 0.0, np.inf)
     run = ~converged                       # still iterating (within the current working set)
     idx = np.arange(p)                     # working set: indices into the full batch
     Dw, Mw, Aw, Ew, Yw = D, mask, A, E, Y
@@ -453,6 +467,8 @@ def _ialm_batch(D: np.ndarray, mask: np.ndarray | None, lam: np.ndarray, tol: fl
             Yw[r] += Z[r]
         mu_w = np.where(run, np.minimum(mu_w * rho, bar_w), mu_w)
         iters[idx[run]] += 1
+        if crit_out is not None:
+            crit_out[idx[run]] = crit[run]
         done = run & (crit < tol)
         converged[idx[done]] = True
         run &= ~done
@@ -483,7 +499,8 @@ def rpca_ialm(D: Any, lam: float | None = None, mask: Any = None, tol: float = 1
     -------
     A, E : low-rank and sparse parts (same shape as D; on unobserved entries E = -A is
     meaningless and A is the completion).  With ``return_info`` also a dict with
-    ``iterations`` and ``converged`` (arrays of length p for a stack, else scalars).
+    ``iterations``, ``converged`` and ``residual`` (the final ``||D - A - E||_F / ||D||_F``
+    compared with ``tol``; arrays of length p for a stack, else scalars).
     """
     D, mask = _prepare(D, mask, "D", batch=True)
     single = D.ndim == 2
@@ -498,12 +515,13 @@ def rpca_ialm(D: Any, lam: float | None = None, mask: Any = None, tol: float = 1
         raise MocapValueError(f"lam must be > 0, got {lam}")
     if not (rho > 1):
         raise MocapValueError(f"rho must be > 1, got {rho}")
+    crit = np.empty(D.shape[0])
     A, E, iters, conv = _ialm_batch(D, mask, np.full(D.shape[0], lam), float(tol), int(max_iter),
-                                    float(rho), svd)
+                                    float(rho), svd, crit_out=crit)
     if single:
-        A, E, iters, conv = A[0], E[0], int(iters[0]), bool(conv[0])
+        A, E, iters, conv, crit = A[0], E[0], int(iters[0]), bool(conv[0]), float(crit[0])
     if return_info:
-        return A, E, {"iterations": iters, "converged": conv}
+        return A, E, {"iterations": iters, "converged": conv, "residual": crit}
     return A, E
 
 
@@ -593,7 +611,8 @@ def slra(D: Any, segment: int = 200, overlap: int = 0, *, n_segments: int | None
     Returns
     -------
     A, E : (m, n) low-rank estimate and sparse part (E = D - A on observed entries).
-    With ``return_info`` also a dict: starts, stops, iterations, converged.
+    With ``return_info`` also a dict: starts, stops, iterations, converged, residual (per
+    segment; the final relative IALM residual, see :func:`rpca_ialm`).
     """
     D, mask = _prepare(D, mask, "D")
     m, n = D.shape
@@ -608,6 +627,7 @@ def slra(D: Any, segment: int = 200, overlap: int = 0, *, n_segments: int | None
     wsum = np.zeros(m)
     iters = np.zeros(len(starts), dtype=int)
     conv = np.zeros(len(starts), dtype=bool)
+    resid = np.zeros(len(starts))
     for L in np.unique(lengths):
         seg = np.flatnonzero(lengths == L)
         rows = starts[seg][:, None] + np.arange(L)            # (g, L)
@@ -619,19 +639,22 @@ def slra(D: Any, segment: int = 200, overlap: int = 0, *, n_segments: int | None
             if Mb is not None:
                 Db = np.where(Mb, Db, 0.0)
         seg_lam = np.full(len(seg), 1.0 / np.sqrt(max(L, n)) if lam is None else float(lam))
-        Ab, _, it, cv = _ialm_batch(Db, Mb, seg_lam, float(tol), int(max_iter), float(rho), svd)
+        crit = np.empty(len(seg))
+        Ab, _, it, cv = _ialm_batch(Db, Mb, seg_lam, float(tol), int(max_iter), float(rho), svd,
+                                    crit_out=crit)
         if center != "none":
             Ab = Ab + c
         w = np.stack([weights[i] for i in seg])               # (g, L)
         np.add.at(A, rows.ravel(), (Ab * w[..., None]).reshape(-1, n))
         np.add.at(wsum, rows.ravel(), w.ravel())
-        iters[seg], conv[seg] = it, cv
+        iters[seg], conv[seg], resid[seg] = it, cv, crit
     A /= wsum[:, None]
     E = D - A
     if mask is not None:
         E[~mask] = 0.0
     if return_info:
-        return A, E, {"starts": starts, "stops": stops, "iterations": iters, "converged": conv}
+        return A, E, {"starts": starts, "stops": stops, "iterations": iters, "converged": conv,
+                      "residual": resid}
     return A, E
 
 

@@ -436,8 +436,9 @@ def robust_filter(Y: np.ndarray, E: np.ndarray, M: int, *, mask: np.ndarray | No
         steps, preconditioned by N = diag(n_t)). Each such block step cannot increase J.
         0 = the paper's plain alternation.
     return_info : also return a dict with ``cost`` (J before each motion step and at
-        the end; non-increasing), ``n_iter``, ``fill_cg_iter`` and ``weights`` (alpha * w
-        of the last step).
+        the end; non-increasing), ``n_iter``, ``fill_cg_iter``, ``weights`` (alpha * w
+        of the last step), ``converged`` (the relative change of J fell to ``tol`` before
+        ``max_iter`` motion steps) and ``residual`` (that last relative change of J).
 
     Returns
     -------
@@ -493,9 +494,12 @@ def robust_filter(Y: np.ndarray, E: np.ndarray, M: int, *, mask: np.ndarray | No
         return data + lam * _prior(Z, A, n_t), e
 
     n_max = max(1, int(max_iter))
+    rel = float("inf")                                            # last relative change of J
     for it in range(n_max + 1):
         A = proj(Z)                                               # eqs. 13-14
         J, e = cost(Z, A)
+        if costs:
+            rel = abs(costs[-1] - J) / max(abs(costs[-1]), 1e-300)
         done = bool(costs) and abs(costs[-1] - J) <= tol * max(abs(costs[-1]), 1e-300)
         costs.append(J)
         if done or it == n_max:
@@ -507,7 +511,8 @@ def robust_filter(Y: np.ndarray, E: np.ndarray, M: int, *, mask: np.ndarray | No
         cg_its += k
         costs.append(cost(Z, proj(Z))[0])
     if return_info:
-        return Z, {"cost": np.array(costs), "n_iter": it, "fill_cg_iter": cg_its, "weights": w}
+        return Z, {"cost": np.array(costs), "n_iter": it, "fill_cg_iter": cg_its, "weights": w,
+                   "converged": done, "residual": rel}
     return Z
 
 

@@ -1,0 +1,164 @@
+"""Non-convergence reporting of the iterative solvers (issue 10).
+
+svt / rpca / slra (mocapkit.solvers.lowrank), lou-chai (mocapkit.solvers.robust_bases) and the
+thesis solvers tsmc / trnn (mocapkit.solvers.completion) record ``convergence_`` on the
+Denoiser and emit exactly one ConvergenceWarning per denoise() call when they stop at max_iter.
+Measured status at default settings: docs/results/reliability.md (benchmarks/reliability_memory.py).
+"""
+from __future__ import annotations
+
+import json
+import warnings
+
+import numpy as np
+import pytest
+
+from mocapkit import cli, datasets, denoise
+from mocapkit import io as mio
+from mocapkit.denoise.lowrank import report_convergence
+from mocapkit.errors import ConvergenceWarning
+from mocapkit.solvers import lowrank as lr
+
+ITERATIVE = ["svt", "rpca", "slra", "tsmc", "trnn", "lou-chai"]
+# default settings on the bundled clips (1 cm noise, 5 % missing): these converge ...
+CONVERGE_AT_DEFAULTS = ["rpca", "slra", "tsmc", "trnn"]
+# ... and these do not (a finding, documented in docs/results/reliability.md; do not hide it
+# by loosening tol -- if a change makes them converge, move them up and update the doc)
+NOT_CONVERGED_AT_DEFAULTS = ["svt", "lou-chai"]
+
+
+def _noisy(m, seed=0, missing=0.05):
+    rng = np.random.default_rng(seed)
+    P = m.positions + rng.normal(0, 1.0, m.positions.shape)
+    obs = rng.random(P.shape[:2]) > missing
+    P[~obs] = np.nan
+    return m.with_positions(P, obs)
+
+
+@pytest.fixture(scope="module")
+def clip():
+    return mio.read(datasets.bundled("16_15.amc"))
+
+
+@pytest.fixture(scope="module")
+def lou_chai_model():
+    train = mio.read(datasets.bundled("07_05.amc"))
+    return denoise.get("lou-chai").fit([train])
+
+
+def _method(name, model, **params):
+    if name == "lou-chai":                          # shared fitted model: default max_iter = 20
+        return model.set_params(max_iter=params.get("max_iter", 20),
+                                warn_convergence=params.get("warn_convergence", False))
+    return denoise.get(name, **params)
+
+
+def _run(d, motion):
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        out = d.denoise(motion)
+    conv = [w for w in caught if issubclass(w.category, ConvergenceWarning)]
+    return out, conv
+
+
+@pytest.mark.parametrize("name", ITERATIVE)
+def test_max_iter_1_warns_once_and_records(clip, lou_chai_model, name):
+    kw = {"warn_convergence": True} if name == "lou-chai" else {}
+    d = _method(name, lou_chai_model, max_iter=1, **kw)
+    out, conv = _run(d, _noisy(clip.slice(0, 120)))
+    assert len(conv) == 1, [str(w.message) for w in conv]
+    msg = str(conv[0].message)
+    assert msg.startswith(f"{name}: ") and "not converged after 1 iterations" in msg
+    assert "max_iter" in msg and "tol" in msg
+    s = d.convergence_
+    assert s["method"] == name and s["converged"] is False
+    assert s["iterations"] == 1 and s["max_iter"] == 1 and s["n_not_converged"] >= 1
+    assert np.isfinite(out.positions).all()
+    json.dumps(s)                                     # JSON-able, so Denoiser.save can keep it
+
+
+@pytest.mark.parametrize("name", CONVERGE_AT_DEFAULTS)
+def test_defaults_converge_without_warning(clip, name):
+    d = denoise.get(name)
+    _, conv = _run(d, _noisy(clip))
+    assert conv == []
+    s = d.convergence_
+    assert s["converged"] is True and s["n_not_converged"] == 0
+    assert 1 <= s["iterations"] < s["max_iter"] and s["residual"] < s["tol"]
+
+
+@pytest.mark.parametrize("name", NOT_CONVERGED_AT_DEFAULTS)
+def test_defaults_known_non_convergence_is_reported(clip, lou_chai_model, name):
+    d = _method(name, lou_chai_model)
+    _, conv = _run(d, _noisy(clip))
+    # lou-chai: the paper's fixed 10-20 iterations are the method (more iterations raise the
+    # error, see LouChai's docstring) -> recorded, warned only with warn_convergence=True
+    assert len(conv) == (0 if name == "lou-chai" else 1)
+    assert d.convergence_["converged"] is False
+    assert d.convergence_["iterations"] == d.convergence_["max_iter"]
+    if name == "lou-chai":
+        _, conv = _run(_method(name, lou_chai_model, warn_convergence=True), _noisy(clip))
+        assert len(conv) == 1
+
+
+def test_svt_fully_observed_is_closed_form(clip):
+    d = denoise.get("svt")
+    _, conv = _run(d, _noisy(clip, missing=0.0))
+    assert conv == [] and d.convergence_["converged"] is True and d.convergence_["iterations"] == 0
+
+
+def test_reporting_does_not_change_results(clip):
+    m = _noisy(clip.slice(0, 200))
+    X, M = m.matrix(), m.matrix_mask()
+    A0, E0 = lr.slra(X, 50, mask=M, tol=1e-5)
+    A1, E1, info = lr.slra(X, 50, mask=M, tol=1e-5, return_info=True)
+    np.testing.assert_array_equal(A0, A1)
+    assert (info["residual"][info["converged"]] < 1e-5).all()
+    out = denoise.get("slra", segment=50, tol=1e-5).denoise(m)
+    np.testing.assert_array_equal(out.matrix(), A0)
+    B0, _ = lr.rpca_ialm(X, mask=M, max_iter=3)
+    B1, _, inf1 = lr.rpca_ialm(X, mask=M, max_iter=3, return_info=True)
+    np.testing.assert_array_equal(B0, B1)
+    assert inf1["converged"] is False and inf1["residual"] >= 1e-7
+    # the residual reported is the real one: ||D - A - E|| / ||D|| on observed entries
+    B2, E2, inf2 = lr.rpca_ialm(X, mask=M, tol=1e-3, return_info=True)
+    D = np.where(M, X, 0.0)
+    rel = np.linalg.norm(np.where(M, D - B2 - E2, 0.0)) / np.linalg.norm(D)
+    assert inf2["converged"] and rel < 1e-3 and inf2["residual"] < 1e-3
+
+
+def test_vectorised_summary_reports_worst_segment():
+    class Dummy:
+        name = "slra"
+
+    d = Dummy()
+    with pytest.warns(ConvergenceWarning, match=r"slra: 2 of 3 segments not converged after 10 "
+                                                r"iterations \(max_iter=10; .*3\.00e-05"):
+        s = report_convergence(d, iterations=[4, 10, 10], converged=[True, False, False],
+                               residual=[1e-8, 3e-5, 2e-5], tol=1e-7, max_iter=10)
+    assert s == d.convergence_
+    assert s["n_solves"] == 3 and s["n_not_converged"] == 2 and s["residual"] == 3e-5
+    assert s["iterations"] == 10 and s["converged"] is False
+
+
+def test_convergence_summary_survives_save_load(clip, tmp_path):
+    d = denoise.get("slra", max_iter=2)
+    with pytest.warns(ConvergenceWarning):
+        d.denoise(_noisy(clip.slice(0, 60)))
+    d.save(tmp_path / "m.npz")
+    back = denoise.Denoiser.load(tmp_path / "m.npz")
+    assert back.convergence_ == d.convergence_
+
+
+def test_cli_shows_one_line_warning(tmp_path, capsys):
+    src = datasets.bundled("16_15.bvh")
+    with warnings.catch_warnings():
+        warnings.simplefilter("default", ConvergenceWarning)     # whatever -W the run uses
+        rc = cli.main(["denoise", str(src), str(tmp_path / "out.bvh"), "--method", "rpca",
+                       "--param", "max_iter=1", "-q"])
+    assert rc == 0
+    err = capsys.readouterr().err
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert len(lines) == 1, err
+    assert lines[0].startswith("mocapkit denoise: warning: rpca: not converged after 1 iterations")
+    assert "Traceback" not in err and ".py:" not in err
