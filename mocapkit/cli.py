@@ -530,17 +530,18 @@ def build_parser() -> argparse.ArgumentParser:
 
 @contextmanager
 def _one_line_warnings(command: str) -> Iterator[None]:
-    """Show ConvergenceWarnings as one ``mocapkit CMD: warning: ...`` line on stderr (no
-    file name / source line) inside the block; other warnings keep Python's format."""
+    """Show mocapkit's own warnings (ConvergenceWarning, TrainingMismatchWarning) as one
+    ``mocapkit CMD: warning: ...`` line on stderr (no file name / source line) inside the
+    block; other warnings keep Python's format."""
     import warnings
 
-    from .errors import ConvergenceWarning
+    from .errors import MocapWarning
 
     with warnings.catch_warnings():
         original = warnings.showwarning
 
         def show(message, category, filename, lineno, file=None, line=None):
-            if issubclass(category, ConvergenceWarning):
+            if issubclass(category, MocapWarning):
                 print(f"mocapkit {command}: warning: {message}", file=sys.stderr)
             else:
                 original(message, category, filename, lineno, file, line)

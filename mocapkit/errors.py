@@ -44,7 +44,17 @@ class MissingDependencyError(MocapError, ImportError):
     """An optional dependency (e.g. torch for the neural methods) is not installed."""
 
 
-class ConvergenceWarning(UserWarning):
+class MocapWarning(UserWarning):
+    """Base class of the warnings mocapkit emits on purpose (the CLI prints them as one line)."""
+
+
+class TrainingMismatchWarning(MocapWarning):
+    """A data-driven method changed the observed markers far more than their noise level:
+    its training clips probably do not cover the input's motion (see
+    :func:`mocapkit.denoise.base.check_training_match`)."""
+
+
+class ConvergenceWarning(MocapWarning):
     """An iterative solver stopped at its iteration cap before meeting its tolerance.
 
     The result is still returned (finite, usable) but may be less accurate; the message

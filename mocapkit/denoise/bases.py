@@ -15,7 +15,7 @@ from ..bodyframe import BodyTransform, body_transform, mirror_local, mirror_perm
 from ..errors import MocapValueError
 from ..motion import Motion
 from ..solvers import robust_bases as rb
-from .base import Denoiser, register
+from .base import Denoiser, check_training_match, register
 
 __all__ = ["LouChai", "angle_channels", "angle_fk", "decimate"]
 
@@ -493,7 +493,10 @@ class LouChai(Denoiser):
     def denoise(self, motion: Motion) -> Motion:
         """Robust filtering of ``motion``; records ``convergence_`` and, with
         ``warn_convergence``, warns (ConvergenceWarning) once if an outer iteration hit
-        ``max_iter`` before the relative change of J fell to ``tol``."""
+        ``max_iter`` before the relative change of J fell to ``tol``. Records
+        ``training_match_`` and warns (TrainingMismatchWarning) when the result moved the
+        observed markers far beyond their noise level
+        (:func:`~mocapkit.denoise.base.check_training_match`)."""
         from .lowrank import report_convergence
 
         self._conv_log = []
@@ -507,6 +510,7 @@ class LouChai(Denoiser):
             report_convergence(self, iterations=it, converged=cv, residual=rs, tol=float(self.tol),
                                max_iter=int(self.max_iter), criterion="relative change of J",
                                unit="phase", warn=bool(self.warn_convergence))
+        check_training_match(self, motion, out)
         return out
 
     def _denoise_all(self, motion: Motion) -> Motion:
