@@ -199,8 +199,11 @@ def targets_summary(speed_rows: list[dict], t2_rows: list[bench.Row]) -> str:
         if p1 is None or f is None:
             continue
         ok = p1.seconds < f.seconds
+        verdict = "MET" if ok else "MISSED"
+        if ok and p1.seconds > f.seconds / 1.3:
+            verdict += " only within the ~30 % wall-clock noise"
         out.append(f"- Poselets faster than the full pose at K = 512 ({a}, one core): {p1.seconds:.2f} vs "
-                   f"{f.seconds:.2f} s -> **{'MET' if ok else 'MISSED'}** (poselet error {p1.value:.2f} vs "
+                   f"{f.seconds:.2f} s -> **{verdict}** (poselet error {p1.value:.2f} vs "
                    f"{f.value:.2f} cm)")
     if not out:
         return ""
@@ -270,7 +273,7 @@ def main() -> None:
           "corrupted markers (paper eq. 6), cm; mean ± std over the frames of all test clips (one seed).",
           "* xiao-sparse: M = 21 frames, K = 512 atoms per poselet, T_s = 8, 10 K-SVD iterations on <= 8000 "
           "windows per poselet, lambda = 0.1 sigma^2 (eq. 4, sigma estimated per clip), lambda_l1 = 0.1 "
-          "(eq. 5), 20 / 30 ADMM iterations, the l1/l1 pass (and the l2/l1 pass after it for mixed noise) on "
+          "(eq. 5), 12 / 24 over-relaxed (alpha = 1.8) ADMM iterations on the rank_tol = 1e-6 truncated dictionaries, the l1/l1 pass (and the l2/l1 pass after it for mixed noise) on "
           "every 2nd window (`l1_stride = 2`), noise model detected automatically. Baselines tuned per "
           "condition on a training clip (the paper tuned all competitors by cross-validation on training data).",
           ""]

@@ -63,7 +63,7 @@ def test_denoiser_summary_and_warning(model):
             model.denoise(spiky)                      # summary only, no warning
         assert model.convergence_["converged"] is False
     finally:
-        model.set_params(noise="auto", admm_iter=30, code_iter=20, warn_convergence=False)
+        model.set_params(noise="auto", admm_iter=24, code_iter=12, warn_convergence=False)
 
 
 def test_strided_windows_cover_every_frame_and_average(rng):
