@@ -98,6 +98,34 @@ def test_trc_round_trip_and_units(tmp_path):
         trc.write(m, tmp_path / "d.trc", units="furlong")
 
 
+@pytest.mark.parametrize("block", [1, 2, 3])
+def test_trc_blocked_parsing_same_result_and_lines(tmp_path, monkeypatch, block):
+    """read() converts data rows in blocks (trc._READ_BLOCK): any block size gives the same
+    motion, and errors in a later block still name the right line."""
+    text, _, _ = trc_text()
+    p = tmp_path / "a.trc"
+    p.write_text(text)
+    ref = trc.read(p)
+    monkeypatch.setattr(trc, "_READ_BLOCK", block)
+    m = trc.read(p)
+    np.testing.assert_array_equal(m.observed, ref.observed)
+    np.testing.assert_array_equal(np.nan_to_num(m.positions), np.nan_to_num(ref.positions))
+    np.testing.assert_array_equal(m.source["per_frame"]["frame"], [1, 2, 3])
+    lines = text.splitlines()
+    lines[8] = lines[8].replace("0.1200", "oops", 1)     # frame 3 = file line 9
+    bad = tmp_path / "bad.trc"
+    bad.write_text("\n".join(lines) + "\n")
+    with pytest.raises(MocapFormatError) as e:
+        trc.read(bad)
+    assert e.value.line == 9 and "'oops'" in e.value.message
+    lines = text.splitlines()
+    lines[7] = "\t".join(lines[7].split("\t")[:4])       # frame 2 cut inside a triple
+    bad.write_text("\n".join(lines) + "\n")
+    with pytest.raises(MocapFormatError, match="inside a marker triple") as e:
+        trc.read(bad)
+    assert e.value.line == 8
+
+
 def test_trc_malformed(tmp_path):
     text, _, _ = trc_text()
     lines = text.splitlines()

@@ -5,7 +5,7 @@ joints missing; positions = 74.4 MB of float64) goes through the default method,
 filters and a TRC write/read round trip.  Bounds are multiples of the positions array:
 
 * classical filters: peak of Python-allocated memory (tracemalloc) < 12x;
-* kalman-cv (the default) and TRC I/O: peak resident-set growth < 16x / 4x (write) / 20x (read),
+* kalman-cv (the default) and TRC I/O: peak resident-set growth < 16x / 4x (write) / 8x (read),
   measured by resetting the kernel's high-water mark (/proc/self/clear_refs, Linux; skipped
   elsewhere) -- tracemalloc would make their per-frame / per-value Python loops 9-20x slower
   (kalman-cv 93 s instead of 8 s).
@@ -119,7 +119,7 @@ def test_100k_frames_trc_round_trip_memory(motion, tmp_path):
     back, r_peak = peak_rss(lambda: mio.read(path))
     n = motion.positions.nbytes
     assert w_peak < 4 * n, f"write {w_peak / n:.1f}x"
-    assert r_peak < 20 * n, f"read {r_peak / n:.1f}x"
+    assert r_peak < 8 * n, f"read {r_peak / n:.1f}x"      # measured 5.1x (blocks of rows)
     assert back.positions.shape == motion.positions.shape
     np.testing.assert_array_equal(back.observed, motion.observed)
     np.testing.assert_allclose(back.positions[motion.observed], motion.positions[motion.observed],

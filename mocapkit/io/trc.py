@@ -50,6 +50,30 @@ def _split(line: str, sep: str) -> list[str]:
     return [c.strip() for c in line.rstrip("\r\n").split(sep)]
 
 
+_READ_BLOCK = 4096
+"""Data rows split and converted at a time by :func:`read` (bounds its memory)."""
+
+
+def _parse_rows(rows: list[list[str]], nos: list[int], width: int, n_triples: int,
+                path: Path) -> np.ndarray:
+    """(len(rows), width) floats of data rows (missing cells NaN), checking each row."""
+    padded = []
+    for r, ln in zip(rows, nos):
+        while len(r) > width and r[-1] == "":
+            r = r[:-1]
+        if len(r) > width:
+            raise MocapFormatError(path, f"expected at most {width} cells (Frame#, Time and {n_triples} "
+                                         f"X/Y/Z triples), found {len(r)}", ln)
+        if len(r) < 2 or (len(r) - 2) % 3 != 0:
+            raise MocapFormatError(path, f"row ends inside a marker triple ({len(r)} cells; expected "
+                                         f"{width}): truncated line?", ln)
+        if r[0] == "" or r[1] == "":
+            raise MocapFormatError(path, "empty Frame# or Time cell", ln)
+        padded.append([c if c else "nan" for c in r] + ["nan"] * (width - len(r)))
+    return float_rows(padded, nos, width, path, "TRC cells (Frame#, Time, X/Y/Z values)",
+                      allow_nan=True)
+
+
 def read(path: str | os.PathLike, *, units: str | None = None) -> Motion:
     """Read a TRC file (positions in cm; see the module docstring).
 
@@ -104,33 +128,35 @@ def read(path: str | os.PathLike, *, units: str | None = None) -> Motion:
         raise MocapFormatError(path, f"Units {header.get('units', '')!r} not understood; expected mm, cm "
                                      f"or m (or pass units=)", 3)
     factor = UNITS[unit_txt]
-    # data rows: skip the X1/Y1/Z1 line and blank lines
-    rows, line_nos = [], []
-    for k in range(5, len(lines)):
-        s = lines[k]
-        if not s.strip() or not s.replace(sep, "").strip():
-            continue
-        rows.append(_split(s, sep))
-        line_nos.append(k + 1)
-    if not rows:
-        raise MocapFormatError(path, "no data rows after the header (empty motion)", len(lines))
+    # data rows: skip the X1/Y1/Z1 line and blank lines. Parsed in blocks of _READ_BLOCK
+    # rows so only one block of split cells (Python strings, ~60 bytes each) is alive at a
+    # time: 100,000 frames x 31 markers peaked at 14x the positions array when all rows
+    # were split first (docs/results/reliability.md)
     width = 2 + 3 * n_triples
-    T = len(rows)
-    padded = []
-    for r, ln in zip(rows, line_nos):
-        while len(r) > width and r[-1] == "":
-            r = r[:-1]
-        if len(r) > width:
-            raise MocapFormatError(path, f"expected at most {width} cells (Frame#, Time and {n_triples} "
-                                         f"X/Y/Z triples), found {len(r)}", ln)
-        if len(r) < 2 or (len(r) - 2) % 3 != 0:
-            raise MocapFormatError(path, f"row ends inside a marker triple ({len(r)} cells; expected "
-                                         f"{width}): truncated line?", ln)
-        if r[0] == "" or r[1] == "":
-            raise MocapFormatError(path, "empty Frame# or Time cell", ln)
-        padded.append([c if c else "nan" for c in r] + ["nan"] * (width - len(r)))
-    A = float_rows(padded, line_nos, width, path, "TRC cells (Frame#, Time, X/Y/Z values)",
-                   allow_nan=True)
+    blocks: list[np.ndarray] = []
+    all_nos: list[int] = []
+    rows: list[list[str]] = []
+    nos: list[int] = []
+    for k in range(5, len(lines) + 1):
+        if k < len(lines):
+            ln = lines[k]
+            if not ln.strip() or not ln.replace(sep, "").strip():
+                continue
+            rows.append(_split(ln, sep))
+            nos.append(k + 1)
+            if len(rows) < _READ_BLOCK:
+                continue
+        if rows:
+            blocks.append(_parse_rows(rows, nos, width, n_triples, path))
+            all_nos.extend(nos)
+            rows, nos = [], []
+    if not blocks:
+        raise MocapFormatError(path, "no data rows after the header (empty motion)", len(lines))
+    del lines
+    A = blocks[0] if len(blocks) == 1 else np.concatenate(blocks)
+    del blocks
+    line_nos = all_nos
+    T = A.shape[0]
     frame_no, times, data = A[:, 0], A[:, 1], A[:, 2:]
     if not (np.isfinite(frame_no).all() and np.isfinite(times).all()):
         i = int(np.flatnonzero(~(np.isfinite(frame_no) & np.isfinite(times)))[0])
