@@ -185,7 +185,8 @@ def run_batch(in_dir: str | os.PathLike, out_dir: str | os.PathLike, *, method: 
 
     from tqdm import tqdm
 
-    bar = tqdm(total=len(todo), desc=f"batch {method}", unit="file", disable=not progress, leave=False)
+    bar = tqdm(total=len(todo), desc=f"batch {method}", unit="file", disable=None if progress else True,
+               leave=False)                                 # None: off when stderr is not a terminal
     try:
         if scheduler:
             from dask.distributed import Client, as_completed as dask_completed

@@ -36,7 +36,8 @@ def stage(desc: str, enable: bool = True, after_s: float = 2.0) -> Iterator[None
             return
         from tqdm import tqdm
 
-        with tqdm(desc=desc, bar_format="{desc}: {elapsed}", file=sys.stderr, leave=False) as bar:
+        with tqdm(desc=desc, bar_format="{desc}: {elapsed}", file=sys.stderr, leave=False,
+                  disable=None) as bar:                    # None: off when stderr is not a terminal
             while not done.wait(0.5):
                 bar.refresh()
 

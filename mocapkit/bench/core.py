@@ -142,7 +142,8 @@ def to_markdown(rows: list[Row], title: str | None = None) -> str:
 
 
 def progress(it: Iterable, total: int | None = None, desc: str = "", enable: bool = True) -> Iterator:
-    """tqdm progress bar on stderr (disabled when not wanted)."""
+    """tqdm progress bar on stderr (disabled when not wanted, and when stderr is not a
+    terminal: a log file would fill with carriage-return redraws)."""
     from tqdm import tqdm
 
-    return iter(tqdm(it, total=total, desc=desc, disable=not enable, leave=False))
+    return iter(tqdm(it, total=total, desc=desc, disable=None if enable else True, leave=False))

@@ -417,7 +417,7 @@ class Trainer:
             total = self.total_steps(self.phase)
             if self.phase == "perceptual" and self.perceptual is not None and self.step == 0:
                 self.log(f"stage 1: perceptual autoencoder, {total} steps")
-            bar = tqdm(total=total, initial=self.step, desc=f"{self.phase} AE", disable=not self.progress,
+            bar = tqdm(total=total, initial=self.step, desc=f"{self.phase} AE", disable=None if self.progress else True,
                        leave=False, dynamic_ncols=True)
             acc: dict[str, list[float]] = {}
             t0 = time.perf_counter()
