@@ -15,7 +15,7 @@ import pytest
 
 from mocapkit import cli, datasets, denoise
 from mocapkit import io as mio
-from mocapkit.denoise.lowrank import report_convergence
+from mocapkit.denoise.base import report_convergence
 from mocapkit.errors import ConvergenceWarning
 from mocapkit.solvers import lowrank as lr
 

@@ -212,6 +212,49 @@ def check_output(inp: Motion, out: Motion, method: str) -> Motion:
     return out
 
 
+def report_convergence(den: Denoiser, *, iterations: Any, converged: Any, residual: Any,
+                       tol: float, max_iter: int, criterion: str = "relative residual",
+                       unit: str = "segment", warn: bool = True, stacklevel: int = 3,
+                       extra: dict[str, Any] | None = None, detail: str = "",
+                       param: str | None = None) -> dict[str, Any]:
+    """Record an iterative solve in ``den.convergence_`` and warn once if it stopped early.
+
+    ``iterations``, ``converged``, ``residual`` are scalars or one value per independent
+    solve (SLRA segments, Lou-Chai phases).  The summary keeps the worst solve: the largest
+    iteration count and the largest final residual among the solves that did not converge
+    (or among all when every one did), plus how many did not converge.  Only JSON numbers
+    and strings, so :meth:`Denoiser.save` can store it.  One :class:`ConvergenceWarning`
+    (category) is emitted per call when any solve missed ``tol``; ``extra`` (JSON scalars)
+    is added to the summary and ``detail`` to the message; ``param`` replaces the advice
+    "raise max_iter (e.g. ...) or tol" for methods whose iteration budget has other names.
+    Shared by the low-rank, thesis, Lou-Chai and Xiao methods.
+    """
+    import warnings
+
+    from ..errors import ConvergenceWarning
+
+    it = np.atleast_1d(np.asarray(iterations, dtype=int))
+    cv = np.atleast_1d(np.asarray(converged, dtype=bool))
+    rs = np.atleast_1d(np.asarray(residual, dtype=float))
+    bad = ~cv
+    pick = bad if bad.any() else np.ones_like(cv)
+    worst = float(np.max(rs[pick])) if rs.size else 0.0
+    summary = {"method": den.name, "converged": bool(cv.all()), "iterations": int(it.max(initial=0)),
+               "max_iter": int(max_iter), "residual": worst, "tol": float(tol),
+               "criterion": criterion, "n_solves": int(cv.size), "n_not_converged": int(bad.sum()),
+               **(extra or {})}
+    den.convergence_ = summary
+    if warn and bad.any():
+        what = (f"{int(bad.sum())} of {cv.size} {unit}s not converged after"
+                if cv.size > 1 else "not converged after")
+        warnings.warn(
+            f"{den.name}: {what} {int(it[bad].max())} iterations (max_iter={int(max_iter)}; "
+            f"final {criterion} {worst:.2e}, tol {float(tol):.1e}{detail}); "
+            + (param or f"raise max_iter (e.g. max_iter={2 * max(int(max_iter), 1)}) or tol"),
+            ConvergenceWarning, stacklevel=stacklevel)
+    return summary
+
+
 #: thresholds of :func:`check_training_match` (median change of the observed entries)
 MISMATCH_NOISE_FACTOR = 2.0
 MISMATCH_FLOOR_CM = 1.0

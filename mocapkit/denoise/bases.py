@@ -15,7 +15,7 @@ from ..bodyframe import BodyTransform, body_transform, mirror_local, mirror_perm
 from ..errors import MocapValueError
 from ..motion import Motion
 from ..solvers import robust_bases as rb
-from .base import Denoiser, check_training_match, register
+from .base import Denoiser, check_training_match, register, report_convergence
 
 __all__ = ["LouChai", "angle_channels", "angle_fk", "decimate"]
 
@@ -497,8 +497,6 @@ class LouChai(Denoiser):
         ``training_match_`` and warns (TrainingMismatchWarning) when the result moved the
         observed markers far beyond their noise level
         (:func:`~mocapkit.denoise.base.check_training_match`)."""
-        from .lowrank import report_convergence
-
         self._conv_log = []
         try:
             out = self._denoise_all(motion)

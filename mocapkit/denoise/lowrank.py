@@ -23,7 +23,7 @@ Decisions (measured, see docs/results/lowrank.md):
   ``convergence_`` (converged, iterations, max_iter, final residual vs tol; for slra the
   worst segment and how many missed tol) and emit one
   :class:`~mocapkit.errors.ConvergenceWarning` per ``denoise()`` call that stops at
-  ``max_iter`` (:func:`report_convergence`).  Measured (docs/results/reliability.md): at
+  ``max_iter`` (:func:`mocapkit.denoise.base.report_convergence`).  Measured (docs/results/reliability.md): at
   default settings rpca and slra converge on the bundled CMU clips; svt with missing
   entries does not (after 500 iterations ||P(A - X)|| is still ~1.3 eps; ~1.05-1.1 eps after
   2000), so it warns.
@@ -35,10 +35,10 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import ConvergenceWarning, MocapValueError
+from ..errors import MocapValueError
 from ..motion import Motion, fill_gaps_linear
 from ..solvers import lowrank as _lr
-from .base import Denoiser, register
+from .base import Denoiser, register, report_convergence
 
 _CENTERS = ("none", "mean", "median")
 
@@ -47,43 +47,6 @@ MIN_FRAMES = 6
 windows of 2 / 4 / 6 / 8 frames moves the data by 16 / 1.8 / 0.45 / 0.48 cm RMSE (mean
 over windows): with lam = 1/sqrt(93) a window of a few frames has no low-rank structure
 to exploit and whole rows go to E.  Shorter clips or segments raise MocapValueError."""
-
-
-def report_convergence(den: Denoiser, *, iterations: Any, converged: Any, residual: Any,
-                       tol: float, max_iter: int, criterion: str = "relative residual",
-                       unit: str = "segment", warn: bool = True, stacklevel: int = 3,
-                       extra: dict[str, Any] | None = None, detail: str = ""
-                       ) -> dict[str, Any]:
-    """Record an iterative solve in ``den.convergence_`` and warn once if it stopped early.
-
-    ``iterations``, ``converged``, ``residual`` are scalars or one value per independent
-    solve (SLRA segments, Lou-Chai phases).  The summary keeps the worst solve: the largest
-    iteration count and the largest final residual among the solves that did not converge
-    (or among all when every one did), plus how many did not converge.  Only JSON numbers
-    and strings, so :meth:`Denoiser.save` can store it.  One :class:`ConvergenceWarning`
-    (category) is emitted per call when any solve missed ``tol``; ``extra`` (JSON scalars)
-    is added to the summary and ``detail`` to the message.
-    """
-    it = np.atleast_1d(np.asarray(iterations, dtype=int))
-    cv = np.atleast_1d(np.asarray(converged, dtype=bool))
-    rs = np.atleast_1d(np.asarray(residual, dtype=float))
-    bad = ~cv
-    pick = bad if bad.any() else np.ones_like(cv)
-    worst = float(np.max(rs[pick])) if rs.size else 0.0
-    summary = {"method": den.name, "converged": bool(cv.all()), "iterations": int(it.max()),
-               "max_iter": int(max_iter), "residual": worst, "tol": float(tol),
-               "criterion": criterion, "n_solves": int(cv.size), "n_not_converged": int(bad.sum()),
-               **(extra or {})}
-    den.convergence_ = summary
-    if warn and bad.any():
-        what = (f"{int(bad.sum())} of {cv.size} {unit}s not converged after"
-                if cv.size > 1 else "not converged after")
-        warnings.warn(
-            f"{den.name}: {what} {int(it[bad].max())} iterations (max_iter={int(max_iter)}; "
-            f"final {criterion} {worst:.2e}, tol {float(tol):.1e}{detail}); "
-            f"raise max_iter (e.g. max_iter={2 * max(int(max_iter), 1)}) or tol",
-            ConvergenceWarning, stacklevel=stacklevel)
-    return summary
 
 
 def _check_frames(n: int, method: str, what: str) -> None:

@@ -99,7 +99,7 @@ import numpy as np
 from ..errors import MocapValueError
 from ..localframe import estimate_frame, to_global, to_local
 from ..motion import Motion
-from .base import Denoiser, register, training_matrices
+from .base import Denoiser, register, report_convergence, training_matrices
 
 __all__ = ["XiaoSparse", "XiaoSparseFullPose", "detect_noise", "lagged_windows", "overlap_mean",
            "window_starts"]
@@ -521,41 +521,31 @@ class XiaoSparse(Denoiser):
         return motion.with_positions(out)
 
     def _report_convergence(self) -> None:
-        """Summarise the ADMM solves of the last :meth:`denoise` in ``convergence_`` and,
-        with ``warn_convergence=True``, warn (:class:`~mocapkit.errors.ConvergenceWarning`)
-        when any stopped at its iteration cap with residuals above tol.
-
-        ``convergence_``: ``converged`` (all solves), ``n_solves``, ``n_not_converged``,
-        ``iterations`` / ``max_iter`` (largest), ``primal`` / ``dual`` (largest final relative
-        residual over all windows and solves), ``tol``, and per model (``l1l1`` / ``lasso``)
-        the same keys prefixed (``l1l1_primal``...).  JSON scalars only (saved with the model).
+        """Summarise the ADMM solves of the last :meth:`denoise` in ``convergence_``
+        (:func:`~mocapkit.denoise.base.report_convergence`; a solve's residual is the larger
+        of its final relative primal / dual residuals) and, with ``warn_convergence=True``,
+        warn once when any stopped at its iteration cap above tol.  Per model (``l1l1`` /
+        ``lasso``) also ``<model>_converged`` / ``_iterations`` / ``_primal`` / ``_dual``.
         """
         log = list(getattr(self, "_conv_log", []))
-        summary: dict[str, Any] = {"method": self.name, "converged": all(e[2]["converged"] for e in log),
-                                   "n_solves": len(log),
-                                   "n_not_converged": sum(not e[2]["converged"] for e in log)}
-        for key in ("iterations", "max_iter", "primal", "dual", "tol"):
-            src = {"iterations": "n_iter"}.get(key, key)
-            summary[key] = max((e[2][src] for e in log), default=0)
+        extra: dict[str, Any] = {}
         for model in ("l1l1", "lasso"):
             sel = [e[2] for e in log if e[0] == model]
             if sel:
-                summary[f"{model}_converged"] = all(x["converged"] for x in sel)
-                summary[f"{model}_iterations"] = max(x["n_iter"] for x in sel)
-                summary[f"{model}_primal"] = max(x["primal"] for x in sel)
-                summary[f"{model}_dual"] = max(x["dual"] for x in sel)
-        self.convergence_ = summary
-        if self.warn_convergence and not summary["converged"]:
-            import warnings
-
-            from ..errors import ConvergenceWarning
-
-            warnings.warn(
-                f"{self.name}: {summary['n_not_converged']} of {summary['n_solves']} ADMM solves stopped at "
-                f"their iteration cap (code_iter={self.code_iter}, admm_iter={self.admm_iter}) with "
-                f"relative residuals above tol {summary['tol']:.0e} (largest primal {summary['primal']:.2e}, "
-                f"dual {summary['dual']:.2e}); raise code_iter / admm_iter for a more exact solution",
-                ConvergenceWarning, stacklevel=3)
+                extra[f"{model}_converged"] = all(x["converged"] for x in sel)
+                extra[f"{model}_iterations"] = max(x["n_iter"] for x in sel)
+                extra[f"{model}_primal"] = max(x["primal"] for x in sel)
+                extra[f"{model}_dual"] = max(x["dual"] for x in sel)
+        info = [e[2] for e in log]
+        report_convergence(
+            self, iterations=[x["n_iter"] for x in info], converged=[x["converged"] for x in info],
+            residual=[max(x["primal"], x["dual"]) for x in info],
+            tol=max((x["tol"] for x in info), default=0.0),
+            max_iter=max((x["max_iter"] for x in info), default=0),
+            criterion="relative primal/dual residual", unit="ADMM solve",
+            warn=bool(self.warn_convergence), stacklevel=4, extra=extra,
+            param=f"raise code_iter (now {self.code_iter}) / admm_iter (now {self.admm_iter}) "
+                  f"for a more exact solution")
 
     @property
     def last_info(self) -> dict[str, Any]:

@@ -11,7 +11,7 @@
 The maths lives in :mod:`mocapkit.solvers.completion` and :mod:`mocapkit.solvers.llc`;
 these classes handle Motions, masks and body parts.  Solver diagnostics (iterations,
 convergence) go to ``out.source["solver"]`` and, for tsmc / trnn / dynammo, to the
-method's ``convergence_`` summary (see :func:`mocapkit.denoise.lowrank.report_convergence`);
+method's ``convergence_`` summary (see :func:`mocapkit.denoise.base.report_convergence`);
 a solver that stops before converging also warns once per ``denoise()`` call
 (:class:`mocapkit.errors.ConvergenceWarning`, which is here also a RuntimeWarning).
 
@@ -35,7 +35,7 @@ from ..skeleton import BODY_PARTS
 from ..solvers import completion as _cp
 from ..solvers import llc as _llc
 from ..solvers.completion import _one_blas_thread
-from .base import Denoiser, register
+from .base import Denoiser, register, report_convergence
 
 __all__ = ["PSC", "TSMC", "TrNN", "DynaMMo"]
 
@@ -86,8 +86,6 @@ def _output(motion: Motion, A: np.ndarray, known: np.ndarray, keep: bool,
 
 def _record(den: Denoiser, info: dict[str, Any], key: str) -> None:
     """``den.convergence_`` from a solver's info dict (the solver itself already warned)."""
-    from .lowrank import report_convergence
-
     report_convergence(den, iterations=info["iterations"], converged=info["converged"],
                        residual=info[key], tol=float(den.tol), max_iter=int(den.max_iter),
                        criterion="max relative residual / change" if key == "criterion"
