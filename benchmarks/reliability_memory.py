@@ -31,6 +31,7 @@ sys.path.insert(0, str(ROOT / "tests"))
 from mocapkit import datasets, denoise, metrics, signal  # noqa: E402
 from mocapkit.errors import ConvergenceWarning  # noqa: E402
 from mocapkit import io as mio  # noqa: E402
+from test_reliability_convergence import _noisy  # noqa: E402
 from test_reliability_memory import big_motion, peak_rss, peak_tracemalloc, rss_available  # noqa: E402
 
 TITLE = "## 100,000-frame memory and solver convergence"
@@ -77,14 +78,6 @@ def memory_rows() -> list[str]:
             f"(float64). Peak = memory above what was in use before the call.", "",
             "| method / step | measured by | s | peak MB | peak / input | output same shape, finite where observed |",
             "|---|---|---|---|---|---|"] + rows
-
-
-def _noisy(m, seed=0, missing=0.05):
-    rng = np.random.default_rng(seed)
-    P = m.positions + rng.normal(0, 1.0, m.positions.shape)
-    obs = rng.random(P.shape[:2]) > missing
-    P[~obs] = np.nan
-    return m.with_positions(P, obs)
 
 
 def convergence_rows() -> list[str]:

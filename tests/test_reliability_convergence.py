@@ -13,7 +13,7 @@ import warnings
 import numpy as np
 import pytest
 
-from mocapkit import cli, datasets, denoise
+from mocapkit import cli, corrupt, datasets, denoise
 from mocapkit import io as mio
 from mocapkit.denoise.base import report_convergence
 from mocapkit.errors import ConvergenceWarning
@@ -28,11 +28,10 @@ NOT_CONVERGED_AT_DEFAULTS = ["svt", "lou-chai"]
 
 
 def _noisy(m, seed=0, missing=0.05):
-    rng = np.random.default_rng(seed)
-    P = m.positions + rng.normal(0, 1.0, m.positions.shape)
-    obs = rng.random(P.shape[:2]) > missing
-    P[~obs] = np.nan
-    return m.with_positions(P, obs)
+    """1 cm noise and ``missing`` of the joint entries removed (uniformly), as the benchmark."""
+    steps = [("gaussian", {"sigma_cm": 1.0})] + (
+        [("missing", {"ratio": missing, "per_frame": False})] if missing else [])
+    return corrupt.combine(m, steps, seed=seed)[0]
 
 
 @pytest.fixture(scope="module")

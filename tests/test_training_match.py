@@ -6,15 +6,14 @@ import warnings
 import numpy as np
 import pytest
 
-from mocapkit import cli, datasets, denoise
+from mocapkit import cli, corrupt, datasets, denoise
 from mocapkit import io as mio
 from mocapkit.denoise.base import check_training_match
 from mocapkit.errors import MocapWarning, TrainingMismatchWarning
 
 
 def _noisy(m, sigma, seed=0):
-    rng = np.random.default_rng(seed)
-    return m.with_positions(m.positions + rng.normal(0, sigma, m.positions.shape))
+    return corrupt.gaussian(m, sigma_cm=sigma, seed=seed)[0]
 
 
 class _Stub:

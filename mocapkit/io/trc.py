@@ -133,29 +133,15 @@ def read(path: str | os.PathLike, *, units: str | None = None) -> Motion:
     # time: 100,000 frames x 31 markers peaked at 14x the positions array when all rows
     # were split first (docs/results/reliability.md)
     width = 2 + 3 * n_triples
-    blocks: list[np.ndarray] = []
-    all_nos: list[int] = []
-    rows: list[list[str]] = []
-    nos: list[int] = []
-    for k in range(5, len(lines) + 1):
-        if k < len(lines):
-            ln = lines[k]
-            if not ln.strip() or not ln.replace(sep, "").strip():
-                continue
-            rows.append(_split(ln, sep))
-            nos.append(k + 1)
-            if len(rows) < _READ_BLOCK:
-                continue
-        if rows:
-            blocks.append(_parse_rows(rows, nos, width, n_triples, path))
-            all_nos.extend(nos)
-            rows, nos = [], []
-    if not blocks:
+    line_nos = [k + 1 for k in range(5, len(lines))
+                if lines[k].strip() and lines[k].replace(sep, "").strip()]
+    if not line_nos:
         raise MocapFormatError(path, "no data rows after the header (empty motion)", len(lines))
+    A = np.concatenate([
+        _parse_rows([_split(lines[n - 1], sep) for n in line_nos[a:a + _READ_BLOCK]],
+                    line_nos[a:a + _READ_BLOCK], width, n_triples, path)
+        for a in range(0, len(line_nos), _READ_BLOCK)])
     del lines
-    A = blocks[0] if len(blocks) == 1 else np.concatenate(blocks)
-    del blocks
-    line_nos = all_nos
     T = A.shape[0]
     frame_no, times, data = A[:, 0], A[:, 1], A[:, 2:]
     if not (np.isfinite(frame_no).all() and np.isfinite(times).all()):
