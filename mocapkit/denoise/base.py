@@ -268,7 +268,7 @@ def check_training_match(den: "Denoiser", inp: Motion, out: Motion, *, warn: boo
     0.67 sigma for Gaussian noise; outliers are a minority and do not move the median).
     When the median |out - in| over the observed coordinates exceeds
     ``max(MISMATCH_NOISE_FACTOR * sigma, MISMATCH_FLOOR_CM)`` -- sigma the robust noise
-    level of the input (1.4826 MAD of the second differences along time / sqrt 6, cm) --
+    level of the input (:func:`mocapkit.solvers.lowrank.noise_level` with ``robust=True``, cm) --
     the learnt model is replacing the motion rather than cleaning it, typically because
     it was trained on another behaviour.  Measured with ``lou-chai`` on the bundled CMU
     clips 16_15, 07_05, 09_06, 131_07 (1 cm noise + 5 % missing, 0.1 cm noise, 20 %
@@ -284,12 +284,11 @@ def check_training_match(den: "Denoiser", inp: Motion, out: Motion, *, warn: boo
 
     from ..errors import TrainingMismatchWarning
 
-    X = inp.matrix()
-    ok = np.repeat(inp.observed, 3, axis=1)
+    from ..solvers.lowrank import noise_level
+
+    X, ok = inp.matrix(), inp.matrix_mask()
     d = np.abs(out.matrix() - X)[ok]
-    d2 = X[2:] - 2 * X[1:-1] + X[:-2]
-    d2 = np.abs(d2[np.isfinite(d2)])
-    sigma = float(1.4826 * np.median(d2) / np.sqrt(6.0)) if d2.size else 0.0
+    sigma = noise_level(X, ok, robust=True)
     med = float(np.median(d)) if d.size else 0.0
     thr = max(MISMATCH_NOISE_FACTOR * sigma, MISMATCH_FLOOR_CM)
     info = {"median_change_cm": med, "noise_cm": sigma, "threshold_cm": thr,

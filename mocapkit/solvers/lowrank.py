@@ -236,13 +236,15 @@ def tsvd(X: Any, k: int = 10, mask: Any = None, *, max_iter: int = 100, tol: flo
 # --------------------------------------------------------------------------------------
 # singular value thresholding (Cai, Candes & Shen 2010)
 # --------------------------------------------------------------------------------------
-def noise_level(X: Any, mask: Any = None) -> float:
+def noise_level(X: Any, mask: Any = None, *, robust: bool = False) -> float:
     """Rough per-entry noise standard deviation of a smooth time series matrix (same unit as X).
 
     RMS of the second difference along time (axis 0), divided by sqrt(6) (the gain of the
     [1, -2, 1] filter on white noise), over triples of consecutive observed frames.  For
     mocap at >= 30 fps the true motion's second differences are small, so this measures
-    the jitter; outliers raise it.  Returns 0 for fewer than 3 frames.
+    the jitter; outliers raise it.  ``robust=True`` uses 1.4826 x the median absolute
+    second difference instead of the RMS (outliers, a minority, do not move it).  Returns 0
+    for fewer than 3 frames.
     """
     X, mask = _prepare(X, mask)
     if X.shape[0] < 3:
@@ -253,6 +255,8 @@ def noise_level(X: Any, mask: Any = None) -> float:
         d2 = d2[ok]
     if d2.size == 0:
         return 0.0
+    if robust:
+        return float(1.4826 * np.median(np.abs(d2)) / np.sqrt(6.0))
     return float(np.sqrt(np.mean(d2 ** 2) / 6.0))
 
 
