@@ -250,7 +250,7 @@ class LouChai(Denoiser):
         ``denoise`` records ``convergence_``. The paper runs a fixed 10-20 iterations and
         that early stop is part of the method: on the bundled CMU clips (1 cm noise, 5 %
         missing) the defaults stop at a relative change of J of 3e-3..1e-2, tol 1e-4 is
-        reached only after ~180-350 iterations (docs/results/reliability.md), and running
+        reached only after ~210-330 iterations (docs/results/reliability.md), and running
         that far *raises* the error (16_15 trained on three other clips: 3.57 cm at 20
         iterations, 3.96 at 50, 4.92 at 400; 07_05 trained on its first half: 3.20 / 3.60
         / 5.05 cm). Hence no warning by default.
