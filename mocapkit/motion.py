@@ -7,6 +7,11 @@ Conventions (every module relies on them):
 * ``observed`` is a bool array (T, J); False means the marker/joint is missing in that
   frame. Missing entries of ``positions`` are always NaN, observed ones always finite:
   the constructor enforces this, so no method can silently use a missing value.
+* ``filled`` is a bool array (T, J): True where the value was computed by a gap fill
+  rather than measured (a filled sample is observed: it has a value). Readers set it
+  from the file's own flags (C3D residual 0); the gap policy
+  (:mod:`mocapkit.gaps`) sets it for what a method filled; writers flag it (C3D
+  residual 0, TRC sidecar mask).
 * Arrays are read-only; every operation returns a new Motion.
 * ``source`` holds metadata from the reader: ``path``, ``format``, ``units`` (what the
   file used and the factor to cm) and, under ``per_frame``, arrays whose first axis is
@@ -41,6 +46,8 @@ class Motion:
     observed : optional bool (T, J); defaults to "finite in ``positions``". Entries that
         are not finite are always treated as missing.
     source : optional metadata mapping (see module docstring).
+    filled : optional bool (T, J), True where the value was filled (computed, not
+        measured); defaults to all False; only kept where the sample is observed.
     """
 
     positions: np.ndarray
@@ -48,6 +55,7 @@ class Motion:
     fps: float
     observed: np.ndarray | None = None
     source: Mapping[str, Any] = field(default_factory=dict)
+    filled: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         P = np.array(self.positions, dtype=np.float64, copy=True)
@@ -71,6 +79,14 @@ class Motion:
                 raise MocapValueError(f"observed mask must have shape ({T}, {J}), got {obs.shape}")
             obs = obs.astype(bool) & finite
         P[~obs] = np.nan
+        if self.filled is None:
+            fil = np.zeros((T, J), dtype=bool)
+        else:
+            fil = np.asarray(self.filled)
+            if fil.shape != (T, J):
+                raise MocapValueError(f"filled mask must have shape ({T}, {J}), got {fil.shape}")
+            fil = fil.astype(bool) & obs
+        object.__setattr__(self, "filled", _readonly(np.array(fil, dtype=bool)))
         object.__setattr__(self, "positions", _readonly(P))
         object.__setattr__(self, "observed", _readonly(np.array(obs, dtype=bool)))
         object.__setattr__(self, "fps", fps)
@@ -120,26 +136,34 @@ class Motion:
         return self.with_positions(X.reshape(self.n_frames, self.n_joints, 3), observed)
 
     # -- immutable updates ------------------------------------------------------------------
-    def with_positions(self, positions: np.ndarray, observed: np.ndarray | None = None) -> "Motion":
+    def with_positions(self, positions: np.ndarray, observed: np.ndarray | None = None,
+                       filled: np.ndarray | None = None) -> "Motion":
         """Same skeleton/fps/source, new positions (T', J, 3).
 
         ``observed`` defaults to "finite in the new positions" (so a denoiser that fills
-        every entry returns a fully observed motion).
+        every entry returns a fully observed motion). ``filled`` defaults to this motion's
+        flags when the frame count is unchanged (a value that was filled stays flagged).
         """
         P = np.asarray(positions, dtype=float)
         src = dict(self.source)
         if P.shape[0] != self.n_frames:
             src.pop("per_frame", None)
-        return Motion(P, self.skeleton, self.fps, observed, src)
+        elif filled is None:
+            filled = self.filled
+        return Motion(P, self.skeleton, self.fps, observed, src, filled)
+
+    def with_filled(self, filled: np.ndarray) -> "Motion":
+        """Same motion with new fill flags (see the class docstring)."""
+        return Motion(self.positions, self.skeleton, self.fps, self.observed, self.source, filled)
 
     def with_observed(self, observed: np.ndarray) -> "Motion":
         """Same motion with a new observed mask (entries marked missing become NaN)."""
-        return Motion(self.positions, self.skeleton, self.fps, observed, self.source)
+        return Motion(self.positions, self.skeleton, self.fps, observed, self.source, self.filled)
 
     def with_source(self, **updates: Any) -> "Motion":
         src = dict(self.source)
         src.update(updates)
-        return Motion(self.positions, self.skeleton, self.fps, self.observed, src)
+        return Motion(self.positions, self.skeleton, self.fps, self.observed, src, self.filled)
 
     def slice(self, start: int | None = None, stop: int | None = None) -> "Motion":
         """Frames ``start:stop`` (Python slice semantics); per-frame source arrays follow."""
@@ -151,7 +175,8 @@ class Motion:
         src = dict(self.source)
         if "per_frame" in src:
             src["per_frame"] = {k: np.asarray(v)[sl] for k, v in src["per_frame"].items()}
-        return Motion(self.positions[sl], self.skeleton, self.fps, self.observed[sl], src)
+        return Motion(self.positions[sl], self.skeleton, self.fps, self.observed[sl], src,
+                      self.filled[sl])
 
     def select(self, joint_names: Sequence[str]) -> "Motion":
         """Keep only the named joints (skeleton re-parented, see :meth:`Skeleton.subset`)."""
@@ -159,7 +184,8 @@ class Motion:
         idx = self.skeleton.indices(sk.names)
         src = dict(self.source)
         src.pop("per_frame", None)
-        return Motion(self.positions[:, idx], sk, self.fps, self.observed[:, idx], src)
+        return Motion(self.positions[:, idx], sk, self.fps, self.observed[:, idx], src,
+                      self.filled[:, idx])
 
     def resample(self, fps: float) -> "Motion":
         """Resample in time to ``fps`` with cubic splines.
@@ -193,7 +219,8 @@ class Motion:
         src = dict(self.source)
         src.pop("per_frame", None)
         src["resampled_from_fps"] = self.fps
-        return Motion(Y.reshape(n_new, self.n_joints, 3), self.skeleton, fps, obs, src)
+        return Motion(Y.reshape(n_new, self.n_joints, 3), self.skeleton, fps, obs, src,
+                      self.filled[lo] | self.filled[hi])
 
     # -- simple measures -------------------------------------------------------------------
     def height(self) -> float:

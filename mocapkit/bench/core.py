@@ -16,6 +16,7 @@ to the protocol: it yields whatever it reports).
 """
 from __future__ import annotations
 
+import functools
 import json
 import time
 from dataclasses import asdict, dataclass, field
@@ -72,22 +73,39 @@ class Context:
 
 @dataclass
 class Protocol:
+    """A registered protocol. ``fill_all``: run under :data:`mocapkit.gaps.FILL_ALL` (the
+    papers' synthetic protocols score every entry, as the papers do); False runs under
+    the user-facing gap policy (real-capture protocols)."""
+
     name: str
     description: str
     func: Callable[[Context], Iterable[Row]]
+    fill_all: bool = True
 
 
 PROTOCOLS: dict[str, Protocol] = {}
 
 
-def protocol(name: str, description: str) -> Callable:
-    """Decorator registering a protocol function under ``name``."""
+def protocol(name: str, description: str, *, fill_all: bool = True) -> Callable:
+    """Decorator registering a protocol function under ``name`` (see :class:`Protocol`).
+
+    The function itself runs under the protocol's gap policy whoever calls it (``run``,
+    a benchmark script, a test).
+    """
 
     def deco(func: Callable[[Context], Iterable[Row]]) -> Callable:
         if name in PROTOCOLS:
             raise TypeError(f"protocol {name!r} registered twice")
-        PROTOCOLS[name] = Protocol(name, description, func)
-        return func
+
+        @functools.wraps(func)
+        def under_policy(ctx: Context) -> list[Row]:
+            from ..gaps import DEFAULT_POLICY, FILL_ALL, use_policy
+
+            with use_policy(FILL_ALL if fill_all else DEFAULT_POLICY):
+                return list(func(ctx))
+
+        PROTOCOLS[name] = Protocol(name, description, under_policy, fill_all)
+        return under_policy
 
     return deco
 

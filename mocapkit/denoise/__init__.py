@@ -26,7 +26,7 @@ def default(**params):
     """The default method, with ``params`` overriding its default settings."""
     return get(DEFAULT_METHOD, **{**DEFAULT_PARAMS, **params})
 
-_FAMILIES = ("filters", "kalman", "lowrank", "bases", "sparse", "wavelet", "thesis", "neural")
+_FAMILIES = ("filters", "fill", "kalman", "lowrank", "bases", "sparse", "wavelet", "thesis", "neural")
 
 
 def _import_families() -> None:

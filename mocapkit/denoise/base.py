@@ -7,8 +7,18 @@ Every method is one class deriving from :class:`Denoiser`, registered with
   beyond what is free);
 * ``fit(motions)`` learns state into trailing-underscore attributes and returns self
   (training-free methods inherit the no-op);
-* ``denoise(motion)`` returns a new Motion with the same frames, joints and skeleton,
-  every entry finite and observed (missing entries filled).
+* ``denoise(motion)`` returns a new Motion with the same frames, joints and skeleton;
+  observed samples stay observed (denoised), missing ones are filled where the gap
+  policy allows (:mod:`mocapkit.gaps`).
+
+The base class wraps every subclass's ``denoise`` once (:func:`_guard`, as scikit-learn
+wraps ``transform`` for ``set_output``) so the rules shared by all methods live in one
+place: the input is moved near the origin before the method and back after it (whole
+10 m steps, so data in a normal capture volume is untouched and a clip 100 m away gives
+the same result shifted), a never-observed joint gets a placeholder the method may use
+and is returned missing, and the result goes through :func:`mocapkit.gaps.apply_policy`
+(fills without evidence or far outside the capture volume are left missing, fills are
+flagged in ``Motion.filled`` and summarised in ``source['gap_report']``).
 
 Models are saved as ``.npz`` (see :meth:`Denoiser.save`): a JSON header with the method
 name, its parameters and the format version, plus every fitted array attribute.
@@ -16,6 +26,8 @@ Neural methods override save/load to use torch state dicts.
 """
 from __future__ import annotations
 
+import contextvars
+import functools
 import inspect
 import json
 import os
@@ -62,16 +74,91 @@ def get(name: str, **params: Any) -> "Denoiser":
     return cls(**params)
 
 
+#: whole steps (cm) by which the base class moves an input towards the origin
+RECENTRE_STEP_CM = 1000.0
+
+_INSIDE = contextvars.ContextVar("mocapkit_denoise_depth", default=0)
+
+
+def _recentre_offset(motion: Motion) -> np.ndarray:
+    """(3,) offset, a whole number of RECENTRE_STEP_CM per axis, that brings the centre of
+    the observed capture volume within half a step of the origin (0 for normal data)."""
+    P = motion.positions[motion.observed]
+    if len(P) == 0:
+        return np.zeros(3)
+    centre = 0.5 * (P.min(axis=0) + P.max(axis=0))
+    return np.round(centre / RECENTRE_STEP_CM) * RECENTRE_STEP_CM
+
+
+def _prepare(motion: Motion) -> tuple[Motion, np.ndarray]:
+    """The motion a method sees: recentred; never-observed joints hold a placeholder (the
+    centroid of the observed joints of each frame, bridged in time) so that a method that
+    needs every joint runs; the policy returns them missing."""
+    off = _recentre_offset(motion)
+    never = ~motion.observed.any(axis=0)
+    if not off.any() and not never.any():
+        return motion, off
+    P = motion.positions - off
+    obs = motion.observed
+    if never.any() and obs.any():
+        from ..gaps import fill_linear
+
+        with np.errstate(invalid="ignore"):
+            c = np.nanmean(np.where(obs[..., None], P, np.nan), axis=1)      # (T, 3)
+        c = fill_linear(c, np.isfinite(c))
+        P = P.copy()
+        P[:, never] = c[:, None, :]
+        obs = obs | never[None, :]
+    return Motion(P, motion.skeleton, motion.fps, obs, motion.source, motion.filled), off
+
+
+def _guard(fn):
+    """Wrap a subclass's ``denoise`` with the shared rules (module docstring). Calls made
+    from inside another method's denoise (a chain, a self-validation) are not wrapped again."""
+    @functools.wraps(fn)
+    def denoise(self, motion: Motion, *args, **kwargs) -> Motion:
+        if _INSIDE.get():
+            return fn(self, motion, *args, **kwargs)
+        from ..gaps import apply_policy
+
+        work, off = _prepare(motion)
+        token = _INSIDE.set(1)
+        try:
+            raw = fn(self, work, *args, **kwargs)
+        finally:
+            _INSIDE.reset(token)
+        if raw.positions.shape != motion.positions.shape:
+            raise RuntimeError(f"{self.name}: output shape {raw.positions.shape} != input "
+                               f"{motion.positions.shape}")
+        if off.any():
+            raw = raw.with_positions(raw.positions + off, raw.observed)
+        return apply_policy(motion, raw, evidence=self.fill_evidence, method=self.name)
+
+    denoise._gap_policy_guard = True
+    return denoise
+
+
 class Denoiser:
     """Base class of every denoising / gap-filling method.
 
     Subclasses set ``name``, ``description`` (one line, shown by ``mocapkit methods``),
-    ``needs_training`` and implement :meth:`denoise` (and :meth:`fit` if data-driven).
+    ``needs_training``, ``fill_evidence`` and implement :meth:`denoise` (and :meth:`fit`
+    if data-driven). ``denoise`` may fill every missing sample; the base class keeps only
+    what the gap policy allows (module docstring).
     """
 
     name: ClassVar[str] = ""
     description: ClassVar[str] = ""
     needs_training: ClassVar[bool] = False
+    #: evidence a fill uses (:func:`mocapkit.gaps.supported`): "interp" (the ends of the gap,
+    #: per channel) or "markers" (other markers observed in the same frame)
+    fill_evidence: ClassVar[str] = "interp"
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        fn = cls.__dict__.get("denoise")
+        if fn is not None and not getattr(fn, "_gap_policy_guard", False):
+            cls.denoise = _guard(fn)
     #: whether observed, trusted entries are returned unchanged (property tests check it)
     keeps_observed: ClassVar[bool] = False
 
@@ -204,11 +291,11 @@ def _jsonable(obj: Any) -> Any:
 
 
 def check_output(inp: Motion, out: Motion, method: str) -> Motion:
-    """Validate a denoiser's output against its input (same T, J, skeleton; finite)."""
+    """Validate a denoiser's output against its input (same T, J; observed stays observed)."""
     if out.positions.shape != inp.positions.shape:
         raise RuntimeError(f"{method}: output shape {out.positions.shape} != input {inp.positions.shape}")
-    if not out.observed.all():
-        raise RuntimeError(f"{method}: output still has missing entries")
+    if not out.observed[inp.observed].all():
+        raise RuntimeError(f"{method}: output lost observed entries")
     return out
 
 

@@ -278,6 +278,7 @@ class LouChai(Denoiser):
     """
 
     name = "lou-chai"
+    fill_evidence = "markers"
     description = ("Lou & Chai 2010 example-based robust filter bases (M-SSA bases learned from clean "
                    "clips + Welsch IRLS; fills gaps)")
     needs_training = True

@@ -270,6 +270,7 @@ class KalmanLearned(Denoiser):
     """
 
     name = "kalman-learned"
+    fill_evidence = "markers"
     description = "Kalman + RTS with linear dynamics learned from training clips (Lou & Chai baseline; body frame, PCA latent)"
     needs_training = True
     keeps_observed = False

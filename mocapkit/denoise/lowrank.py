@@ -124,6 +124,7 @@ class TSVD(Denoiser):
     """
 
     name = "tsvd"
+    fill_evidence = "markers"
     description = "truncated SVD, keep k singular values of the frames x coordinates matrix (SLRA baseline)"
     clean_tolerance_cm = 2.0
 
@@ -165,6 +166,7 @@ class SVT(Denoiser):
     """
 
     name = "svt"
+    fill_evidence = "markers"
     description = "singular value thresholding (Cai-Candes-Shen), noise-bounded, completes missing markers"
     clean_tolerance_cm = 1.0
 
@@ -222,6 +224,7 @@ class RPCA(Denoiser):
     """
 
     name = "rpca"
+    fill_evidence = "markers"
     description = "robust PCA (low rank + sparse) of the whole clip by inexact ALM (Lin-Chen-Ma)"
     clean_tolerance_cm = 2.0
 
@@ -276,6 +279,7 @@ class SLRA(Denoiser):
     """
 
     name = "slra"
+    fill_evidence = "markers"
     description = "segmented RPCA (SLRA, seed 004): IALM per consecutive segment, optional blended overlap"
     clean_tolerance_cm = 2.0
 

@@ -53,6 +53,7 @@ class _NeuralDenoiser(Denoiser):
     """Shared implementation of ``bra`` and ``bra-p`` (see the module docstring)."""
 
     keeps_observed = False
+    fill_evidence = "markers"
     clean_tolerance_cm = 6.0
     _perceptual: bool = True
 

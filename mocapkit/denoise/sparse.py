@@ -280,6 +280,7 @@ class XiaoSparse(Denoiser):
     """
 
     name = "xiao-sparse"
+    fill_evidence = "markers"
     description = "Xiao et al. 2015: poselet K-SVD dictionaries, l2/l1 (Gaussian) or l1/l1 ADMM (outliers) coding"
     needs_training = True
     keeps_observed = False

@@ -217,6 +217,7 @@ class PSC(Denoiser):
     """
 
     name = "psc"
+    fill_evidence = "markers"
     description = "thesis PSC: per-body-part window dictionaries trained to predict missing markers, LLC recovery"
     needs_training = True
     keeps_observed = True
@@ -451,6 +452,7 @@ class _MatrixCompletion(Denoiser):
     """
 
     keeps_observed = False
+    fill_evidence = "markers"
     clean_tolerance_cm = 1.0
 
     def _solve(self, X: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, dict[str, Any]]:
@@ -600,6 +602,7 @@ class DynaMMo(Denoiser):
     """
 
     name = "dynammo"
+    fill_evidence = "markers"
     description = "DynaMMo: linear dynamical system with missing values fitted by EM (Kalman/RTS E-step)"
     keeps_observed = True
     clean_tolerance_cm = 1.0

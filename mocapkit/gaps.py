@@ -1,0 +1,347 @@
+"""Gaps: finding them, the one policy on which of them may be filled, and the report.
+
+Real captures have many short gaps, some very long ones, and gaps that touch the start
+or end of the trial. Extrapolating a trajectory into such a gap is how a marker ends up
+metres away, so every method runs under one policy (applied by
+:class:`mocapkit.denoise.base.Denoiser` around each method's ``denoise``):
+
+* A missing sample is filled only from **evidence**. A method declares the evidence it
+  uses (``Denoiser.fill_evidence``):
+
+  - ``"interp"`` (per-channel filters, splines, the constant-velocity Kalman smoother):
+    the observed ends of the gap. Only interior gaps (observed on both sides) are
+    supported, plus an edge gap no longer than ``edge_horizon_s``.
+  - ``"markers"`` (low-rank, PCA, rigid-body, dictionaries, networks): other markers
+    observed in the same frame. Supported where at least ``min_markers`` other markers
+    are observed, or the gap is interior.
+
+* No gap longer than ``max_gap_s`` is filled (Vicon Nexus / QTM "maximum gap"; ``None``:
+  no limit), and a channel that is never observed is never filled (the one
+  never-observed rule of the package: it stays missing).
+* A fill more than ``volume_margin_cm`` outside the capture volume (the axis-aligned box
+  of the observed samples) is not trusted: it is left missing and counted.
+* What is filled is flagged (``Motion.filled``); what is left is reported in
+  ``motion.source["gap_report"]`` (see :func:`summary_line`).
+
+``use_policy(FILL_ALL)`` switches the restrictions off: the papers' synthetic protocols
+measure every entry, as the papers do.
+
+Example
+-------
+>>> import numpy as np
+>>> from mocapkit.gaps import find_gaps
+>>> obs = np.array([[1, 0], [0, 0], [1, 1], [1, 0]], bool)
+>>> [(int(g.joint), int(g.start), int(g.stop), g.kind) for g in find_gaps(obs)]
+[(0, 1, 2, 'interior'), (1, 0, 2, 'leading'), (1, 3, 4, 'trailing')]
+"""
+from __future__ import annotations
+
+import contextlib
+import contextvars
+from dataclasses import dataclass, replace
+from typing import Iterator, NamedTuple
+
+import numpy as np
+
+from .errors import MocapValueError
+
+__all__ = ["Gap", "GapPolicy", "DEFAULT_POLICY", "FILL_ALL", "find_gaps", "gap_lengths",
+           "gap_table", "supported", "capture_volume", "outside_volume", "fill_linear",
+           "use_policy", "current_policy", "apply_policy", "summary_line"]
+
+
+class Gap(NamedTuple):
+    """One run of missing frames of one joint: frames ``start:stop`` (stop exclusive)."""
+
+    joint: int
+    start: int
+    stop: int
+    kind: str          # "interior", "leading", "trailing" or "never" (never observed)
+
+    @property
+    def length(self) -> int:
+        return self.stop - self.start
+
+
+@dataclass(frozen=True)
+class GapPolicy:
+    """Which missing samples a method may fill (see the module docstring).
+
+    Parameters
+    ----------
+    max_gap_s : longest gap (seconds) that is filled; None = no limit.
+    edge_horizon_s : longest leading/trailing gap an ``"interp"`` method may fill (s).
+    min_markers : other markers that must be observed in a frame for ``"markers"``
+        evidence to support a sample of that frame.
+    volume_margin_cm : fills farther than this outside the observed capture volume are
+        left missing; None = no check.
+    restrict : False fills everything (the papers' synthetic protocols).
+    """
+
+    max_gap_s: float | None = None
+    edge_horizon_s: float = 0.05
+    min_markers: int = 3
+    volume_margin_cm: float | None = 100.0
+    restrict: bool = True
+
+    def __post_init__(self) -> None:
+        if self.max_gap_s is not None and not (self.max_gap_s > 0):
+            raise MocapValueError(f"max_gap_s must be a positive number of seconds, got {self.max_gap_s!r}")
+        if not self.edge_horizon_s >= 0:
+            raise MocapValueError(f"edge_horizon_s must be >= 0, got {self.edge_horizon_s!r}")
+
+
+DEFAULT_POLICY = GapPolicy()
+FILL_ALL = GapPolicy(restrict=False, volume_margin_cm=None)
+
+_POLICY: contextvars.ContextVar[GapPolicy] = contextvars.ContextVar("mocapkit_gap_policy",
+                                                                    default=DEFAULT_POLICY)
+
+
+def current_policy() -> GapPolicy:
+    """The policy in force (:data:`DEFAULT_POLICY` unless :func:`use_policy` is active)."""
+    return _POLICY.get()
+
+
+@contextlib.contextmanager
+def use_policy(policy: GapPolicy | None = None, **changes) -> Iterator[GapPolicy]:
+    """Run a block under ``policy`` (or the current one with ``changes``)::
+
+        with use_policy(max_gap_s=0.5):
+            out = method.denoise(motion)
+    """
+    pol = replace(policy or current_policy(), **changes)
+    token = _POLICY.set(pol)
+    try:
+        yield pol
+    finally:
+        _POLICY.reset(token)
+
+
+# -- finding gaps ------------------------------------------------------------------------------
+def _runs(missing: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(joint, start, stop) of every run of True in the columns of ``missing`` (T, J)."""
+    T, J = missing.shape
+    pad = np.zeros((1, J), dtype=bool)
+    d = np.diff(np.vstack([pad, missing, pad]).astype(np.int8), axis=0).T   # (J, T+1)
+    st_j, st_t = np.nonzero(d == 1)          # row-major: ordered by joint, then time
+    en_t = np.nonzero(d == -1)[1]            # starts and ends alternate within a joint
+    return st_j, st_t, en_t
+
+
+def find_gaps(observed: np.ndarray) -> list[Gap]:
+    """Every gap of an observed mask (T, J), ordered by joint then time."""
+    obs = np.asarray(observed, dtype=bool)
+    T = obs.shape[0]
+    j, s, e = _runs(~obs)
+    out = []
+    for jj, ss, ee in zip(j.tolist(), s.tolist(), e.tolist()):
+        kind = ("never" if ss == 0 and ee == T else "leading" if ss == 0
+                else "trailing" if ee == T else "interior")
+        out.append(Gap(jj, ss, ee, kind))
+    return out
+
+
+def gap_lengths(observed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per missing sample: the length (frames) of its gap and whether the gap is interior.
+
+    Returns (length (T, J) int, 0 where observed; interior (T, J) bool).
+    """
+    obs = np.asarray(observed, dtype=bool)
+    T, J = obs.shape
+    length = np.zeros((T, J), dtype=np.int64)
+    interior = np.zeros((T, J), dtype=bool)
+    j, s, e = _runs(~obs)
+    if len(j):
+        n = e - s
+        # paint each run with its length via a cumulative-sum trick on the (T+1, J) grid
+        paint = np.zeros((T + 1, J), dtype=np.int64)
+        np.add.at(paint, (s, j), n)
+        np.add.at(paint, (e, j), -n)
+        length = np.cumsum(paint, axis=0)[:T]
+        inner = ((s > 0) & (e < T)).astype(np.int64)
+        flag = np.zeros((T + 1, J), dtype=np.int64)
+        np.add.at(flag, (s, j), inner)
+        np.add.at(flag, (e, j), -inner)
+        interior = np.cumsum(flag, axis=0)[:T] > 0
+    return length, interior & ~obs
+
+
+def gap_table(motion) -> list[dict]:
+    """Per marker: missing %, number of gaps, longest gap (frames and s), edge gaps.
+
+    The rows ``mocapkit info FILE --gaps`` prints.
+    """
+    obs = motion.observed
+    T = motion.n_frames
+    gaps = find_gaps(obs)
+    rows = []
+    for j, name in enumerate(motion.skeleton.names):
+        g = [x for x in gaps if x.joint == j]
+        longest = max((x.length for x in g), default=0)
+        rows.append({"marker": name, "missing_percent": round(100 * (1 - obs[:, j].mean()), 2),
+                     "gaps": len(g), "longest_gap_frames": int(longest),
+                     "longest_gap_s": round(longest / motion.fps, 3),
+                     "leading_frames": int(next((x.length for x in g if x.kind in ("leading", "never")), 0)),
+                     "trailing_frames": int(next((x.length for x in g if x.kind == "trailing"), 0)),
+                     "filled_frames": int(motion.filled[:, j].sum()),
+                     "never_observed": bool(not obs[:, j].any()) and T > 0})
+    return rows
+
+
+# -- the policy ------------------------------------------------------------------------------
+def supported(observed: np.ndarray, fps: float, evidence: str,
+              policy: GapPolicy | None = None) -> np.ndarray:
+    """(T, J) bool: the missing samples a method with ``evidence`` may fill under ``policy``.
+
+    ``evidence`` is ``"interp"`` or ``"markers"`` (module docstring). Observed samples are
+    False. Under a non-restricting policy every missing sample of a channel observed at
+    least once is supported; a never-observed channel never is.
+    """
+    pol = policy or current_policy()
+    obs = np.asarray(observed, dtype=bool)
+    if not pol.restrict:
+        return ~obs & obs.any(axis=0)[None, :]
+    if evidence not in ("interp", "markers"):
+        raise MocapValueError(f"fill evidence must be 'interp' or 'markers', got {evidence!r}")
+    length, interior = gap_lengths(obs)
+    miss = ~obs
+    ever = obs.any(axis=0)[None, :]
+    horizon = int(np.floor(pol.edge_horizon_s * fps + 1e-9))
+    ok = miss & ever & (interior | (length <= horizon))
+    if evidence == "markers":
+        n_obs = obs.sum(axis=1, keepdims=True)                      # markers seen per frame
+        ok |= miss & ever & (n_obs >= pol.min_markers)
+    if pol.max_gap_s is not None:
+        ok &= length <= pol.max_gap_s * fps + 1e-9
+    return ok
+
+
+def capture_volume(positions: np.ndarray, observed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Axis-aligned box (lo (3,), hi (3,)) of the observed samples, cm."""
+    P = np.asarray(positions)[np.asarray(observed, bool)]
+    if len(P) == 0:
+        return np.full(3, -np.inf), np.full(3, np.inf)
+    return P.min(axis=0), P.max(axis=0)
+
+
+def outside_volume(positions: np.ndarray, lo: np.ndarray, hi: np.ndarray, margin_cm: float) -> np.ndarray:
+    """(T, J) bool: samples more than ``margin_cm`` outside the box, or not finite."""
+    P = np.asarray(positions)
+    with np.errstate(invalid="ignore"):
+        out = ((P < lo - margin_cm) | (P > hi + margin_cm)).any(axis=-1)
+    return out | ~np.isfinite(P).all(axis=-1)
+
+
+def fill_linear(X: np.ndarray, mask: np.ndarray, *, ends: str = "hold") -> np.ndarray:
+    """Fill unobserved entries of a (T, C) matrix by linear interpolation in time.
+
+    The one gap filler of the package. ``ends="hold"`` holds the nearest observed value
+    over leading/trailing gaps (a solver's starting point), ``ends="nan"`` leaves them
+    NaN. A channel that is never observed stays NaN (the never-observed rule: nothing
+    supports a value there), so callers decide what a solver starts from.
+
+    >>> fill_linear(np.array([[0.], [np.nan], [2.], [np.nan]]), np.array([[1], [0], [1], [0]], bool)).ravel()
+    array([0., 1., 2., 2.])
+    """
+    X = np.array(X, dtype=float, copy=True)
+    mask = np.asarray(mask, dtype=bool) & np.isfinite(X)
+    if ends not in ("hold", "nan"):
+        raise MocapValueError(f"ends must be 'hold' or 'nan', got {ends!r}")
+    if mask.all():
+        return X
+    t = np.arange(X.shape[0])
+    for c in np.flatnonzero(~mask.all(axis=0)):     # loop over channels (C small, T large)
+        m = mask[:, c]
+        if not m.any():
+            X[:, c] = np.nan
+            continue
+        X[:, c] = np.interp(t, t[m], X[m, c])
+        if ends == "nan":
+            first, last = np.flatnonzero(m)[[0, -1]]
+            X[:first, c] = np.nan
+            X[last + 1:, c] = np.nan
+    return X
+
+
+def apply_policy(inp, out, *, evidence: str, method: str, policy: GapPolicy | None = None):
+    """The motion a method may return for ``inp``: unsupported or implausible fills of ``out``
+    left missing, fills flagged, a ``gap_report`` in its source.
+
+    ``out`` is the method's raw result (same T and J). Samples observed in ``inp`` are
+    taken from ``out`` as they are (denoised); samples missing in ``inp`` are kept only
+    where :func:`supported` allows, they are finite and (policy permitting) inside the
+    capture volume. Where ``out`` itself left a sample missing it stays missing.
+    """
+    pol = policy or current_policy()
+    obs_in = inp.observed
+    P = np.array(out.positions, dtype=float)
+    has = out.observed.copy()
+    miss = ~obs_in
+    want = miss & has
+    ok = supported(obs_in, inp.fps, evidence, pol)
+    unsupported = want & ~ok
+    implausible = np.zeros_like(want)
+    if pol.volume_margin_cm is not None and want.any():
+        lo, hi = capture_volume(inp.positions, obs_in)
+        implausible = want & ok & outside_volume(P, lo, hi, pol.volume_margin_cm)
+    keep = has & ~(unsupported | implausible)
+    filled_now = keep & miss
+    filled = (inp.filled & obs_in & keep) | filled_now
+    if not out.observed[obs_in].all():      # a method must never drop a measured sample
+        raise RuntimeError(f"{method}: returned missing values for observed samples")
+    prev = inp.source.get("gap_report") or {}
+    by = dict(prev.get("filled_by", {}))
+    for name, n in (out.source.get("fill_counts") or {method: int(filled_now.sum())}).items():
+        by[name] = by.get(name, 0) + int(n)
+    by = {k: v for k, v in by.items() if v}
+    length, _ = gap_lengths(obs_in)
+    left = miss & ~keep
+    report = {
+        "method": method,
+        "filled": int(filled_now.sum()) + int(prev.get("filled", 0)),
+        "filled_by": by,
+        "left_missing": int(left.sum()),
+        "left_unsupported": int((unsupported | (miss & ~has & ~ok)).sum()),
+        "left_implausible": int(implausible.sum()),
+        "left_by_method": int((miss & ~has & ok).sum()),
+        "longest_filled_s": float(length[filled_now].max() / inp.fps) if filled_now.any() else 0.0,
+        "longest_left_s": float(length[left].max() / inp.fps) if left.any() else 0.0,
+        "never_observed": [inp.skeleton.names[j] for j in np.flatnonzero(~obs_in.any(axis=0))],
+        "max_gap_s": pol.max_gap_s,
+        "restricted": pol.restrict,
+    }
+    src = dict(out.source)
+    src.pop("fill_counts", None)
+    src["gap_report"] = report
+    P[~keep] = np.nan
+    from .motion import Motion
+
+    return Motion(P, out.skeleton, out.fps, keep, src, filled)
+
+
+def summary_line(report: dict | None) -> str:
+    """One line for the CLI: what was filled, by which fill, what was left and why."""
+    if not report:
+        return "no gaps"
+    by = ", ".join(f"{k} {v}" for k, v in sorted(report.get("filled_by", {}).items(), key=lambda kv: -kv[1]))
+    s = f"filled {report['filled']} missing samples"
+    if by and (len(report.get("filled_by", {})) > 1 or next(iter(report["filled_by"])) != report["method"]):
+        s += f" ({by})"
+    if report["filled"]:
+        s += f", longest gap filled {report['longest_filled_s']:.2f} s"
+    if report["left_missing"]:
+        why = []
+        if report["left_unsupported"]:
+            why.append(f"{report['left_unsupported']} without evidence"
+                       + (f" or beyond --max-gap {report['max_gap_s']:g} s" if report.get("max_gap_s") else ""))
+        if report["left_implausible"]:
+            why.append(f"{report['left_implausible']} outside the capture volume")
+        if report["left_by_method"]:
+            why.append(f"{report['left_by_method']} the fill could not support")
+        s += (f"; left {report['left_missing']} missing ({'; '.join(why)}), "
+              f"longest {report['longest_left_s']:.2f} s")
+        if report.get("never_observed"):
+            nv = report["never_observed"]
+            s += f"; never observed: {', '.join(nv[:5])}{' ...' if len(nv) > 5 else ''}"
+    return s
