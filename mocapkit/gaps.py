@@ -19,7 +19,11 @@ metres away, so every method runs under one policy (applied by
   no limit), and a channel that is never observed is never filled (the one
   never-observed rule of the package: it stays missing).
 * A fill more than ``volume_margin_cm`` outside the capture volume (the axis-aligned box
-  of the observed samples) is not trusted: it is left missing and counted.
+  of the observed samples) is not trusted: it is left missing and counted. So is a fill
+  that leaves the body: farther from the centroid of the markers observed in its frame
+  than that marker ever was when observed (x 1.25, + ``envelope_margin_cm``) — a
+  straight line across a 10 s gap of a sprinting subject stays inside the capture
+  volume but metres away from the runner.
 * What is filled is flagged (``Motion.filled``); what is left is reported in
   ``motion.source["gap_report"]`` (see :func:`summary_line`).
 
@@ -46,7 +50,7 @@ import numpy as np
 from .errors import MocapValueError
 
 __all__ = ["Gap", "GapPolicy", "DEFAULT_POLICY", "FILL_ALL", "find_gaps", "gap_lengths",
-           "gap_table", "supported", "capture_volume", "outside_volume", "fill_linear",
+           "gap_table", "supported", "capture_volume", "outside_volume", "outside_envelope", "fill_linear",
            "use_policy", "current_policy", "apply_policy", "summary_line"]
 
 
@@ -75,6 +79,8 @@ class GapPolicy:
         evidence to support a sample of that frame.
     volume_margin_cm : fills farther than this outside the observed capture volume are
         left missing; None = no check.
+    envelope_margin_cm : margin of the body-envelope check (module docstring); None = no
+        check.
     restrict : False fills everything (the papers' synthetic protocols).
     """
 
@@ -82,6 +88,7 @@ class GapPolicy:
     edge_horizon_s: float = 0.05
     min_markers: int = 3
     volume_margin_cm: float | None = 100.0
+    envelope_margin_cm: float | None = 30.0
     restrict: bool = True
 
     def __post_init__(self) -> None:
@@ -92,7 +99,7 @@ class GapPolicy:
 
 
 DEFAULT_POLICY = GapPolicy()
-FILL_ALL = GapPolicy(restrict=False, volume_margin_cm=None)
+FILL_ALL = GapPolicy(restrict=False, volume_margin_cm=None, envelope_margin_cm=None)
 
 _POLICY: contextvars.ContextVar[GapPolicy] = contextvars.ContextVar("mocapkit_gap_policy",
                                                                     default=DEFAULT_POLICY)
@@ -233,6 +240,34 @@ def outside_volume(positions: np.ndarray, lo: np.ndarray, hi: np.ndarray, margin
     return out | ~np.isfinite(P).all(axis=-1)
 
 
+def outside_envelope(positions: np.ndarray, observed: np.ndarray, candidate: np.ndarray,
+                     margin_cm: float, min_markers: int = 3) -> np.ndarray:
+    """(T, J) bool: samples of ``positions`` marked in ``candidate`` that lie farther from the
+    centroid of the markers observed in their frame than ``1.25 * r_j + margin_cm``, where
+    ``r_j`` is the largest such distance of marker j over the frames it is observed (the
+    largest over all markers for a marker observed in fewer than 10 frames). Frames with
+    fewer than ``min_markers`` observed markers are not checked (no reference).
+    """
+    P = np.asarray(positions, dtype=float)
+    obs = np.asarray(observed, dtype=bool)
+    cand = np.asarray(candidate, dtype=bool)
+    out = np.zeros_like(cand)
+    n = obs.sum(axis=1)
+    frames = cand.any(axis=1) & (n >= min_markers)
+    if not frames.any() or not obs.any():
+        return out
+    W = obs[..., None]
+    c = np.where(W, np.nan_to_num(P), 0.0).sum(axis=1) / np.maximum(n, 1)[:, None]   # (T, 3)
+    d = np.linalg.norm(np.nan_to_num(P) - c[:, None, :], axis=2)                     # (T, J)
+    d_obs = np.where(obs & (n >= min_markers)[:, None], d, -np.inf)
+    r = d_obs.max(axis=0)
+    enough = (obs & (n >= min_markers)[:, None]).sum(axis=0) >= 10
+    r_all = r[enough].max() if enough.any() else (r.max() if np.isfinite(r.max()) else np.inf)
+    r = np.where(enough, r, r_all)
+    out = cand & frames[:, None] & (d > 1.25 * r[None, :] + margin_cm)
+    return out
+
+
 def fill_linear(X: np.ndarray, mask: np.ndarray, *, ends: str = "hold") -> np.ndarray:
     """Fill unobserved entries of a (T, C) matrix by linear interpolation in time.
 
@@ -285,6 +320,10 @@ def apply_policy(inp, out, *, evidence: str, method: str, policy: GapPolicy | No
     if pol.volume_margin_cm is not None and want.any():
         lo, hi = capture_volume(inp.positions, obs_in)
         implausible = want & ok & outside_volume(P, lo, hi, pol.volume_margin_cm)
+    if pol.envelope_margin_cm is not None and want.any():
+        implausible |= outside_envelope(np.where(obs_in[..., None], inp.positions, P), obs_in,
+                                        want & ok & ~implausible, pol.envelope_margin_cm,
+                                        pol.min_markers)
     keep = has & ~(unsupported | implausible)
     filled_now = keep & miss
     filled = (inp.filled & obs_in & keep) | filled_now
@@ -336,7 +375,7 @@ def summary_line(report: dict | None) -> str:
             why.append(f"{report['left_unsupported']} without evidence"
                        + (f" or beyond --max-gap {report['max_gap_s']:g} s" if report.get("max_gap_s") else ""))
         if report["left_implausible"]:
-            why.append(f"{report['left_implausible']} outside the capture volume")
+            why.append(f"{report['left_implausible']} implausible: outside the capture volume or away from the body")
         if report["left_by_method"]:
             why.append(f"{report['left_by_method']} the fill could not support")
         s += (f"; left {report['left_missing']} missing ({'; '.join(why)}), "

@@ -26,7 +26,16 @@ def default(**params):
     """The default method, with ``params`` overriding its default settings."""
     return get(DEFAULT_METHOD, **{**DEFAULT_PARAMS, **params})
 
-_FAMILIES = ("filters", "fill", "kalman", "lowrank", "bases", "sparse", "wavelet", "thesis", "neural")
+
+def default_for(motion):
+    """The method used when none is named, chosen for ``motion``: ``fill-auto`` for marker
+    captures (fill the gaps, keep the measured samples), :func:`default` for skeleton data
+    (see :func:`mocapkit.denoise.fill_auto.default_for`)."""
+    from .fill_auto import default_for as _default_for
+
+    return _default_for(motion)
+
+_FAMILIES = ("filters", "fill", "kalman", "lowrank", "bases", "sparse", "wavelet", "thesis", "neural", "fill_auto")
 
 
 def _import_families() -> None:

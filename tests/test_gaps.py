@@ -1,0 +1,178 @@
+"""The gap policy (mocapkit.gaps), the Denoiser guard, and fill-auto."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from mocapkit import denoise, gaps, io
+from mocapkit.datasets import bundled
+from mocapkit.errors import MocapValueError
+from mocapkit.motion import Motion
+from mocapkit.skeleton import Skeleton
+
+
+def _markers(P: np.ndarray, fps: float = 100.0) -> Motion:
+    J = P.shape[1]
+    sk = Skeleton(tuple(f"M{j}" for j in range(J)), -np.ones(J, dtype=int), np.zeros((J, 3)))
+    return Motion(P, sk, fps, source={"format": "c3d"})
+
+
+def _walker(T: int = 400, J: int = 8, seed: int = 0) -> np.ndarray:
+    """A rigid-ish marker cloud walking 4 m along x with some sway (cm)."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(T) / 100.0
+    base = rng.normal(0, 20, (J, 3)) + [0, 0, 100]
+    sway = 5 * np.sin(2 * np.pi * 1.0 * t)[:, None, None] * rng.normal(0, 1, (1, J, 3))
+    P = base[None] + sway
+    P[..., 0] += 100 * t[:, None]
+    return P
+
+
+def test_find_gaps_kinds_and_lengths():
+    obs = np.ones((10, 3), bool)
+    obs[2:5, 0] = False                # interior, 3
+    obs[:4, 1] = False                 # leading, 4
+    obs[8:, 1] = False                 # trailing, 2
+    obs[:, 2] = False                  # never
+    g = gaps.find_gaps(obs)
+    assert [(x.joint, x.start, x.stop, x.kind) for x in g] == [
+        (0, 2, 5, "interior"), (1, 0, 4, "leading"), (1, 8, 10, "trailing"), (2, 0, 10, "never")]
+    length, interior = gaps.gap_lengths(obs)
+    assert length[3, 0] == 3 and length[0, 1] == 4 and length[9, 1] == 2 and length[5, 2] == 10
+    assert length[0, 0] == 0
+    assert interior[2:5, 0].all() and not interior[:4, 1].any() and not interior[:, 2].any()
+
+
+def test_supported_interp_vs_markers_and_max_gap():
+    obs = np.ones((100, 5), bool)
+    obs[:30, 0] = False                # leading gap 0.3 s at 100 fps
+    obs[40:60, 1] = False              # interior 0.2 s
+    obs[:, 2] = False                  # never observed
+    s_int = gaps.supported(obs, 100.0, "interp")
+    s_mk = gaps.supported(obs, 100.0, "markers")
+    assert not s_int[:30, 0].any() and s_int[40:60, 1].all()          # no extrapolation
+    assert s_mk[:30, 0].all() and s_mk[40:60, 1].all()                  # other markers seen
+    assert not s_int[:, 2].any() and not s_mk[:, 2].any()              # never observed: never
+    with gaps.use_policy(max_gap_s=0.1):
+        assert not gaps.supported(obs, 100.0, "markers")[40:60, 1].any()
+    with gaps.use_policy(gaps.FILL_ALL):
+        s_all = gaps.supported(obs, 100.0, "interp")
+        assert s_all[:30, 0].all() and not s_all[:, 2].any()
+    with pytest.raises(MocapValueError):
+        gaps.GapPolicy(max_gap_s=0)
+
+
+def test_fill_linear_never_observed_rule():
+    X = np.array([[np.nan, 1.0], [np.nan, np.nan], [np.nan, 3.0], [np.nan, np.nan]])
+    m = np.isfinite(X)
+    Y = gaps.fill_linear(X, m)
+    assert np.isnan(Y[:, 0]).all()                        # never observed: stays missing
+    assert np.allclose(Y[:, 1], [1, 2, 3, 3])
+    assert np.allclose(gaps.fill_linear(X, m, ends="nan")[:3, 1], [1, 2, 3])
+    assert np.isnan(gaps.fill_linear(X, m, ends="nan")[3, 1])
+
+
+def test_kalman_cv_does_not_extrapolate_an_edge_gap():
+    """The 0.1 failure: a marker hidden for the last 2 s of a walk was extrapolated at
+    constant velocity; now it is left missing and reported."""
+    P = _walker()
+    obs = np.ones(P.shape[:2], bool)
+    obs[200:, 0] = False
+    m = _markers(P).with_observed(obs)
+    out = denoise.get("kalman-cv").denoise(m)
+    assert not out.observed[210:, 0].any()
+    rep = out.source["gap_report"]
+    assert rep["left_unsupported"] >= 190 and rep["method"] == "kalman-cv"
+    assert "without evidence" in gaps.summary_line(rep)
+
+
+def test_fills_outside_the_volume_or_body_are_left_missing():
+    P = _walker()
+    obs = np.ones(P.shape[:2], bool)
+    obs[100:300, 0] = False
+    m = _markers(P).with_observed(obs)
+
+    class Wild(denoise.base.Denoiser):
+        name = "test-wild-fill"
+        fill_evidence = "markers"
+
+        def denoise(self, motion):
+            Q = np.nan_to_num(np.array(motion.positions))
+            Q[~motion.observed] = 1e5                   # 1 km away
+            return motion.with_positions(Q)
+
+    out = Wild().denoise(m)
+    assert not out.observed[100:300, 0].any()
+    assert out.source["gap_report"]["left_implausible"] == 200
+
+
+def test_filled_flags_and_report():
+    P = _walker()
+    obs = np.ones(P.shape[:2], bool)
+    obs[100:120, 3] = False
+    m = _markers(P).with_observed(obs)
+    out = denoise.get("linear").denoise(m)
+    assert out.observed.all()
+    assert np.array_equal(out.filled, ~obs)
+    rep = out.source["gap_report"]
+    assert rep["filled"] == 20 and rep["left_missing"] == 0
+    assert rep["longest_filled_s"] == pytest.approx(0.2)
+    # flags survive slicing / selection, and a second pass keeps the first one's flags
+    assert out.slice(100, 110).filled[:, 3].all() and not out.slice(100, 110).filled[:, :3].any()
+    again = denoise.get("gaussian").denoise(out)
+    assert np.array_equal(again.filled, out.filled)
+
+
+def test_guard_recentres_far_away_data_exactly():
+    clip = io.read(bundled("16_15.amc")).slice(0, 120)
+    far = clip.with_positions(clip.positions + 1e4)
+    for name in ("gaussian", "kalman-cv"):
+        a = denoise.get(name).denoise(clip).positions
+        b = denoise.get(name).denoise(far).positions
+        assert np.allclose(b - 1e4, a, atol=1e-6)
+
+
+def test_never_observed_joint_left_missing():
+    clip = io.read(bundled("16_15.amc")).slice(0, 120)
+    obs = clip.observed.copy()
+    obs[:, 5] = False
+    out = denoise.get("spline").denoise(clip.with_observed(obs))
+    assert not out.observed[:, 5].any() and np.isnan(out.positions[:, 5]).all()
+    assert out.observed[:, np.arange(clip.n_joints) != 5].all()
+    assert out.source["gap_report"]["never_observed"] == [clip.skeleton.names[5]]
+
+
+def test_fill_auto_chooses_per_gap_and_keeps_observed():
+    P = _walker(T=600, J=10)
+    obs = np.ones(P.shape[:2], bool)
+    obs[100:104, 2] = False            # short interior gap
+    obs[300:420, 5] = False            # long interior gap
+    m = _markers(P).with_observed(obs)
+    out = denoise.get("fill-auto").denoise(m)
+    assert np.array_equal(out.positions[obs], P[obs])        # measured samples untouched
+    assert out.observed[100:104, 2].all()
+    info = out.source["fill_auto"]
+    assert info["gaps"] == 2 and info["estimated_rmse_cm"] is not None
+    def rmse(o):
+        return float(np.sqrt(np.mean((o.positions[~obs] - P[~obs]) ** 2)))
+
+    singles = {n: rmse(denoise.get(n).denoise(m)) for n in ("linear", "spline")}
+    assert rmse(out) <= 1.05 * min(singles.values())         # per-gap choice: no worse than the best
+    assert sum(out.source["gap_report"]["filled_by"].values()) == out.source["gap_report"]["filled"]
+
+
+def test_fill_auto_leaves_gaps_it_cannot_validate_below_threshold():
+    rng = np.random.default_rng(1)
+    P = _walker(T=400, J=6)
+    P[:, 0] += rng.normal(0, 30, (400, 3))       # a marker that jumps about: nothing predicts it
+    obs = np.ones(P.shape[:2], bool)
+    obs[150:190, 0] = False
+    out = denoise.get("fill-auto", max_error_cm=5.0).denoise(_markers(P).with_observed(obs))
+    assert not out.observed[150:190, 0].any()
+    assert out.source["fill_auto"]["left_gaps"] == 1
+
+
+def test_default_for_marker_files_is_fill_auto():
+    P = _walker()
+    assert denoise.default_for(_markers(P)).name == "fill-auto"
+    assert denoise.default_for(io.read(bundled("16_15.amc"))).name == denoise.DEFAULT_METHOD
