@@ -29,7 +29,7 @@ test: $(STAMP)
 	$(PY) -m pytest -x -p no:cacheprovider
 
 fuzz: $(STAMP)
-	MOCAPKIT_FUZZ_EXAMPLES=2000 $(PY) -m pytest -q tests -k fuzz
+	MOCAPKIT_FUZZ_EXAMPLES=2000 MOCAPKIT_FUZZ_RANDOM=1 $(PY) -m pytest -q tests -k fuzz
 
 clean:
 	rm -rf $(VENV) demo_out build *.egg-info

@@ -61,3 +61,9 @@ class ConvergenceWarning(MocapWarning):
     names the method, the iterations used, the final residual vs. the tolerance and the
     parameter to raise (usually ``max_iter``).
     """
+
+
+class HeaderMismatchWarning(MocapWarning):
+    """A file's header disagrees with its data (e.g. a TRC ``NumFrames``/``NumMarkers`` or a
+    C3D header frame count): the data were read as they are and the message names both
+    numbers."""

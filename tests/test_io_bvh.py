@@ -342,7 +342,7 @@ def _mutations(text):
         ("bad channel count", sub_line(5, "  CHANNELS six Xposition"), 5, "CHANNELS count"),
         ("offset garbage", sub_line(4, "  OFFSET 0 zero 0"), 4, "OFFSET number.*'zero'"),
         ("extra frames", text + " ".join(row) + "\n", len(lines) + 1, "more frame lines"),
-        ("frame time", sub_line(motion + 2, "Frame Time: -0.01"), motion + 2, "frame time must be positive"),
+        ("frame time", sub_line(motion + 2, "Frame Time: -0.01"), motion + 2, "outside the supported range"),
         ("no frame time", sub_line(motion + 2, "Frame Tim: 0.01"), motion + 2, "Frame Time"),
         ("not bvh", "hello world\n", 1, "HIERARCHY"),
         ("empty", "", 1, "empty file"),
@@ -360,6 +360,43 @@ def test_malformed_files_name_the_line(tmp_path):
         assert e.line == line, (name, e)
         assert re.search(msg, e.message), (name, e.message)
         assert str(p) in str(e)
+
+
+@pytest.mark.parametrize("value,msg", [
+    ("1e-300", "outside the supported range 0.0001 .. 10 s"),      # fps 1e300 (issue 18)
+    ("0", "outside the supported range"), ("-0", "outside the supported range"),
+    ("-0.0083333", "outside the supported range"), ("0.00009", "outside the supported range"),
+    ("10.5", "outside the supported range"), ("1e300", "outside the supported range"),
+    ("inf", "only finite numbers"), ("-inf", "only finite numbers"), ("nan", "only finite numbers")])
+def test_absurd_frame_time_is_refused_with_the_line(tmp_path, value, msg):
+    """Frame Time outside 1e-4 .. 10 s per frame: one MocapFormatError naming file and line."""
+    text = synth_text(synth_channels())
+    lines = text.splitlines()
+    k = next(i for i, s in enumerate(lines) if s.startswith("Frame Time:"))
+    lines[k] = f"Frame Time: {value}"
+    p = tmp_path / "ft.bvh"
+    p.write_text("\n".join(lines) + "\n")
+    with pytest.raises(MocapFormatError) as ei:
+        mio.read(p)
+    assert ei.value.line == k + 1 and str(p) in str(ei.value)
+    assert re.search(msg, ei.value.message), ei.value.message
+
+
+@pytest.mark.parametrize("value", ["0.0001", "10", "0.0083333", "0.033333"])
+def test_frame_time_range_bounds_are_accepted(tmp_path, value):
+    p = tmp_path / "ok.bvh"
+    p.write_text(synth_text(synth_channels(), frame_time=value))
+    assert mio.read(p).fps == pytest.approx(1 / float(value))
+    assert bvh.FRAME_TIME_RANGE == (1e-4, 10.0)
+
+
+def test_writer_refuses_a_frame_rate_the_reader_would_refuse(tmp_path):
+    sk = Skeleton(("a", "b"), [-1, 0], np.array([[0, 0, 0], [0, 10.0, 0]]))
+    P = np.tile(np.array([[0.0, 90, 0], [0, 100, 0]]), (3, 1, 1))
+    with pytest.raises(MocapValueError, match="outside"):
+        bvh.write(Motion(P, sk, 1e6), tmp_path / "fast.bvh")
+    bvh.write(Motion(P, sk, 120.0), tmp_path / "ok.bvh")
+    assert mio.read(tmp_path / "ok.bvh").fps == pytest.approx(120.0)
 
 
 def test_binary_garbage_is_a_format_error(tmp_path):

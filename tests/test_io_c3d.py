@@ -203,3 +203,333 @@ def test_real_round_trip_with_gaps(shared_data, tmp_path):
         assert np.array_equal(b.observed, m.observed) and (~m.observed).any()
         np.testing.assert_allclose(b.positions[b.observed], m.positions[m.observed], atol=1e-4)
     assert io.read(shared_data / "markers/pyomeca/markers_analogs.c3d").source["c3d"]["analog_channels"] == 38
+
+
+# ------------------------------------------------------------------------------------
+# issue 18: header vs data, POINT:SCALE, no leaked warnings, vendor files
+# ------------------------------------------------------------------------------------
+import struct  # noqa: E402
+import warnings  # noqa: E402
+
+from mocapkit.errors import HeaderMismatchWarning, MocapWarning  # noqa: E402
+
+
+def _param_data_offset(raw: bytes, group: str, name: str) -> int:
+    """Byte offset of the data of parameter GROUP:NAME in a little-endian C3D file."""
+    start = (raw[0] - 1) * 512
+    sec = raw[start:start + 512 * raw[start + 2]]
+    i, groups, found = 4, {}, {}
+    while i + 2 <= len(sec):
+        nlen, gid = struct.unpack("bb", sec[i:i + 2])
+        if nlen == 0:
+            break
+        nm = sec[i + 2:i + 2 + abs(nlen)].decode()
+        j = i + 2 + abs(nlen)
+        off = struct.unpack("<h", sec[j:j + 2])[0]
+        if gid < 0:
+            groups[-gid] = nm
+        else:
+            found[(gid, nm)] = start + j + 4 + sec[j + 3]       # offset, type, ndims, dims
+        if off == 0:
+            break
+        i = j + off
+    gid = next(g for g, n in groups.items() if n == group)
+    return found[(gid, name)]
+
+
+def int_c3d(path: Path, xyz_int: np.ndarray, scale: float, rate: float = 100.0,
+            residual_byte=None, units: str = "mm") -> Path:
+    """A minimal *integer-storage* C3D (Intel), written byte by byte (ezc3d only writes
+    float storage): header, one parameter block (POINT: USED, SCALE, RATE, FRAMES,
+    DATA_START, LABELS, UNITS), int16 x/y/z and the camera-mask / residual bytes."""
+    T, N, _ = xyz_int.shape
+    res = np.ones((T, N), np.int8) if residual_byte is None else np.asarray(residual_byte, np.int8)
+
+    def rec(nm, gid, body):
+        b = nm.encode()
+        return struct.pack("<bb", len(b), gid) + b, body
+
+    def par(nm, typ, dims, data):
+        return rec(nm, 1, struct.pack("<bB", typ, len(dims)) + bytes(dims) + data + b"\x00")
+
+    labels = b"".join(f"M{i:<3d}"[:4].encode() for i in range(N))
+    recs = [rec("POINT", -1, b"\x00"), par("USED", 2, [], struct.pack("<h", N)),
+            par("SCALE", 4, [], struct.pack("<f", scale)), par("RATE", 4, [], struct.pack("<f", rate)),
+            par("FRAMES", 2, [], struct.pack("<h", T)), par("DATA_START", 2, [], struct.pack("<h", 3)),
+            par("LABELS", -1, [4, N], labels), par("UNITS", -1, [len(units)], units.encode())]
+    sec = bytes([1, 0x50, 1, 84])
+    for k, (head, body) in enumerate(recs):
+        sec += head + struct.pack("<h", 0 if k == len(recs) - 1 else 2 + len(body)) + body
+    head = bytearray(512)
+    head[0], head[1] = 2, 0x50
+    struct.pack_into("<HHHHHfHHf", head, 2, N, 0, 1, T, 10, scale, 3, 0, rate)
+    data = b"".join(struct.pack("<hhhBb", *(int(v) for v in xyz_int[t, i]), 0, int(res[t, i]))
+                    for t in range(T) for i in range(N))
+    path.write_bytes(bytes(head) + sec.ljust(512, b"\x00") + data)
+    return path
+
+
+def _read_strict(path, **kw):
+    """io.read with every non-mocapkit warning turned into an error."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        warnings.simplefilter("default", MocapWarning)
+        return io.read(path, **kw)
+
+
+def test_integer_storage_file_reads_like_ezc3d(tmp_path, rng):
+    X = rng.integers(-3000, 3000, (6, 3, 3))
+    r = np.ones((6, 3))
+    r[2, 1] = -1                                              # missing
+    m = _read_strict(int_c3d(tmp_path / "int.c3d", X, 0.1, residual_byte=r))
+    ref = ezc3d.c3d(str(tmp_path / "int.c3d"))["data"]["points"][:3]
+    np.testing.assert_allclose(m.positions[m.observed], np.transpose(ref, (2, 1, 0))[m.observed] * 0.1)
+    np.testing.assert_allclose(m.positions[0], X[0] * 0.1 * 0.1, rtol=1e-6)    # scale, then mm -> cm
+    assert m.observed.sum() == 17 and not m.observed[2, 1]
+
+
+@pytest.mark.parametrize("scale", [0.0, float("nan"), float("inf")])
+def test_integer_file_with_bad_point_scale_is_refused(tmp_path, rng, scale):
+    """POINT:SCALE 0 / NaN in an integer file: one clear error, not '100 % missing'."""
+    X = rng.integers(-3000, 3000, (5, 2, 3))
+    p = int_c3d(tmp_path / "bad_scale.c3d", X, scale)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(MocapFormatError, match="POINT:SCALE") as ei:
+            io.read(p)
+    assert "bad_scale.c3d" in str(ei.value)
+
+
+@pytest.mark.parametrize("scale", [float("nan"), -float("nan"), 0.0, -0.0, float("-inf")])
+def test_float_file_with_bad_point_scale_is_refused(synthetic, tmp_path, scale):
+    path, _ = synthetic
+    raw = bytearray(path.read_bytes())
+    k = _param_data_offset(bytes(raw), "POINT", "SCALE")
+    raw[k:k + 4] = struct.pack("<f", scale)
+    bad = tmp_path / "nan_scale.c3d"
+    bad.write_bytes(bytes(raw))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(MocapFormatError, match="POINT:SCALE"):
+            io.read(bad)
+
+
+@pytest.mark.parametrize("keep", [0, 100, 511, 512, 700, 1500])
+def test_truncated(synthetic, tmp_path, keep):
+    """Cut inside the header or the parameter section: MocapFormatError naming the file."""
+    path, _ = synthetic
+    cut = tmp_path / "cut.c3d"
+    cut.write_bytes(path.read_bytes()[:keep])
+    with pytest.raises(MocapFormatError) as ei:
+        io.read(cut)
+    assert "cut.c3d" in str(ei.value)
+
+
+@pytest.mark.parametrize("keep", [3000, -1000, -10])
+def test_truncated_data_reads_the_complete_frames_and_warns(synthetic, tmp_path, keep):
+    """Cut inside the point data (``-k``: k bytes before its end): the complete frames are
+    read, with one HeaderMismatchWarning naming both frame counts (issue 18)."""
+    path, xyz = synthetic
+    raw = path.read_bytes()
+    info = c3d._header(path)
+    dstart = (info["data_start"] - 1) * 512
+    data_end = dstart + info["frames"] * info["points"] * 16   # float32 x, y, z, residual word
+    assert data_end <= len(raw)
+    end = keep if keep >= 0 else data_end + keep
+    n_complete = (end - dstart) // (info["points"] * 16)
+    cut = tmp_path / "cut.c3d"
+    cut.write_bytes(raw[:end])
+    with pytest.warns(HeaderMismatchWarning) as rec:
+        m = _read_strict(cut)
+    msgs = [str(w.message) for w in rec if issubclass(w.category, HeaderMismatchWarning)]
+    assert len(msgs) == 1 and "40 frames" in msgs[0] and f"hold {n_complete}" in msgs[0]
+    assert m.n_frames == n_complete and "cut.c3d" in msgs[0]
+    full = io.read(path)
+    np.testing.assert_array_equal(m.observed, full.observed[:n_complete])
+    np.testing.assert_allclose(m.positions[m.observed], full.positions[:n_complete][m.observed])
+
+
+def test_header_announcing_fewer_frames_than_the_data(synthetic, tmp_path):
+    path, _ = synthetic
+    raw = bytearray(path.read_bytes())
+    raw[8:10] = struct.pack("<H", 25)              # header last frame 25 of 40
+    p = tmp_path / "short_header.c3d"
+    p.write_bytes(bytes(raw))
+    with pytest.warns(HeaderMismatchWarning, match=r"announces 25 frames .* hold 40"):
+        m = io.read(p)
+    assert m.n_frames == 40 and any("25" in w for w in m.source["warnings"])
+
+
+def test_parameter_names_with_spaces_are_accepted(synthetic, tmp_path):
+    """Qualisys writes parameters such as 'Uncropped Measurement Length' (issue 18)."""
+    path, _ = synthetic
+    raw = bytearray(path.read_bytes())
+    k = _param_data_offset(bytes(raw), "POINT", "RATE")
+    start = (raw[0] - 1) * 512
+    i = raw.index(b"RATE", start)
+    assert i + 4 + 4 == k
+    raw[i:i + 4] = b"R TE"                             # same length, a space inside
+    p = tmp_path / "spaced.c3d"
+    p.write_bytes(bytes(raw))
+    assert "R TE" in ezc3d.c3d(str(p))["parameters"]["POINT"]
+    m = _read_strict(p)
+    assert m.n_frames == 40
+
+
+def test_control_bytes_in_a_parameter_name_are_still_refused(synthetic, tmp_path):
+    path, _ = synthetic
+    raw = bytearray(path.read_bytes())
+    i = raw.index(b"RATE", (raw[0] - 1) * 512)
+    raw[i + 1] = 0x01
+    p = tmp_path / "ctrl.c3d"
+    p.write_bytes(bytes(raw))
+    with pytest.raises(MocapFormatError, match="bad name/group id"):
+        io.read(p)
+
+
+def test_no_numpy_warning_from_the_c3d_reader(tmp_path, rng):
+    """Huge float coordinates, NaN coordinates with a valid residual, negative zero:
+    read with warnings as errors."""
+    xyz = rng.uniform(-1, 1, (5, 3, 3))
+    xyz[0, 0] = 3e38                                  # near float32 max, in metres -> cm
+    xyz[1, 1] = np.nan
+    xyz[2, 2] = -0.0
+    m = _read_strict(_make_c3d(tmp_path / "w.c3d", xyz, "m"))
+    assert not m.observed[1, 1] and m.observed[0, 0]
+    assert np.isfinite(m.positions[m.observed]).all()
+
+
+# ------------------------------------------------------------------------------------
+# filled flags: residual 0 = filled, -1 = missing, > 0 measured (issue 15 item 4)
+# ------------------------------------------------------------------------------------
+def test_reader_flags_residual_zero_only_when_the_file_has_real_residuals(tmp_path, rng):
+    X = rng.integers(-3000, 3000, (6, 3, 3))
+    r = np.full((6, 3), 3)
+    r[1, 0] = 0                                       # filled
+    r[2, 2] = 0                                       # filled
+    r[4, 1] = -1                                      # missing
+    m = _read_strict(int_c3d(tmp_path / "res.c3d", X, 0.1, residual_byte=r))
+    expect = np.zeros((6, 3), bool)
+    expect[1, 0] = expect[2, 2] = True
+    np.testing.assert_array_equal(m.filled, expect)
+    assert m.source["c3d"]["residuals"].startswith("measured")
+    np.testing.assert_allclose(m.source["per_frame"]["residuals"][0], 0.3, rtol=1e-6)   # 3 x |scale|
+    # every valid residual 0 (mocapkit 0.1, many exporters): nothing is read as filled
+    z = np.where(r < 0, -1, 0)
+    m0 = _read_strict(int_c3d(tmp_path / "zero.c3d", X, 0.1, residual_byte=z))
+    assert not m0.filled.any() and m0.observed.sum() == 17
+    assert m0.source["c3d"]["residuals"].startswith("none")
+
+
+def _motion_with_flags(rng, T=30, J=4):
+    P = rng.uniform(-500, 500, (T, J, 3))
+    obs = np.ones((T, J), bool)
+    obs[3:7, 1] = False
+    filled = np.zeros((T, J), bool)
+    filled[10:14, 2] = True
+    filled[0, 0] = filled[-1, 3] = True
+    sk = Skeleton(tuple(f"M{j}" for j in range(J)), -np.ones(J, int), np.zeros((J, 3)))
+    return Motion(P, sk, 100.0, obs, filled=filled)
+
+
+def test_filled_flags_survive_a_c3d_round_trip(tmp_path, rng):
+    m = _motion_with_flags(rng)
+    out = io.write(m, tmp_path / "flags.c3d")
+    raw = ezc3d.c3d(str(out))
+    res = raw["data"]["meta_points"]["residuals"][0].T                 # (T, J)
+    assert (res[~m.observed] == -1).all()
+    assert (res[m.filled] == 0).all()
+    measured = m.observed & ~m.filled
+    assert (res[measured] > 0).all()                                     # never 0: 0 means filled
+    np.testing.assert_allclose(res[measured], c3d.RESIDUAL_STEP_CM / 0.1, rtol=1e-5)   # one step, mm
+    b = _read_strict(out)
+    np.testing.assert_array_equal(b.filled, m.filled)
+    np.testing.assert_array_equal(b.observed, m.observed)
+    # and again (read -> write -> read): flags, mask and residuals are stable
+    b2 = _read_strict(io.write(b, tmp_path / "flags2.c3d"))
+    np.testing.assert_array_equal(b2.filled, m.filled)
+    np.testing.assert_allclose(b2.source["per_frame"]["residuals"], b.source["per_frame"]["residuals"],
+                               rtol=1e-5)
+
+
+def test_measured_residuals_are_kept_and_converted(tmp_path, rng):
+    X = rng.integers(-3000, 3000, (8, 3, 3))
+    r = rng.integers(1, 120, (8, 3))
+    r[5, 2] = 0
+    src = _read_strict(int_c3d(tmp_path / "r.c3d", X, 0.05, residual_byte=r))   # residual r x 0.05 mm
+    kept = src.source["per_frame"]["residuals"]
+    b = _read_strict(io.write(src, tmp_path / "r_mm.c3d"))
+    np.testing.assert_array_equal(b.filled, src.filled)
+    assert b.filled[5, 2] and b.filled.sum() == 1
+    meas = src.observed & ~src.filled
+    np.testing.assert_allclose(b.source["per_frame"]["residuals"][meas], kept[meas], rtol=1e-6)   # same step
+    bm = _read_strict(io.write(src, tmp_path / "r_m.c3d", units="m"))          # same residuals in m
+    np.testing.assert_allclose(bm.source["per_frame"]["residuals"][meas] * 1000, kept[meas], rtol=1e-5)
+    np.testing.assert_array_equal(bm.filled, src.filled)
+
+
+def test_large_residuals_coarsen_the_step_instead_of_wrapping(tmp_path, rng):
+    """The residual field is one byte: a 40 mm residual must not wrap to 0 (= filled)."""
+    m = _motion_with_flags(rng)
+    res = np.where(m.observed, 1.0, -1.0)
+    res[20, 0] = 40.0                                                    # mm
+    m = m.with_source(format="c3d", units={"file": "mm", "cm_per_unit": 0.1},
+                      per_frame={"residuals": res})
+    b = _read_strict(io.write(m, tmp_path / "big.c3d"))
+    np.testing.assert_array_equal(b.filled, m.filled)
+    got = b.source["per_frame"]["residuals"]
+    assert got[20, 0] == pytest.approx(40.0, rel=0.01)
+    meas = m.observed & ~m.filled
+    np.testing.assert_allclose(got[meas], res[meas], atol=40.0 / 255)
+
+
+# ------------------------------------------------------------------------------------
+# real and vendor files against ezc3d itself
+# ------------------------------------------------------------------------------------
+def test_every_shared_c3d_matches_ezc3d(shared_data):
+    """Every C3D under markers/: where ezc3d reads points, mocapkit reads the same positions
+    (file units -> cm) and the same missing mask; analog-only files: 'no 3D points'."""
+    files = sorted((shared_data / "markers").rglob("*.c3d"))
+    assert len(files) >= 16
+    checked = []
+    for f in files:
+        try:
+            raw = ezc3d.c3d(str(f), extract_forceplat_data=False)
+        except Exception:                           # noqa: BLE001 - ezc3d cannot: nothing to compare
+            with pytest.raises(MocapFormatError):
+                io.read(f)
+            continue
+        pts = np.asarray(raw["data"]["points"], float)
+        if pts.shape[1] == 0:
+            with pytest.raises(MocapFormatError, match="no 3D points"):
+                io.read(f)
+            checked.append((f.name, "no points"))
+            continue
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            warnings.simplefilter("default", HeaderMismatchWarning)
+            m = io.read(f, zero_missing=False)
+            m0 = io.read(f)
+        xyz = np.transpose(pts[:3], (2, 1, 0))
+        unit = str(raw["parameters"]["POINT"]["UNITS"]["value"][0]).strip().lower() \
+            if len(raw["parameters"]["POINT"].get("UNITS", {}).get("value", [])) else "mm"
+        f_cm = {"mm": 0.1, "cm": 1.0, "m": 100.0}[unit]
+        ez_obs = np.isfinite(xyz).all(axis=2)
+        assert m.positions.shape == xyz.shape, f.name
+        np.testing.assert_array_equal(m.observed, ez_obs, err_msg=f.name)
+        np.testing.assert_array_equal(m0.observed, ez_obs & ~(xyz == 0).all(axis=2), err_msg=f.name)
+        np.testing.assert_allclose(m.positions[ez_obs], xyz[ez_obs] * f_cm, rtol=1e-12, err_msg=f.name)
+        assert m.fps == pytest.approx(float(raw["parameters"]["POINT"]["RATE"]["value"][0]))
+        checked.append((f.name, "same"))
+    names = dict(checked)
+    assert names.get("Qualisys.c3d") == "same" and names.get("Optotrak.c3d") == "same"
+    assert names.get("Kistler.c3d") == "no points" and names.get("C3DRotationExample.c3d") == "no points"
+
+
+def test_vendor_files_qualisys_and_optotrak(shared_data):
+    q = _read_strict(shared_data / "markers/ezc3d/Qualisys.c3d")
+    assert (q.n_frames, q.n_joints, q.fps) == (340, 55, 200.0)
+    with pytest.warns(HeaderMismatchWarning, match=r"1149 frames.*hold 29"):
+        o = io.read(shared_data / "markers/ezc3d/Optotrak.c3d")
+    assert (o.n_frames, o.n_joints, o.fps) == (29, 54, 30.0)
+    assert o.source["c3d"]["header_frames"] == 1149

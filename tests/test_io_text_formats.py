@@ -9,7 +9,7 @@ import pytest
 
 import mocapkit.io as mio
 from mocapkit import Motion, Skeleton
-from mocapkit.errors import MocapFormatError, MocapValueError
+from mocapkit.errors import HeaderMismatchWarning, MocapFormatError, MocapValueError
 from mocapkit.io import _text, kinect, trc
 
 
@@ -153,13 +153,15 @@ def test_trc_header_mismatch_is_reported(tmp_path):
     text, _, _ = trc_text(n_frames_header=10)
     p = tmp_path / "a.trc"
     p.write_text(text)
-    m = trc.read(p)
+    with pytest.warns(HeaderMismatchWarning):
+        m = trc.read(p)
     assert m.n_frames == 3 and "NumFrames=10" in m.source["warnings"][0]
 
 
 def test_trc_real_pyomeca(shared_data, tmp_path):
     f = shared_data / "markers" / "pyomeca" / "markers.trc"
-    m = mio.read(f)
+    with pytest.warns(HeaderMismatchWarning):
+        m = mio.read(f)
     assert (m.n_frames, m.n_joints, m.fps) == (93, 51, 100.0)
     assert m.skeleton.names[:3] == ("ASISl", "ASISr", "PSISl")
     np.testing.assert_allclose(m.positions[0, 0], [73.37041, 8.09832, 19.18668])     # mm -> cm
@@ -353,3 +355,160 @@ def test_kinect_msr_sides_and_head(shared_data):
     P = m.positions[m.observed.all(axis=1)]
     top = np.argmax(P[..., 1], axis=1)
     assert np.mean(top == m.skeleton.index("Head")) > 0.9
+
+
+# --------------------------------------------------------------------------------------
+# issue 18: header counts vs data give one warning naming both numbers
+# --------------------------------------------------------------------------------------
+import warnings  # noqa: E402
+
+
+def test_trc_numframes_mismatch_warns_once_naming_both(tmp_path):
+    text, _, _ = trc_text(n_frames_header=10)
+    p = tmp_path / "nf.trc"
+    p.write_text(text)
+    with warnings.catch_warnings(record=True) as rec:
+        warnings.simplefilter("always")
+        m = mio.read(p)
+    got = [w for w in rec if issubclass(w.category, HeaderMismatchWarning)]
+    assert len(got) == 1 and len(rec) == 1
+    msg = str(got[0].message)
+    assert "NumFrames=10" in msg and "3 complete data rows" in msg and "nf.trc" in msg
+    assert m.n_frames == 3
+
+
+def test_trc_nummarkers_mismatch_warns(tmp_path):
+    text, _, _ = trc_text()
+    lines = text.splitlines()
+    lines[2] = lines[2].replace("\t3\tm\t", "\t7\tm\t")
+    p = tmp_path / "nm.trc"
+    p.write_text("\n".join(lines) + "\n")
+    with pytest.warns(HeaderMismatchWarning, match=r"NumMarkers=7 .*names 3 markers"):
+        m = mio.read(p)
+    assert m.n_joints == 3
+
+
+def test_trc_consistent_header_gives_no_warning(tmp_path):
+    text, _, _ = trc_text()
+    p = tmp_path / "ok.trc"
+    p.write_text(text)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        mio.read(p)
+
+
+def test_trc_real_pyomeca_warns_652_vs_93(shared_data):
+    with pytest.warns(HeaderMismatchWarning, match=r"NumFrames=652 .*93") as rec:
+        m = mio.read(shared_data / "markers" / "pyomeca" / "markers.trc")
+    assert m.n_frames == 93
+    assert len([w for w in rec if issubclass(w.category, HeaderMismatchWarning)]) == 1
+
+
+# --------------------------------------------------------------------------------------
+# filled flags in a sidecar (issue 15 item 4): <output>.filled.tsv
+# --------------------------------------------------------------------------------------
+def _flagged_motion(T=12, J=3):
+    rng = np.random.default_rng(5)
+    P = rng.uniform(-100, 100, (T, J, 3))
+    obs = np.ones((T, J), bool)
+    obs[2:4, 0] = False
+    fil = np.zeros((T, J), bool)
+    fil[5:8, 1] = True
+    fil[11, 2] = True
+    sk = Skeleton(("RASI", "LASI", "C7"), [-1, -1, -1], np.zeros((3, 3)))
+    return Motion(P, sk, 50.0, obs, filled=fil)
+
+
+def test_trc_filled_sidecar_round_trip(tmp_path):
+    m = _flagged_motion()
+    out = mio.write(m, tmp_path / "walk.trc")
+    side = tmp_path / "walk.trc.filled.tsv"
+    assert mio.filled_sidecar_path(out) == side and side.is_file()
+    lines = side.read_text().splitlines()
+    assert lines[0] == "RASI\tLASI\tC7" and len(lines) == 1 + m.n_frames
+    assert lines[6] == "0\t1\t0" and lines[1] == "0\t0\t0"               # frame 5 (0-based)
+    b = mio.read(out)
+    np.testing.assert_array_equal(b.filled, m.filled)
+    np.testing.assert_array_equal(b.observed, m.observed)
+    assert b.source["filled_sidecar"] == str(side)
+    assert not mio.read(out, sidecar=False).filled.any()
+    # the TRC itself is unchanged by the convention (other tools read it as before)
+    assert "filled" not in out.read_text()
+
+
+def test_no_sidecar_without_filled_samples_and_stale_one_removed(tmp_path):
+    m = _flagged_motion()
+    out = mio.write(m, tmp_path / "a.trc")
+    side = mio.filled_sidecar_path(out)
+    assert side.exists()
+    plain = m.with_filled(np.zeros_like(m.filled))
+    with pytest.raises(MocapValueError, match="exists"):
+        mio.write(plain, out)                                             # no --force
+    mio.write(plain, out, overwrite=True)
+    assert not side.exists()                                              # stale flags gone
+    assert not mio.read(out).filled.any()
+    mio.write(plain, tmp_path / "b.trc")
+    assert not mio.filled_sidecar_path(tmp_path / "b.trc").exists()
+
+
+def test_existing_sidecar_needs_overwrite_and_never_replaces_an_input(tmp_path):
+    m = _flagged_motion()
+    side = tmp_path / "c.trc.filled.tsv"
+    side.write_text("something else\n")
+    with pytest.raises(MocapValueError, match="exists"):
+        mio.write(m, tmp_path / "c.trc")
+    assert not (tmp_path / "c.trc").exists() and side.read_text() == "something else\n"
+    mio.write(m, tmp_path / "c.trc", overwrite=True)
+    np.testing.assert_array_equal(mio.read(tmp_path / "c.trc").filled, m.filled)
+    # a motion whose sidecar input is the sidecar the new output would need: refused
+    src = mio.read(tmp_path / "c.trc")
+    fake = src.with_source(path=str(tmp_path / "other.trc"))
+    with pytest.raises(MocapValueError, match="input"):
+        mio.write(fake, tmp_path / "c.trc", overwrite=True)
+
+
+@pytest.mark.parametrize("fmt,ext", [("bvh", ".bvh"), ("kinect", ".txt")])
+def test_sidecar_for_other_formats(tmp_path, fmt, ext):
+    if fmt == "bvh":
+        sk = Skeleton(("Hips", "Spine"), [-1, 0], np.array([[0, 0, 0], [0, 20.0, 0]]))
+        P = np.tile(np.array([[0.0, 90, 0], [0, 110, 0]]), (6, 1, 1))
+        P[:, :, 0] += np.arange(6)[:, None]
+        m = Motion(P, sk, 60.0)
+    else:
+        m = kinect.read(_kinect_file(tmp_path))
+    fil = np.zeros((m.n_frames, m.n_joints), bool)
+    fil[1, 1] = fil[-1, 0] = True
+    m = m.with_filled(fil)
+    out = mio.write(m, tmp_path / f"out{ext}")
+    assert mio.filled_sidecar_path(out).is_file()
+    np.testing.assert_array_equal(mio.read(out, format=fmt).filled, fil)
+
+
+def _kinect_file(tmp_path):
+    rng = np.random.default_rng(3)
+    rows = []
+    for t in range(3):
+        for j in range(20):
+            x, y, z = rng.uniform(-0.5, 0.5), rng.uniform(-0.8, 0.8), 2.5 + 0.01 * t
+            rows.append(f"{x:.6f} {y:.6f} {z:.6f} 1")
+    p = tmp_path / "k_skeleton.txt"
+    p.write_text("\n".join(rows) + "\n")
+    return p
+
+
+@pytest.mark.parametrize("mutate,line,msg", [
+    (lambda ls: ["RASI\tLASI"] + ls[1:], 1, "names 2 joints"),
+    (lambda ls: ls[:-1], 12, "11 frame lines"),
+    (lambda ls: ls[:3] + ["0\t2\t0"] + ls[4:], 4, "0 or 1"),
+    (lambda ls: ls[:3] + ["0\t1"] + ls[4:], 4, "expected 3"),
+    (lambda ls: ls[:3] + ["0\tx\t1"] + ls[4:], 4, "'x'"),
+])
+def test_bad_sidecar_is_a_format_error_naming_it(tmp_path, mutate, line, msg):
+    out = mio.write(_flagged_motion(), tmp_path / "s.trc")
+    side = mio.filled_sidecar_path(out)
+    side.write_text("\n".join(mutate(side.read_text().splitlines())) + "\n")
+    with pytest.raises(MocapFormatError) as ei:
+        mio.read(out)
+    assert ei.value.path == str(side) and ei.value.line == line
+    assert re.search(msg, ei.value.message), ei.value.message
+    assert mio.read(out, sidecar=False).n_frames == 12

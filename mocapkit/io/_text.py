@@ -32,7 +32,8 @@ def read_text(path: str | os.PathLike) -> str:
     A file with NUL bytes is rejected as binary. A leading BOM is removed.
     """
     try:
-        raw = open(path, "rb").read()
+        with open(path, "rb") as fh:
+            raw = fh.read()
     except OSError as e:
         raise MocapFormatError(path, f"cannot read file ({e.strerror})") from None
     if b"\x00" in raw[:65536]:

@@ -35,7 +35,9 @@ returns a :class:`~mocapkit.motion.Motion` with joint positions in **cm**.
 * **Errors.** Malformed input raises :class:`~mocapkit.errors.MocapFormatError` with
   the file, the line and what was expected: unknown keyword, missing OFFSET/CHANNELS,
   unbalanced braces, duplicate joint names, missing MOTION section, ``Frames: 0``,
-  truncated data, a frame line with the wrong number of values, NaN/inf/garbage.
+  truncated data, a frame line with the wrong number of values, NaN/inf/garbage, a
+  ``Frame Time`` outside :data:`FRAME_TIME_RANGE` (1e-4 .. 10 s per frame, i.e.
+  10,000 .. 0.1 fps; 0, negative, ``1e-300`` and ``inf`` are refused with the line).
 
 Writing
 -------
@@ -361,6 +363,11 @@ def _resolve_units(units, nodes: list[_Node], path) -> dict[str, Any]:
 # ----------------------------------------------------------------------------------------
 # reader
 # ----------------------------------------------------------------------------------------
+#: accepted ``Frame Time`` (seconds per frame): 10,000 fps down to 0.1 fps. Capture systems
+#: run at 24-2,000 fps; a value outside this range (0, negative, 1e-300, 1e300) is a broken
+#: file, and read as-is it would make every velocity-based method nonsense.
+FRAME_TIME_RANGE = (1e-4, 10.0)
+
 _FRAMES_RE = re.compile(r"^\s*frames\s*:\s*(\S*)\s*$", re.IGNORECASE)
 _FTIME_RE = re.compile(r"^\s*frame\s+time\s*:\s*(\S*)\s*$", re.IGNORECASE)
 
@@ -407,8 +414,11 @@ def _parse(path, text: str):
     if not m:
         raise MocapFormatError(path, f"expected 'Frame Time: seconds', found {lines[i].strip()!r}", i + 1)
     frame_time = parse_float(m.group(1), path, i + 1, "the frame time")
-    if frame_time <= 0:
-        raise MocapFormatError(path, f"frame time must be positive, found {m.group(1)!r}", i + 1)
+    if not FRAME_TIME_RANGE[0] <= frame_time <= FRAME_TIME_RANGE[1]:
+        raise MocapFormatError(path, f"'Frame Time: {m.group(1)}' is outside the supported range "
+                                     f"{FRAME_TIME_RANGE[0]:g} .. {FRAME_TIME_RANGE[1]:g} s per frame "
+                                     f"({1 / FRAME_TIME_RANGE[0]:g} .. {1 / FRAME_TIME_RANGE[1]:g} frames "
+                                     f"per second)", i + 1)
     first = i + 1
     rows, line_nos = [], []
     for k in range(first, len(lines)):
@@ -902,6 +912,10 @@ def write(motion: Motion, path: str | os.PathLike, *, hierarchy: str = "auto",
         factor = 1.0 if units is None else _resolve_units(units, [], path)["factor_to_cm"]
         nodes, joint_nodes = _hierarchy_from_skeleton(motion.skeleton, factor)
         frame_time = 1.0 / motion.fps
+    if not FRAME_TIME_RANGE[0] <= frame_time <= FRAME_TIME_RANGE[1]:
+        raise MocapValueError(f"cannot write BVH at {motion.fps:g} fps: the frame time {frame_time:g} s "
+                              f"is outside {FRAME_TIME_RANGE[0]:g} .. {FRAME_TIME_RANGE[1]:g} s (the "
+                              f"range the reader accepts); resample the motion first")
     N = len(nodes)
     targets = np.full((T, N, 3), np.nan)
     have = np.zeros(N, bool)

@@ -17,33 +17,56 @@ points), ``fps = POINT:RATE`` and positions in **cm**:
 * **Skeleton**: a marker set has no hierarchy: every joint is a root (parent -1, zero
   offset), named by its label (blank labels become ``M001`` …, repeated ones get ``_2``
   …; the original labels are kept in ``source['c3d']['labels']``).
+* **Residuals and filled samples** (the convention of Vicon Nexus / QTM): residual < 0
+  missing, 0 computed (filled / interpolated), > 0 measured. The residuals (file units,
+  -1 where missing) are kept in ``source['per_frame']['residuals']``. ``Motion.filled`` is
+  set where a valid sample has residual exactly 0, but **only when the file carries real
+  residuals** (some valid sample has a residual > 0): files that write 0 for every valid
+  sample (mocapkit 0.1, several exporters) are read with ``filled`` all False;
+  ``source['c3d']['residuals']`` says which case it was.
 * **Analogs** are not read into the Motion; their channel count and rate are kept in
-  ``source['c3d']``.
-* **Malformed files** raise :class:`~mocapkit.errors.MocapFormatError`: before ezc3d
-  sees the file, the 512-byte header and the parameter-block pointer are checked
-  (C3D key byte 0x50, processor type, data start) and the file size is compared with
-  the size the header implies (ezc3d itself silently returns fewer frames for a truncated
-  file); ezc3d exceptions are turned into MocapFormatError too. No partial Motion is
-  ever returned.
+  ``source['c3d']``. An analog-only file (no 3D points) is refused with a clear error.
+* **Header vs data**: the frames the data hold are read (ezc3d stops at the last complete
+  frame). A header frame count that disagrees (a truncated file, or vendors such as
+  Optotrak whose header announces 1149 frames for 29) gives one
+  :class:`~mocapkit.errors.HeaderMismatchWarning` naming both numbers (also in
+  ``source['warnings']``).
+* **Malformed files** raise :class:`~mocapkit.errors.MocapFormatError`. ezc3d can crash
+  or hang on a corrupted *structure* (see ``tests/fuzz_regressions/c3d``), so before it
+  sees the file the 512-byte header, the parameter-block pointer (C3D key byte 0x50,
+  processor type, data start) and every parameter record (name, group id, offsets, data
+  type, dimensions) are checked; that guard refuses only what ezc3d cannot read safely,
+  never a file ezc3d handles (names with spaces, as Qualisys writes, are fine). After
+  ezc3d: no 3D points, no frames, a bad ``POINT:RATE``, a ``POINT:SCALE`` that is NaN,
+  infinite or 0 (the storage format and the coordinates' scale are then unknown), or an
+  unknown ``POINT:UNITS``. ezc3d exceptions are turned into MocapFormatError too. No
+  numpy warning escapes the reader.
 
 Writing
 -------
 ``write(motion, path, *, units=None)`` writes the points with ezc3d (float storage):
 labels (the original ones when the joints are unchanged), rate, and units (the file's
-original unit when the motion came from a C3D, else ``mm``; ``units=`` to choose);
-missing samples are written as NaN with residual -1, so the occlusion mask survives a
-round trip. Analog data are not written.
+original unit when the motion came from a C3D, else ``mm``; ``units=`` to choose).
+Residuals: -1 (and NaN coordinates) for missing samples, **0 for filled samples**
+(``motion.filled``), the **measured residual** kept from a C3D input for the others,
+converted to the output unit. The residual field is one byte times ``|POINT:SCALE|``:
+the writer sets ``POINT:SCALE = -step`` (the C3D input's own step when its residuals fit,
+else 0.01 mm, coarser only when the kept residuals exceed 255 steps), rounds residuals to it, and writes a measured sample without
+a known positive residual (e.g. from a TRC input) as **one step** (0.01 mm), never 0,
+since 0 means "computed". So the occlusion mask and the filled flags survive a round
+trip. Analog data are not written.
 """
 from __future__ import annotations
 
 import os
 import struct
+import warnings
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ..errors import MocapFormatError, MocapValueError
+from ..errors import HeaderMismatchWarning, MocapFormatError, MocapValueError
 from ..motion import Motion
 from ..skeleton import Skeleton
 from ._atomic import atomic_write_path
@@ -107,13 +130,10 @@ def _header(path: Path) -> dict[str, Any]:
         raise MocapFormatError(path, f"cannot read file ({e.strerror})") from None
     _check_parameters(path, params, le)
     if last >= first:
-        frames = last - first + 1
-        bps = 4 if scale < 0 else 2
-        need = (dstart - 1) * 512 + frames * (npts * 4 * bps + nanalog * bps)
-        info["frames"] = frames
-        if size < need:
-            raise MocapFormatError(path, f"truncated C3D file: the header announces {frames} frames of "
-                                   f"{npts} points ({need} bytes), the file has {size} bytes")
+        # what the header announces; the data may hold fewer (truncated file, or a vendor
+        # that writes another count: Optotrak.c3d announces 1149 frames and holds 29) or more:
+        # ezc3d reads the frames the data hold and read() warns about the difference
+        info["frames"] = last - first + 1
     return info
 
 
@@ -135,7 +155,9 @@ def _check_parameters(path: Path, sec: bytes, le: str) -> None:
         if j + 2 > end:
             raise MocapFormatError(path, f"corrupted C3D parameters: {where} runs past the section")
         name = sec[i + 2:j]
-        if gid == 0 or not all(32 < ch < 127 for ch in name):
+        # printable ASCII, spaces included (Qualisys writes 'Uncropped Measurement Length'):
+        # control bytes or NUL in a name mean the walk is off the records
+        if gid == 0 or not all(32 <= ch < 127 for ch in name):
             raise MocapFormatError(path, f"corrupted C3D parameters: {where} has a bad name/group id")
         off = struct.unpack(le + "h", sec[j:j + 2])[0]
         nxt = j + off
@@ -229,8 +251,13 @@ def read(path: str | os.PathLike, *, units: str | float | None = None, zero_miss
     N, T = pts.shape[1], pts.shape[2]
     if T == 0:
         raise MocapFormatError(path, "no frames (empty motion)")
-    if "frames" in info and T < info["frames"]:
-        raise MocapFormatError(path, f"truncated C3D file: {T} of {info['frames']} frames readable")
+    _check_scale(path, params)
+    warn: list[str] = []
+    announced = info.get("frames")
+    if announced is not None and announced != T and not (T > 65535 and announced < T):
+        # (a clip longer than the 16-bit header field can hold is the documented exception)
+        warn.append(f"the C3D header announces {announced} frames (frames {info['first']}..{info['last']}) "
+                    f"but the data hold {T}; read the {T} frames the data hold")
     res = np.asarray(c["data"]["meta_points"]["residuals"], dtype=float).reshape(N, T)
     try:
         rate = float(params["POINT"]["RATE"]["value"][0])
@@ -254,9 +281,16 @@ def read(path: str | os.PathLike, *, units: str | float | None = None, zero_miss
     else:
         ulabel, factor, how = "mm", UNITS["mm"], "no POINT:UNITS in the file; C3D default mm assumed"
     xyz = np.transpose(pts[:3], (2, 1, 0))                            # (T, N, 3)
-    obs = np.isfinite(xyz).all(axis=2) & (res.T >= 0)
+    with np.errstate(invalid="ignore"):
+        obs = np.isfinite(xyz).all(axis=2) & (res.T >= 0)
     if zero_missing:
         obs &= ~(xyz == 0).all(axis=2)
+    # residual convention: > 0 measured, 0 computed (filled / interpolated), < 0 missing;
+    # only a file that carries real residuals says anything with a 0 (mocapkit 0.1 and many
+    # exporters write 0 for every valid sample)
+    res_t = np.where(obs, res.T, -1.0)
+    has_residuals = bool((res_t > 0).any())
+    filled = obs & (res_t == 0) if has_residuals else np.zeros_like(obs)
     labels = _labels(params, N)
     names = _unique_names(labels, N)
     sk = Skeleton(tuple(names), -np.ones(N, dtype=int), np.zeros((N, 3)))
@@ -267,11 +301,83 @@ def read(path: str | os.PathLike, *, units: str | float | None = None, zero_miss
     analog_rate = float(c["header"]["analogs"].get("frame_rate", 0.0)) if "analogs" in c["header"] else 0.0
     meta = {"labels": labels + [""] * (N - len(labels)), "rate": rate,
             "first_frame": int(c["header"]["points"]["first_frame"]),
-            "analog_channels": n_analog, "analog_rate": analog_rate, "processor": info["processor"]}
+            "analog_channels": n_analog, "analog_rate": analog_rate, "processor": info["processor"],
+            "header_frames": announced, "residual_step": _residual_step(params),
+            "residuals": "measured (0 = filled)" if has_residuals else
+                         "none (every valid sample has residual 0: nothing read as filled)"}
     src = {"path": str(path), "format": "c3d",
            "units": {"file": ulabel, "cm_per_unit": factor, "how": how}, "c3d": meta,
-           "per_frame": {"residuals": np.where(obs, res.T, -1.0)}}
-    return Motion(xyz * factor, sk, rate, obs, src)
+           "per_frame": {"residuals": res_t}}
+    if warn:
+        src["warnings"] = warn
+    for w in warn:
+        warnings.warn(f"{path}: {w}", HeaderMismatchWarning, stacklevel=2)
+    with np.errstate(over="ignore", invalid="ignore"):
+        P = xyz * factor
+    return Motion(P, sk, rate, obs, src, filled)
+
+
+def _residual_step(params: dict) -> float | None:
+    """|POINT:SCALE|: one step of the residual byte, in file units (None if absent)."""
+    try:
+        v = abs(float(np.asarray(params["POINT"]["SCALE"]["value"], dtype=float).ravel()[0]))
+    except (KeyError, TypeError, ValueError, IndexError):
+        return None
+    return v if np.isfinite(v) and v > 0 else None
+
+
+def _check_scale(path: Path, params: dict) -> None:
+    """POINT:SCALE must be a finite non-zero number: its sign is the storage format (negative:
+    float) and, for integer storage, it multiplies every coordinate; NaN or 0 would read as
+    every sample missing (or every coordinate 0)."""
+    try:
+        vals = np.asarray(params["POINT"]["SCALE"]["value"], dtype=float).ravel()
+    except (KeyError, TypeError, ValueError):
+        return                                     # ezc3d read it with its default
+    bad = vals[~np.isfinite(vals) | (vals == 0)]
+    if len(bad):
+        raise MocapFormatError(path, f"bad POINT:SCALE {float(bad[0])!r}: it must be a finite non-zero "
+                               f"number (negative: float storage; positive: the integer coordinates' "
+                               f"scale), so the coordinates cannot be read")
+
+
+#: residual quantum of a written file when the kept residuals allow it: 0.01 mm (in cm)
+RESIDUAL_STEP_CM = 1e-3
+_RES_MAX_STEPS = 255        # the residual is one byte of the 4th point word (C3D spec, ezc3d)
+
+
+def _residuals_out(motion: Motion, factor: float) -> tuple[np.ndarray, float]:
+    """(T, J) residuals to write (file units) and the residual step (``|POINT:SCALE|``).
+
+    -1 missing, 0 filled (``motion.filled``), else the measured residual kept from a C3D
+    input (``source['per_frame']['residuals']``, converted to the output unit), rounded to
+    the step and at least one step (0 would mean "computed"); a measured sample without a
+    known positive residual gets one step. The step is the input file's own
+    ``|POINT:SCALE|`` when the kept residuals fit its 255 steps (so residuals round-trip
+    exactly), else 0.01 mm, or ``max residual / 255`` when the residuals are larger than
+    255 steps (the residual field is one byte).
+    """
+    T, J = motion.n_frames, motion.n_joints
+    obs, filled = motion.observed, motion.filled & motion.observed
+    src = motion.source
+    known = np.zeros((T, J))
+    to_out = 1.0
+    stored = src.get("per_frame", {}).get("residuals")
+    if src.get("format") == "c3d" and stored is not None and np.shape(stored) == (T, J):
+        to_out = float(src.get("units", {}).get("cm_per_unit", 1.0)) / factor
+        with np.errstate(all="ignore"):
+            known = np.asarray(stored, float) * to_out
+        known = np.where(np.isfinite(known) & (known > 0), known, 0.0)
+    measured = obs & ~filled
+    rmax = float(known[measured].max()) if measured.any() else 0.0
+    step = float(np.float32(max(RESIDUAL_STEP_CM / factor, rmax / _RES_MAX_STEPS)))
+    src_step = float(src.get("c3d", {}).get("residual_step") or 0.0) * to_out if known.any() else 0.0
+    if np.isfinite(src_step) and src_step > 0 and rmax <= _RES_MAX_STEPS * src_step * (1 + 1e-6):
+        step = float(np.float32(src_step))          # the input's own step: residuals kept exactly
+    k = np.clip(np.rint(known / step), 1, _RES_MAX_STEPS)
+    # (k + 0.5) steps: ezc3d stores int(residual / |scale|) (truncation), so this reads back as k steps
+    res = np.where(measured, (k + 0.5) * step, np.where(filled, 0.0, -1.0))
+    return res, step
 
 
 def write(motion: Motion, path: str | os.PathLike, *, units: str | float | None = None) -> Path:
@@ -279,7 +385,8 @@ def write(motion: Motion, path: str | os.PathLike, *, units: str | float | None 
 
     Labels: the original C3D labels when the motion came from a C3D with the same joints,
     else the joint names. Units: ``units=`` if given, else the source file's unit (C3D
-    input), else ``mm``. Missing samples: NaN coordinates with residual -1.
+    input), else ``mm``. Residuals: -1 missing (NaN coordinates), 0 filled
+    (``motion.filled``), the measured residual otherwise (see :func:`_residuals_out`).
     """
     import ezc3d
 
@@ -306,14 +413,12 @@ def write(motion: Motion, path: str | os.PathLike, *, units: str | float | None 
     xyz = np.where(obs[..., None], motion.positions / factor, np.nan)
     pts = np.ones((4, J, T))
     pts[:3] = np.transpose(xyz, (2, 1, 0))
-    res = np.where(obs, 0.0, -1.0)
-    stored = src.get("per_frame", {}).get("residuals")
-    if stored is not None and np.shape(stored) == (T, J):
-        res = np.where(obs, np.maximum(np.asarray(stored, float), 0.0), -1.0)
+    res, step = _residuals_out(motion, factor)
     c = ezc3d.c3d()
     c["parameters"]["POINT"]["RATE"]["value"] = [float(motion.fps)]
     c["parameters"]["POINT"]["LABELS"]["value"] = tuple(labels)
     c["parameters"]["POINT"]["UNITS"]["value"] = [ulabel]
+    c["parameters"]["POINT"]["SCALE"]["value"] = [-step]          # negative: float storage
     c["data"]["points"] = pts
     c["data"]["meta_points"]["residuals"] = res.T[None, :, :]
     c["data"]["meta_points"]["camera_masks"] = np.zeros((7, J, T), dtype=bool)

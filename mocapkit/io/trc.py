@@ -16,9 +16,11 @@ Layout (tab-separated; comma-separated files such as pyomeca's are read too)::
   markers; a row cut inside a marker, text that is not a number, or ``inf`` is an
   error naming the line.
 * ``fps`` is ``DataRate`` (else ``CameraRate``, else derived from the Time column).
-* A ``NumFrames``/``NumMarkers`` header that disagrees with the data is *reported*
-  (``motion.source['warnings']``), not fatal, when every data row is complete: real files
-  do this (``markers/pyomeca/markers.trc`` declares 652 frames and holds 93).
+* A ``NumFrames``/``NumMarkers`` header that disagrees with the data is *reported*, not
+  fatal, when every data row is complete: what the data hold is read, and one
+  :class:`~mocapkit.errors.HeaderMismatchWarning` per disagreeing field names both numbers
+  (also kept in ``motion.source['warnings']``). Real files do this
+  (``markers/pyomeca/markers.trc`` declares 652 frames and holds 93).
 * Markers have no hierarchy: the skeleton is a marker set (every parent -1, offsets 0).
 * ``Frame#`` and ``Time`` are kept in ``source['per_frame']`` (``frame``, ``time``).
 
@@ -29,11 +31,12 @@ unit (1e-6 mm = 1e-7 cm), atomically.
 from __future__ import annotations
 
 import os
+import warnings as _warnings
 from pathlib import Path
 
 import numpy as np
 
-from ..errors import MocapFormatError, MocapValueError
+from ..errors import HeaderMismatchWarning, MocapFormatError, MocapValueError
 from ..motion import Motion
 from ..skeleton import Skeleton
 from ._atomic import atomic_write
@@ -120,6 +123,7 @@ def read(path: str | os.PathLike, *, units: str | None = None) -> Motion:
     order = [c // 3 for c in cols]                    # triple index of each name
     n_triples = max(order) + 1
     warnings: list[str] = []
+    mismatches: list[str] = []          # header counts vs the data: also a HeaderMismatchWarning
     # units
     unit_txt = (units if units is not None else header.get("units", "")).strip().lower()
     if unit_txt not in UNITS:
@@ -153,14 +157,17 @@ def read(path: str | os.PathLike, *, units: str | None = None) -> Motion:
     try:
         nf = int(float(header.get("numframes", T)))
         if nf != T:
-            warnings.append(f"header NumFrames={nf} but the file holds {T} complete data rows; "
-                            f"all {T} rows were read")
+            mismatches.append(f"header NumFrames={nf} but the file holds {T} complete data rows; "
+                              f"all {T} rows were read")
+            warnings.append(mismatches[-1])
     except ValueError:
         warnings.append(f"header NumFrames {header.get('numframes')!r} is not a number")
     try:
         nm = int(float(header.get("nummarkers", M)))
         if nm != M:
-            warnings.append(f"header NumMarkers={nm} but line 4 names {M} markers")
+            mismatches.append(f"header NumMarkers={nm} but line 4 names {M} markers (and the data rows "
+                              f"hold them); all {M} were read")
+            warnings.append(mismatches[-1])
     except ValueError:
         warnings.append(f"header NumMarkers {header.get('nummarkers')!r} is not a number")
     fps = None
@@ -187,6 +194,8 @@ def read(path: str | os.PathLike, *, units: str | None = None) -> Motion:
               "per_frame": {"frame": frame_no, "time": times}}
     if warnings:
         source["warnings"] = warnings
+    for w in mismatches:
+        _warnings.warn(f"{path}: {w}", HeaderMismatchWarning, stacklevel=2)
     return Motion(P, skeleton, fps, observed, source)
 
 
