@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 import ast
 import json
+import os
 import sys
 import threading
 import time
@@ -17,7 +18,7 @@ from typing import Any, Iterator, Sequence
 
 import numpy as np
 
-from .errors import MocapError
+from .errors import MocapError, MocapFormatError, MocapValueError
 
 EXIT_BAD_INPUT = 2
 
@@ -77,6 +78,202 @@ def parse_params(items: Sequence[str] | None) -> dict[str, Any]:
     return out
 
 
+# -- parameter types ------------------------------------------------------------------------
+_SIMPLE = {"int", "float", "bool", "str", "None"}
+
+
+def _kinds(annotation: Any, default: Any) -> list[str] | None:
+    """The accepted kinds of a parameter from its annotation ('float | None') or, without
+    one, from its default's type; None when they cannot be told (anything is accepted)."""
+    import inspect
+
+    if isinstance(annotation, str) and annotation:
+        parts, depth, cur = [], 0, ""
+        for ch in annotation:
+            depth += ch == "["
+            depth -= ch == "]"
+            if ch == "|" and depth == 0:
+                parts.append(cur.strip())
+                cur = ""
+            else:
+                cur += ch
+        parts.append(cur.strip())
+        kinds = []
+        for t in parts:
+            if t.startswith("Optional[") and t.endswith("]") and t[9:-1] in _SIMPLE:
+                kinds += [t[9:-1], "None"]
+            elif t in _SIMPLE:
+                kinds.append(t)
+            elif t.split("[")[0] in ("Sequence", "tuple", "list", "Tuple", "List"):
+                kinds.append(t)
+            else:
+                return None
+        return kinds
+    if annotation not in (None, inspect.Parameter.empty) and isinstance(annotation, type):
+        return [annotation.__name__] if annotation.__name__ in _SIMPLE else None
+    if default is None or default is inspect.Parameter.empty:
+        return None
+    if isinstance(default, bool):
+        return ["bool"]
+    for t in (int, float, str):
+        if isinstance(default, t):
+            return [t.__name__]
+    if isinstance(default, (list, tuple)):
+        return ["Sequence[float]"] if all(isinstance(x, (int, float)) and not isinstance(x, bool)
+                                          for x in default) else None
+    return None
+
+
+def _coerce(v: Any, kinds: list[str]) -> tuple[bool, Any]:
+    import math
+
+    def number(x) -> bool:
+        return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+
+    if v is None:
+        return "None" in kinds, v
+    if isinstance(v, bool):
+        return "bool" in kinds, v
+    if isinstance(v, int):
+        if "int" in kinds:
+            return True, v
+        return ("float" in kinds, float(v)) if "float" in kinds else (False, v)
+    if isinstance(v, float):
+        if "float" in kinds:
+            return math.isfinite(v), v
+        if "int" in kinds and math.isfinite(v) and v.is_integer():
+            return True, int(v)
+        return False, v
+    if isinstance(v, str):
+        return "str" in kinds, v
+    if isinstance(v, (list, tuple)):
+        for k in kinds:
+            head, _, inner = k.partition("[")
+            if head not in ("Sequence", "tuple", "list", "Tuple", "List"):
+                continue
+            items = [x.strip() for x in inner[:-1].split(",")] if inner.endswith("]") else []
+            if not items or not set(items) <= {"float", "int", "..."}:
+                return True, v                  # elements of another kind: left to the owner
+            n = len(items) if head.lower() == "tuple" and "..." not in items and len(items) > 1 else None
+            if all(number(x) for x in v) and (n is None or len(v) == n):
+                return True, tuple(float(x) for x in v)
+        return False, v
+    return False, v
+
+
+def _describe_kinds(kinds: list[str]) -> str:
+    names = {"int": "an integer", "float": "a number", "bool": "true or false", "str": "a string",
+             "None": "none"}
+    return " or ".join(names.get(k, f"a list of numbers ({k})") for k in kinds)
+
+
+def check_param_types(owner: str, specs: dict[str, tuple[Any, Any]], params: dict[str, Any]) -> dict[str, Any]:
+    """``params`` checked against ``specs`` (name -> (annotation, default)); integers given
+    for a float are converted, integral floats for an int too. Unknown names are left for
+    the owner to report. Raises MocapValueError naming the parameter and the expected type."""
+    out = {}
+    for k, v in params.items():
+        if k not in specs:
+            out[k] = v
+            continue
+        kinds = _kinds(*specs[k])
+        if kinds is None:
+            out[k] = v
+            continue
+        ok, conv = _coerce(v, kinds)
+        if not ok:
+            raise MocapValueError(f"--param {k}={v!r}: {owner} expects {_describe_kinds(kinds)} for {k!r} "
+                                  f"(default {specs[k][1]!r})")
+        out[k] = conv
+    return out
+
+
+def _method_specs(cls) -> dict[str, tuple[Any, Any]]:
+    import inspect
+
+    return {p.name: (p.annotation, p.default) for p in inspect.signature(cls.__init__).parameters.values()
+            if p.name != "self" and p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)}
+
+
+def method_params(name: str, params: dict[str, Any], cls: Any = None) -> dict[str, Any]:
+    """``params`` of method ``name`` (or of the class ``cls`` of a loaded model) type-checked."""
+    from . import denoise
+
+    cls = cls or denoise.available().get(name)
+    if cls is None:
+        return params                       # denoise.get reports the unknown method
+    return check_param_types(f"method {cls.name!r}", _method_specs(cls), params)
+
+
+def _params_for(name: str, items: Sequence[str] | None) -> dict[str, Any]:
+    return method_params(name, parse_params(items))
+
+
+# -- which files a command reads (outputs may never be one of them) --------------------------
+def _supported_files_under(folder: str | Path) -> list[str]:
+    """Every file under ``folder`` that mocapkit can read (skeletons included)."""
+    from .io import SUPPORTED_EXTENSIONS
+
+    out = []
+    for root, _dirs, files in os.walk(folder):
+        out += [os.path.join(root, f) for f in files if Path(f).suffix.lower() in SUPPORTED_EXTENSIONS]
+    return out
+
+
+def _declared_inputs(paths: Sequence[str], skeleton: str | None = None) -> list[str]:
+    """``paths`` plus the ASF skeleton each AMC among them resolves to (``--skeleton`` or
+    the one found beside it, as the reader does), plus every readable file under a folder."""
+    from .io.asfamc import find_skeleton
+
+    out: list[str] = []
+    for p in paths:
+        if not p:
+            continue
+        if Path(p).is_dir():
+            out += _supported_files_under(p)
+            continue
+        out.append(str(p))
+        if Path(p).suffix.lower() == ".amc":
+            if skeleton:
+                out.append(str(skeleton))
+            else:
+                try:
+                    out.append(str(find_skeleton(p)))
+                except MocapError:
+                    pass
+    return out
+
+
+def _plan_output(motion, output: str, force: bool, extra_inputs: Sequence[str | None] = (),
+                 claimed: Sequence = ()) -> tuple[dict[str, Any], list[Path]]:
+    """Check every file writing ``motion`` to ``output`` produces (see batch.plan_motion_write)."""
+    from .batch import plan_motion_write
+
+    return plan_motion_write(motion, output, inputs=[x for x in extra_inputs if x], overwrite=force,
+                             claimed=claimed)
+
+
+def _load_mask(path: str) -> np.ndarray:
+    """A corrupted-entry mask saved by ``corrupt --mask``: a bool .npy (no pickles)."""
+    if not Path(path).is_file():
+        raise MocapFormatError(path, "mask file not found" if not Path(path).exists() else "not a regular file")
+    hint = "save one with 'mocapkit corrupt --mask M.npy'"
+    with open(path, "rb") as f:
+        magic = f.read(6)
+    if magic != b"\x93NUMPY":
+        raise MocapFormatError(path, f"not a .npy mask file ({hint})")
+    try:
+        mask = np.load(path, allow_pickle=False)
+    except (OSError, ValueError, EOFError) as e:
+        raise MocapFormatError(path, f"damaged .npy mask file ({str(e).splitlines()[0] if str(e) else type(e).__name__})") from None
+    if mask.dtype != bool:
+        if mask.dtype.kind in "iuf" and np.isin(mask, (0, 1)).all():
+            mask = mask.astype(bool)
+        else:
+            raise MocapFormatError(path, f"mask must be boolean (True = corrupted entry), got {mask.dtype}")
+    return mask
+
+
 def _read(path: str, skeleton: str | None = None, fmt: str | None = None):
     from . import io
 
@@ -88,13 +285,15 @@ def _method(name: str, params: dict[str, Any], model: str | None):
     from . import denoise
 
     if model:
+        if not Path(model).is_file():
+            raise MocapFormatError(model, "model file not found")
         m = denoise.base.Denoiser.load(model)
         if m.name != name and name != "auto":
             raise MocapError(f"--model {model} is a {m.name!r} model, not {name!r}")
         if params:
-            m.set_params(**params)
+            m.set_params(**method_params(m.name, params, type(m)))
         return m
-    m = denoise.get(name, **params)
+    m = denoise.get(name, **method_params(name, params))
     if m.needs_training:
         raise MocapError(f"method {name!r} needs a trained model: pass --model PATH "
                          f"(train one with: mocapkit train --method {name} CLIPS... -o model.npz)")
@@ -128,7 +327,16 @@ def cmd_info(a: argparse.Namespace) -> int:
 def cmd_corrupt(a: argparse.Namespace) -> int:
     from . import corrupt, io
 
+    from .io._atomic import check_output_path
+
     m = _read(a.input, a.skeleton)
+    opts, written = _plan_output(m, a.output, a.force)      # every output checked before any is written
+    if a.mask:
+        from .batch import motion_inputs
+
+        check_output_path(a.mask, motion_inputs(m), a.force, claimed=written)
+        if Path(a.mask).suffix.lower() != ".npy":
+            raise MocapValueError(f"--mask {a.mask}: the mask is saved as NumPy .npy; give a name ending in .npy")
     steps: list[tuple[str, dict[str, Any]]] = []
     if a.gaussian_cm is not None:
         steps.append(("gaussian", {"sigma_cm": a.gaussian_cm}))
@@ -147,7 +355,7 @@ def cmd_corrupt(a: argparse.Namespace) -> int:
     if not steps:
         raise MocapError("nothing to do: give --gaussian-cm, --snr-db, --outliers, --missing, --gaps or --spec")
     out, mask = corrupt.combine(m, steps, seed=a.seed)
-    io.write(out, a.output, overwrite=a.force)
+    io.write(out, a.output, overwrite=a.force, **opts)
     if a.mask:
         from .io._atomic import atomic_write
 
@@ -161,16 +369,16 @@ def cmd_denoise(a: argparse.Namespace) -> int:
     from . import denoise, io
 
     if a.method is None and a.model is None:
-        method = denoise.default(**parse_params(a.param))
+        method = denoise.default(**_params_for(denoise.DEFAULT_METHOD, a.param))
     else:
         method = _method(a.method or "auto", parse_params(a.param), a.model)
     m = _read(a.input, a.skeleton)
-    io._atomic.check_output_path(a.output, (a.input,), overwrite=a.force)
+    opts, _ = _plan_output(m, a.output, a.force, (a.input, a.model))
     with stage(f"denoising {m.n_frames} frames with {method.name}", enable=not a.quiet):
         t0 = time.perf_counter()
         out = method.denoise(m)
         dt = time.perf_counter() - t0
-    io.write(out, a.output, overwrite=a.force)
+    io.write(out, a.output, overwrite=a.force, **opts)
     if not a.quiet:
         print(f"wrote {a.output} ({method.name}, {m.n_frames} frames in {dt:.2f} s, "
               f"{m.n_frames / max(dt, 1e-9):.0f} frames/s; filled {int((~m.observed).sum())} missing entries)")
@@ -185,22 +393,38 @@ def cmd_train(a: argparse.Namespace) -> int:
     sources = list(a.clips) + ([a.data] if a.data else [])
     if not sources:
         raise MocapError("give training clips (CLIPS...) or --data DIR")
-    check_output_path(a.output, tuple(a.clips), overwrite=a.force or a.resume)
+    if a.data and not Path(a.data).is_dir():
+        raise MocapValueError(f"--data {a.data}: not a folder")
+    # never write over a training clip, its skeleton, or any motion file under --data
+    protected = _declared_inputs(sources, a.skeleton)
+    check_output_path(a.output, protected, overwrite=a.force or a.resume)
     if a.method in ("bra", "bra-p"):
         # neural methods: their own trainer (progress bar, checkpoints, resume)
-        from .neural.train import train_cli
+        import dataclasses
 
+        from .neural.train import TrainConfig, train_cli
+
+        specs = {f.name: (f.type, f.default) for f in dataclasses.fields(TrainConfig)}
+        params = check_param_types(f"training of {a.method!r}", specs, params)
+        check_output_path(str(a.output) + ".ckpt", protected, overwrite=True, claimed=[a.output])
         train_cli(sources if len(sources) > 1 else sources[0], a.output, method=a.method,
                   resume=a.resume, progress=not a.quiet, exclude=a.exclude or (), **params)
         return 0
-    method = denoise.get(a.method, **params)
+    method = denoise.get(a.method, **method_params(a.method, params))
+    if Path(a.output).suffix.lower() == ".pt":
+        raise MocapValueError(f"-o {a.output}: {a.method} models are saved as .npz (.pt is for bra / bra-p)")
     from .batch import find_inputs
 
     paths: list[str] = []
     for src in sources:
         paths += [str(p) for p in find_inputs(Path(src))] if Path(src).is_dir() else [src]
     paths = [p for p in paths if Path(p).stem not in set(a.exclude or ())]
+    if not paths:
+        raise MocapValueError(f"no training clips found in {', '.join(sources)}")
     motions = [_read(p, a.skeleton) for p in paths]
+    from .batch import motion_inputs
+
+    check_output_path(a.output, [x for m in motions for x in motion_inputs(m)], overwrite=a.force or a.resume)
     with stage(f"training {a.method} on {len(motions)} clips", enable=not a.quiet):
         method.fit(motions)
     method.save(a.output)
@@ -214,7 +438,7 @@ def cmd_eval(a: argparse.Namespace) -> int:
 
     truth = _read(a.truth, a.skeleton)
     est = _read(a.estimate, a.skeleton)
-    mask = np.load(a.mask) if a.mask else None
+    mask = _load_mask(a.mask) if a.mask else None
     res = metrics.all_metrics(truth, est, mask)
     if a.json:
         print(json.dumps({k: {"value": v, "unit": u} for k, (v, u) in res.items()}, indent=1))
@@ -245,14 +469,26 @@ def cmd_bench(a: argparse.Namespace) -> int:
         return 0
     if not a.protocol:
         raise MocapError("name a protocol (mocapkit bench --list shows them)")
-    ctx = bench.Context(data_dir=shared_data_dir(a.data), quick=a.quick, seed=a.seed,
-                        progress=not a.quiet)
+    from .io._atomic import check_output_path
+
+    if a.protocol not in bench.available():
+        raise MocapError(f"unknown protocol {a.protocol!r} (mocapkit bench --list shows them)")
+    if a.data and not Path(a.data).is_dir():
+        raise MocapValueError(f"--data {a.data}: not a folder")
+    data = shared_data_dir(a.data)
+    out = Path(a.out or f"{a.protocol}.json")
+    md_out = out.with_suffix(".md")
+    trees = [data] if data else []
+    check_output_path(out, overwrite=a.force, input_trees=trees)
+    check_output_path(md_out, overwrite=a.force, input_trees=trees, claimed=[out])
+    ctx = bench.Context(data_dir=data, quick=a.quick, seed=a.seed, progress=not a.quiet)
     t0 = time.perf_counter()
     rows = bench.run(a.protocol, ctx)
-    out = Path(a.out or f"{a.protocol}.json")
     bench.to_json(rows, out)
     md = bench.to_markdown(rows, title=f"{a.protocol}{' (quick)' if a.quick else ''}")
-    out.with_suffix(".md").write_text(md)
+    from .io._atomic import atomic_write
+
+    atomic_write(md_out, lambda f: f.write(md))
     if not a.quiet:
         print(md)
     print(f"wrote {out} and {out.with_suffix('.md')} ({len(rows)} rows, {time.perf_counter() - t0:.1f} s)")
@@ -262,13 +498,17 @@ def cmd_bench(a: argparse.Namespace) -> int:
 def cmd_detect(a: argparse.Namespace) -> int:
     from . import detect
 
+    from .batch import motion_inputs
+    from .io._atomic import check_output_path
+
     m = _read(a.input, a.skeleton)
+    if a.output:
+        check_output_path(a.output, motion_inputs(m), overwrite=a.force)
     rep = detect.detect_report(m, threshold_cm=a.threshold_cm) if a.threshold_cm else detect.detect_report(m)
     text = json.dumps(rep, indent=1, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o))
     if a.output:
-        from .io._atomic import atomic_write, check_output_path
+        from .io._atomic import atomic_write
 
-        check_output_path(a.output, (a.input,), overwrite=a.force)
         atomic_write(a.output, lambda f: f.write(text))
         print(f"wrote {a.output}")
     else:
@@ -279,7 +519,12 @@ def cmd_detect(a: argparse.Namespace) -> int:
 def cmd_report(a: argparse.Namespace) -> int:
     from .viz.report import write_report
 
+    from .batch import motion_inputs
+    from .io._atomic import check_output_path
+
+    check_output_path(a.output, _declared_inputs(a.files, a.skeleton), overwrite=a.force)
     motions = [_read(p, a.skeleton) for p in a.files]
+    check_output_path(a.output, [x for m in motions for x in motion_inputs(m)], overwrite=a.force)
     write_report(a.output, motions, labels=[Path(p).name for p in a.files],
                  truth_first=not a.no_truth, overwrite=a.force)
     print(f"wrote {a.output}")
@@ -291,13 +536,30 @@ def cmd_batch(a: argparse.Namespace) -> int:
 
     from . import denoise
 
+    from .batch import BatchInterrupted
+
     params = parse_params(a.param)
     if a.method is None and a.model is None:
         params = {**denoise.DEFAULT_PARAMS, **params}
-    summ = run_batch(a.in_dir, a.out_dir, method=a.method or denoise.DEFAULT_METHOD,
-                     params=params, model=a.model, workers=a.workers,
-                     scheduler=a.scheduler, patterns=a.include or DEFAULT_PATTERNS,
-                     progress=not a.quiet)
+    if a.workers < 1:
+        raise MocapValueError(f"--workers {a.workers}: give 1 or more")
+    # parameters (names and types) and the model are checked once, before any file is done
+    if a.model:
+        method = _method(a.method or "auto", params, a.model)
+        params = method_params(method.name, params, type(method)) if params else params
+    else:
+        params = method_params(a.method or denoise.DEFAULT_METHOD, params)
+    try:
+        summ = run_batch(a.in_dir, a.out_dir, method=a.method or denoise.DEFAULT_METHOD,
+                         params=params, model=a.model, workers=a.workers,
+                         scheduler=a.scheduler, patterns=a.include or DEFAULT_PATTERNS,
+                         progress=not a.quiet)
+    except BatchInterrupted as e:
+        s = e.summary
+        print(f"mocapkit batch: interrupted: {s.ok} ok, {s.failed} failed, {s.remaining} not done; "
+              f"the manifest lists every finished output; rerun the same command to resume",
+              file=sys.stderr)
+        return 130
     for r in summ.results:
         if r.status == "failed":
             print(f"FAILED {r.input}: {r.reason}")
@@ -311,8 +573,25 @@ def cmd_plot(a: argparse.Namespace) -> int:
     from .io._atomic import check_output_path
     from .viz import plots
 
-    check_output_path(a.output, tuple(a.files), overwrite=a.force)
+    ext = Path(a.output).suffix.lower().lstrip(".")
+    if a.gif:
+        if ext != "gif":
+            raise MocapValueError(f"-o {a.output}: --gif writes a GIF animation; give a name ending in .gif")
+    else:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        from matplotlib.figure import Figure
+
+        kinds = Figure().canvas.get_supported_filetypes()
+        if ext not in kinds:
+            raise MocapValueError(f"-o {a.output}: unsupported figure type {ext or '(none)'!r}; use one of "
+                                  f"{', '.join(sorted(kinds))} (or --gif with .gif)")
+    check_output_path(a.output, _declared_inputs(a.files, a.skeleton), overwrite=a.force)
+    if a.max_frames < 1:
+        raise MocapValueError(f"--max-frames {a.max_frames}: give 1 or more")
     if a.bench:
+        _check_bench_json(a.files[0])
         path = plots.plot_bench(a.output, a.files[0], a.metric)
     else:
         motions = [_read(p, a.skeleton) for p in a.files]
@@ -330,10 +609,31 @@ def cmd_plot(a: argparse.Namespace) -> int:
     return 0
 
 
+def _check_bench_json(path: str) -> None:
+    """A 'mocapkit bench' JSON: a list of rows with the keys the chart needs."""
+    need = {"protocol", "condition", "method", "metric", "unit", "value"}
+    if not Path(path).is_file():
+        raise MocapFormatError(path, "file not found" if not Path(path).exists() else "not a regular file")
+    try:
+        rows = json.loads(Path(path).read_text(encoding="utf-8"))
+    except (ValueError, UnicodeDecodeError):
+        rows = None
+    if not isinstance(rows, list) or not all(isinstance(r, dict) and need <= set(r) for r in rows):
+        raise MocapFormatError(path, f"not a 'mocapkit bench' JSON (a list of rows with "
+                                     f"{', '.join(sorted(need))})")
+
+
 def cmd_index(a: argparse.Namespace) -> int:
     from .retrieval.index import build_index
 
+    from .io._atomic import check_output_path
+
     d: Any = parse_value(a.d) if a.d != "auto" else "auto"
+    if not (d == "auto" or (isinstance(d, (int, float)) and not isinstance(d, bool) and d > 0)):
+        raise MocapValueError(f"--d {a.d}: give a count, a fraction of the features (0-1) or 'auto'")
+    if a.words < 1:
+        raise MocapValueError(f"--words {a.words}: give 1 or more")
+    check_output_path(a.output, _declared_inputs([a.source]), overwrite=a.force)
     res = build_index(a.source, a.output, progress=not a.quiet, method=a.method, d=d,
                       n_words=a.words, overwrite=a.force, seed=a.seed)
     print(f"wrote {res['output']} ({res['n_indexed']} clips, {res['d']} selected features, "
@@ -367,7 +667,24 @@ def cmd_classify(a: argparse.Namespace) -> int:
     if a.model == "train":
         if not a.output:
             raise MocapError("classify train DATA -o MODEL: give -o/--output for the model file")
-        res = train_classifier(a.file, a.output, progress=not a.quiet, C=a.C, overwrite=a.force)
+        from .io._atomic import check_output_path
+        from .retrieval.index import find_motion_files, label_of
+
+        check_output_path(a.output, _declared_inputs([a.file]), overwrite=a.force)
+        labels = sorted({label_of(f) for f in find_motion_files(a.file)})
+        if len(labels) < 2:
+            raise MocapValueError(f"classify train {a.file}: the clips carry {len(labels)} label"
+                                  f"{'' if len(labels) == 1 else 's'} ({', '.join(labels) or 'none'}); a "
+                                  f"classifier needs at least two (labels come from the file names "
+                                  f"aAA_sSS_eEE / HDM_xx_<class>_..., else the parent folder)")
+        if not a.C > 0:
+            raise MocapValueError(f"--C {a.C}: give a positive number")
+        try:
+            res = train_classifier(a.file, a.output, progress=not a.quiet, C=a.C, overwrite=a.force)
+        except ValueError as e:             # scikit-learn's, e.g. one class left after skipped files
+            if isinstance(e, MocapError):
+                raise
+            raise MocapValueError(f"classify train {a.file}: {e}") from None
         print(f"wrote {res['output']} ({res['n_train']} clips, {len(res['classes'])} classes, "
               f"training accuracy {res['train_accuracy']:.3f}, {len(res['skipped'])} skipped)")
         return 0
@@ -453,6 +770,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--quick", action="store_true", help="reduced run (seconds to a minute)")
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--list", action="store_true", help="list protocols")
+    s.add_argument("--force", action="store_true", help="replace existing output files")
     s.add_argument("-q", "--quiet", action="store_true")
     s.set_defaults(func=cmd_bench)
 
@@ -551,18 +869,46 @@ def _one_line_warnings(command: str) -> Iterator[None]:
         yield
 
 
+def _stdout_gone() -> int:
+    """stdout's reader went away (``mocapkit info X | head -n 1``): as the Python docs advise
+    for SIGPIPE, point stdout at devnull so the exit flush cannot fail again, exit quietly."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    except (OSError, ValueError, AttributeError):
+        pass
+    return 1
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     a = parser.parse_args(argv)
     try:
         with _one_line_warnings(a.command):
-            return int(a.func(a) or 0)
+            rc = int(a.func(a) or 0)
+        sys.stdout.flush()                  # a closed pipe shows up here, not at exit
+        return rc
+    except BrokenPipeError:
+        return _stdout_gone()
     except MocapError as e:
         print(f"mocapkit {a.command}: error: {e}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except KeyboardInterrupt:
         print(f"mocapkit {a.command}: interrupted (no partial output written)", file=sys.stderr)
         return 130
+    except OSError as e:                    # permissions, full disk, ...: the user's to fix
+        where = f"{e.filename}: " if getattr(e, "filename", None) else ""
+        print(f"mocapkit {a.command}: error: {where}{e.strerror or e}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except Exception as e:  # noqa: BLE001 - a bug: one line, the traceback on request
+        if os.environ.get("MOCAPKIT_DEBUG"):
+            raise
+        if type(e) is ValueError:           # a library's plain "bad value" (e.g. a parameter's range)
+            print(f"mocapkit {a.command}: error: {e}", file=sys.stderr)
+            return EXIT_BAD_INPUT
+        print(f"mocapkit {a.command}: internal error: {type(e).__name__}: {e} (this is a bug; "
+              f"MOCAPKIT_DEBUG=1 shows the traceback)", file=sys.stderr)
+        return 1
 
 
 if __name__ == "__main__":

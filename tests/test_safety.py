@@ -260,3 +260,41 @@ def test_converged_solver_records_iterations(noisy_clip):
         out = denoise.get("dynammo", max_iter=200, tol=1e-2).denoise(noisy_clip)
     assert out.source["solver"]["converged"] is True
     assert 1 <= out.source["solver"]["iterations"] < 200
+
+
+# ---------------------------------------------------------------------------------------
+# the one output-path rule (issue 18): check_output_path
+# ---------------------------------------------------------------------------------------
+def test_check_output_path_rule(tmp_path):
+    check = _atomic.check_output_path
+    src = tmp_path / "raw"
+    (src / "sub").mkdir(parents=True)
+    inp = src / "a.bvh"
+    inp.write_text("x")
+    (tmp_path / "folder").mkdir()
+    os.mkfifo(tmp_path / "fifo.bvh")
+    os.symlink(inp, tmp_path / "link.bvh")
+    assert check(tmp_path / "new.bvh", (inp,)) == tmp_path / "new.bvh"
+    cases = [
+        ((tmp_path / "folder",), {"overwrite": True}, "is a folder"),
+        ((f"{tmp_path}/new.bvh/",), {}, "is a folder"),
+        (("",), {}, "is a folder"),
+        ((tmp_path / "fifo.bvh",), {"overwrite": True}, "not a regular file"),
+        ((tmp_path / "link.bvh", (inp,)), {"overwrite": True}, "input file"),
+        ((src / "sub" / ".." / "a.bvh", (str(inp),)), {"overwrite": True}, "input file"),
+        ((src / "sub" / "b.bvh",), {"input_trees": [src]}, "inside the input folder"),
+        ((tmp_path / "m.npy",), {"claimed": [tmp_path / "x" / ".." / "m.npy"]}, "another output"),
+        ((tmp_path / "nodir" / "x.bvh",), {}, "does not exist"),
+    ]
+    for args, kw, says in cases:
+        with pytest.raises(MocapValueError, match=says):
+            check(*args, **kw)
+    # --force replaces an existing regular file that is none of the above
+    (tmp_path / "old.bvh").write_text("old")
+    with pytest.raises(MocapValueError, match="overwrite"):
+        check(tmp_path / "old.bvh", (inp,))
+    assert check(tmp_path / "old.bvh", (inp,), overwrite=True, input_trees=[src])
+    # a dangling symbolic link counts as an existing output (os.replace would replace it)
+    os.symlink(tmp_path / "gone", tmp_path / "dangling.bvh")
+    with pytest.raises(MocapValueError, match="overwrite"):
+        check(tmp_path / "dangling.bvh")
