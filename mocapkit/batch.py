@@ -172,6 +172,10 @@ def plan_motion_write(motion, out: str | os.PathLike, *, inputs: Iterable = (), 
     return opts, written
 
 
+#: method name meaning "the default for each file" (:func:`mocapkit.denoise.default_for`)
+DEFAULT = "default"
+
+
 def process_one(in_path: str, out_path: str, method: str, params: dict[str, Any],
                 model: str | None) -> dict[str, Any]:
     """Read, clean and write one file. Runs in a worker process; never raises for bad input."""
@@ -181,9 +185,16 @@ def process_one(in_path: str, out_path: str, method: str, params: dict[str, Any]
     try:
         m = io.read(in_path)
         opts, written = plan_motion_write(m, out_path, inputs=(in_path,), overwrite=True)
-        den = denoise.base.Denoiser.load(model) if model else denoise.get(method, **params)
-        if model and params:
-            den.set_params(**params)
+        if model:
+            den = denoise.base.Denoiser.load(model)
+            if params:
+                den.set_params(**params)
+        elif method == DEFAULT:
+            den = denoise.default_for(m)          # fill-auto for marker captures, kalman-cv otherwise
+            if den.name == denoise.DEFAULT_METHOD:
+                den.set_params(**denoise.DEFAULT_PARAMS)
+        else:
+            den = denoise.get(method, **params)
         out = den.denoise(m)
         io.write(out, out_path, overwrite=True, **opts)
         return {"status": "ok", "frames": m.n_frames, "seconds": time.perf_counter() - t0,
@@ -418,7 +429,10 @@ def run_batch(in_dir: str | os.PathLike, out_dir: str | os.PathLike, *, method: 
     from .cli import method_params
 
     # the method, its parameters (names and types) and the model are checked once, before any work
-    if model is None:
+    if model is None and method == DEFAULT:
+        if params:
+            raise MocapValueError("--param needs --method (the default method depends on each file)")
+    elif model is None:
         cls = denoise.available().get(method)
         if cls is None:
             raise MocapValueError(f"unknown method {method!r}; available: {', '.join(denoise.available())}")

@@ -314,13 +314,33 @@ def cmd_info(a: argparse.Namespace) -> int:
         "missing_percent": round(100 * m.missing_fraction, 2),
         "units": m.source.get("units", ""),
     }
+    table = None
+    if a.gaps:
+        from .gaps import find_gaps, gap_table
+
+        table = gap_table(m)
+        found = find_gaps(m.observed)
+        info["gaps"] = len(found)
+        info["edge_gaps"] = sum(g.kind in ("leading", "trailing", "never") for g in found)
+        info["longest_gap_s"] = round(max((g.length for g in found), default=0) / m.fps, 3)
+        info["filled_percent"] = round(100 * float(m.filled.mean()), 2)
     if a.json:
         info["joint_names"] = list(m.skeleton.names)
+        if table is not None:
+            info["markers"] = table
         print(json.dumps(info, indent=1, default=str))
     else:
         for k, v in info.items():
             print(f"{k:>16}: {v}")
-        print(f"{'joint names':>16}: {', '.join(m.skeleton.names)}")
+        if table is None:
+            print(f"{'joint names':>16}: {', '.join(m.skeleton.names)}")
+        else:
+            w = max(len(r["marker"]) for r in table)
+            print(f"{'marker':<{w}}  missing%  gaps  longest(s)  leading(fr)  trailing(fr)  filled(fr)")
+            for r in table:
+                print(f"{r['marker']:<{w}}  {r['missing_percent']:8.2f}  {r['gaps']:4d}  "
+                      f"{r['longest_gap_s']:10.3f}  {r['leading_frames']:11d}  {r['trailing_frames']:12d}  "
+                      f"{r['filled_frames']:10d}" + ("  never observed" if r["never_observed"] else ""))
     return 0
 
 
@@ -365,23 +385,48 @@ def cmd_corrupt(a: argparse.Namespace) -> int:
     return 0
 
 
-def cmd_denoise(a: argparse.Namespace) -> int:
-    from . import denoise, io
+def _positive_seconds(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected seconds (a positive number), got {text!r}") from None
+    if not (v > 0 and np.isfinite(v)):
+        raise argparse.ArgumentTypeError(f"expected seconds (a positive number), got {text!r}")
+    return v
 
+
+def cmd_denoise(a: argparse.Namespace) -> int:
+    from . import denoise, gaps, io
+
+    m = _read(a.input, a.skeleton)
     if a.method is None and a.model is None:
-        method = denoise.default(**_params_for(denoise.DEFAULT_METHOD, a.param))
+        # the default depends on the data: fill-auto for marker captures, kalman-cv otherwise
+        method = denoise.default_for(m)
+        params = _params_for(method.name, a.param)
+        if method.name == denoise.DEFAULT_METHOD:
+            params = {**denoise.DEFAULT_PARAMS, **params}
+        method.set_params(**params)
     else:
         method = _method(a.method or "auto", parse_params(a.param), a.model)
-    m = _read(a.input, a.skeleton)
     opts, _ = _plan_output(m, a.output, a.force, (a.input, a.model))
-    with stage(f"denoising {m.n_frames} frames with {method.name}", enable=not a.quiet):
+    with gaps.use_policy(max_gap_s=a.max_gap), \
+            stage(f"denoising {m.n_frames} frames with {method.name}", enable=not a.quiet):
         t0 = time.perf_counter()
         out = method.denoise(m)
         dt = time.perf_counter() - t0
     io.write(out, a.output, overwrite=a.force, **opts)
     if not a.quiet:
         print(f"wrote {a.output} ({method.name}, {m.n_frames} frames in {dt:.2f} s, "
-              f"{m.n_frames / max(dt, 1e-9):.0f} frames/s; filled {int((~m.observed).sum())} missing entries)")
+              f"{m.n_frames / max(dt, 1e-9):.0f} frames/s)")
+        if not m.observed.all():
+            print(gaps.summary_line(out.source.get("gap_report")))
+        auto = out.source.get("fill_auto")
+        if auto and auto.get("estimated_rmse_cm") is not None:
+            chose = ", ".join(f"{k} {v}" for k, v in sorted(auto["chosen"].items(), key=lambda kv: -kv[1]))
+            print(f"fill-auto: {auto['gaps']} gaps, chose {chose or 'nothing'}; estimated fill error "
+                  f"{auto['estimated_rmse_cm']:.2f} cm RMSE (from observed stretches hidden like the "
+                  f"file's own gaps)" + (f"; {auto['left_gaps']} gaps left missing (no fill validated "
+                                        f"under {auto['max_error_cm']:g} cm)" if auto["left_gaps"] else ""))
     return 0
 
 
@@ -532,25 +577,29 @@ def cmd_report(a: argparse.Namespace) -> int:
 
 
 def cmd_batch(a: argparse.Namespace) -> int:
-    from .batch import DEFAULT_PATTERNS, run_batch
+    from .batch import DEFAULT, DEFAULT_PATTERNS, run_batch
 
     from . import denoise
 
     from .batch import BatchInterrupted
 
     params = parse_params(a.param)
-    if a.method is None and a.model is None:
-        params = {**denoise.DEFAULT_PARAMS, **params}
     if a.workers < 1:
         raise MocapValueError(f"--workers {a.workers}: give 1 or more")
     # parameters (names and types) and the model are checked once, before any file is done
     if a.model:
         method = _method(a.method or "auto", params, a.model)
         params = method_params(method.name, params, type(method)) if params else params
+        name = a.method or method.name
+    elif a.method is None and not params:
+        name = DEFAULT                          # per file: fill-auto for markers, kalman-cv otherwise
     else:
-        params = method_params(a.method or denoise.DEFAULT_METHOD, params)
+        name = a.method or denoise.DEFAULT_METHOD
+        if a.method is None:
+            params = {**denoise.DEFAULT_PARAMS, **params}
+        params = method_params(name, params)
     try:
-        summ = run_batch(a.in_dir, a.out_dir, method=a.method or denoise.DEFAULT_METHOD,
+        summ = run_batch(a.in_dir, a.out_dir, method=name,
                          params=params, model=a.model, workers=a.workers,
                          scheduler=a.scheduler, patterns=a.include or DEFAULT_PATTERNS,
                          progress=not a.quiet)
@@ -711,6 +760,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("file")
     s.add_argument("--format", help="override the format chosen by extension")
     s.add_argument("--json", action="store_true")
+    s.add_argument("--gaps", action="store_true",
+                   help="per marker: missing %%, number of gaps, longest gap, edge gaps, filled frames")
     s.add_argument("--skeleton")
     s.set_defaults(func=cmd_info)
 
@@ -738,6 +789,10 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--method", help="method name (mocapkit methods lists them)")
     s.add_argument("--param", action="append", metavar="NAME=VALUE", help="method parameter (repeatable)")
     s.add_argument("--model", help="trained model file for data-driven methods")
+    s.add_argument("--max-gap", type=_positive_seconds, metavar="SECONDS",
+                   help="fill no gap longer than this (as Vicon/QTM's maximum gap); longer gaps stay "
+                        "missing and are reported. Default: no limit (gaps are still filled only from "
+                        "evidence: never extrapolated)")
     common(s)
     s.set_defaults(func=cmd_denoise)
 

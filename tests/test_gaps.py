@@ -176,3 +176,45 @@ def test_default_for_marker_files_is_fill_auto():
     P = _walker()
     assert denoise.default_for(_markers(P)).name == "fill-auto"
     assert denoise.default_for(io.read(bundled("16_15.amc"))).name == denoise.DEFAULT_METHOD
+
+
+def _write_c3d_with_gaps(tmp_path):
+    P = _walker(T=300, J=8)
+    obs = np.ones(P.shape[:2], bool)
+    obs[100:130, 1] = False            # interior gap
+    obs[250:, 2] = False               # trailing gap
+    src = tmp_path / "raw.c3d"
+    io.write(_markers(P).with_observed(obs), src)
+    return src, P, obs
+
+
+def test_cli_default_on_a_marker_file_fills_from_evidence_and_says_so(tmp_path, capsys):
+    from mocapkit.cli import main
+
+    src, P, obs = _write_c3d_with_gaps(tmp_path)
+    dst = tmp_path / "clean.c3d"
+    assert main(["denoise", str(src), str(dst)]) == 0
+    text = capsys.readouterr().out
+    assert "fill-auto" in text and "filled" in text and "estimated fill error" in text
+    out = io.read(dst)
+    assert out.observed[100:130, 1].all()
+    assert np.array_equal(out.filled, out.observed & ~obs)        # C3D residual 0 = filled
+    assert np.allclose(out.positions[obs], P[obs], atol=1e-3)     # measured samples untouched
+    # info --gaps on the input
+    assert main(["info", str(src), "--gaps"]) == 0
+    table = capsys.readouterr().out
+    assert "longest(s)" in table and "M2" in table
+
+
+def test_cli_max_gap_leaves_long_gaps_missing(tmp_path, capsys):
+    from mocapkit.cli import main
+
+    src, P, obs = _write_c3d_with_gaps(tmp_path)
+    dst = tmp_path / "clean.c3d"
+    assert main(["denoise", str(src), str(dst), "--method", "linear", "--max-gap", "0.1"]) == 0
+    assert "beyond --max-gap 0.1 s" in capsys.readouterr().out
+    out = io.read(dst)
+    assert not out.observed[100:130, 1].any() and not out.observed[250:, 2].any()
+    with pytest.raises(SystemExit) as e:                           # argparse: one line, exit 2
+        main(["denoise", str(src), str(tmp_path / "x.c3d"), "--max-gap", "-1"])
+    assert e.value.code == 2
