@@ -1,0 +1,422 @@
+"""Least-squares rigid fits (Kabsch / SVD), batched over frames, and rigid marker clusters
+found from the data.
+
+Markers on one body segment (a head band, a pelvis, a technical cluster on a forearm or a
+wheelchair frame) keep their mutual distances. That gives two tools:
+
+* :func:`kabsch` -- the rotation ``R`` and translation ``t`` that best map a set of points
+  ``A`` onto ``B`` in the weighted least-squares sense, ``min sum_i w_i |R a_i + t - b_i|^2``
+  (Kabsch 1976, Acta Cryst. A32:922; the SVD form of Arun, Huang & Blostein 1987, IEEE
+  TPAMI 9(5):698, with Umeyama's 1991 reflection guard, IEEE TPAMI 13(4):376 eq. 39-40:
+  ``R = U diag(1, 1, d) V^T``, ``d = sign det(U V^T)``). Batched: ``A``, ``B`` of shape
+  (..., N, 3), one SVD of a 3x3 matrix per batch element, no Python loop.
+  :func:`yaw_kabsch` is the same fit restricted to a rotation about one axis (2-D
+  Procrustes in the horizontal plane, closed form).
+* :func:`find_clusters` -- groups of markers whose pairwise distances barely vary over the
+  frames where both are seen (standard deviation below ``max_std_cm``, complete linkage so
+  that *every* pair of a cluster passes), since C3D files carry no segment definitions.
+  :func:`parse_clusters` reads an explicit list (marker names, or a JSON file with that list).
+* :func:`rigid_fill` -- the rigid-body gap fill built on both (Vicon Nexus "rigid body fill",
+  QTM "relational / kinematic fill", MoCap Toolbox ``mcfixrigidbody``).
+
+Units: positions in cm, (T, J, 3); masks (T, J) bool.
+
+Example
+-------
+>>> import numpy as np
+>>> from mocapkit.rigid import kabsch, apply_rigid
+>>> rng = np.random.default_rng(0)
+>>> A = rng.normal(size=(5, 4, 3)) * 10                     # 5 frames, 4 points, cm
+>>> q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+>>> R0 = q * np.sign(np.linalg.det(q))                      # a proper rotation
+>>> B = A @ R0.T + np.array([1.0, 2.0, 3.0])
+>>> R, t = kabsch(A, B)
+>>> bool(np.allclose(apply_rigid(R, t, A), B))
+True
+"""
+from __future__ import annotations
+
+import json
+import os
+import warnings
+from typing import Sequence
+
+import numpy as np
+
+from .errors import MocapFormatError, MocapValueError
+
+__all__ = ["kabsch", "yaw_kabsch", "apply_rigid", "distance_stats", "find_clusters",
+           "parse_clusters", "rigid_fill", "cluster_template", "REFERENCES"]
+
+#: reference shapes :func:`rigid_fill` knows (see its docstring)
+REFERENCES = ("ends", "average")
+
+
+# -- rigid fits ---------------------------------------------------------------------------
+def kabsch(A: np.ndarray, B: np.ndarray, weights: np.ndarray | None = None,
+           *, return_spread: bool = False):
+    """Weighted least-squares rigid transform mapping ``A`` onto ``B``.
+
+    Parameters
+    ----------
+    A, B : (..., N, 3) corresponding points (cm). NaN points must have weight 0.
+    weights : (..., N) or (N,) non-negative weights (default 1); a point with weight 0 is
+        ignored (so one call serves frames that see different subsets of the points).
+    return_spread : also return the second-largest singular value of the weighted
+        covariance of the centred ``A`` points divided by the weight sum (cm^2): near 0
+        when the used points are (nearly) collinear, i.e. the rotation about their line is
+        undetermined.
+
+    Returns
+    -------
+    R : (..., 3, 3) proper rotations (det +1: the reflection guard of Umeyama 1991).
+    t : (..., 3) translations, ``B ~ A @ R^T + t`` (see :func:`apply_rigid`).
+    spread : (...,) only with ``return_spread``.
+
+    Batch elements with a zero weight sum give the identity and ``t = 0`` (their
+    ``spread`` is 0, so callers can reject them).
+    """
+    A = np.asarray(A, dtype=float)
+    B = np.asarray(B, dtype=float)
+    if A.shape != B.shape or A.ndim < 2 or A.shape[-1] != 3:
+        raise MocapValueError(f"kabsch: A and B must both be (..., N, 3), got {A.shape} and {B.shape}")
+    w = np.ones(A.shape[:-1]) if weights is None else np.broadcast_to(
+        np.asarray(weights, dtype=float), A.shape[:-1])
+    A = np.where(w[..., None] > 0, A, 0.0)
+    B = np.where(w[..., None] > 0, B, 0.0)
+    sw = w.sum(axis=-1)                                        # (...,)
+    safe = np.where(sw > 0, sw, 1.0)
+    ca = (w[..., None] * A).sum(axis=-2) / safe[..., None]      # (..., 3)
+    cb = (w[..., None] * B).sum(axis=-2) / safe[..., None]
+    Ac = (A - ca[..., None, :]) * w[..., None]
+    Bc = B - cb[..., None, :]
+    H = np.einsum("...ni,...nj->...ij", Ac, Bc)                 # (..., 3, 3) = A_c^T W B_c
+    U, S, Vt = np.linalg.svd(H)
+    d = np.sign(np.linalg.det(np.einsum("...ij,...jk->...ik", U, Vt)))
+    d = np.where(d == 0, 1.0, d)
+    D = np.ones(H.shape[:-2] + (3,))
+    D[..., 2] = d
+    # H = U S V^T; R = V diag(1,1,d) U^T maps centred A onto centred B
+    R = np.einsum("...ji,...j,...kj->...ik", Vt, D, U)
+    t = cb - np.einsum("...ij,...j->...i", R, ca)
+    zero = sw <= 0
+    if zero.any():
+        R[zero] = np.eye(3)
+        t[zero] = 0.0
+    if not return_spread:
+        return R, t
+    Sa = np.linalg.svd(np.einsum("...ni,...nj->...ij", Ac, A - ca[..., None, :]), compute_uv=False)
+    return R, t, Sa[..., 1] / safe
+
+
+def yaw_kabsch(A: np.ndarray, B: np.ndarray, weights: np.ndarray | None = None,
+               *, up_axis: int = 2) -> tuple[np.ndarray, np.ndarray]:
+    """Least-squares rotation about ``up_axis`` (and horizontal translation) mapping ``A`` onto
+    ``B``, in the horizontal plane only (2-D Procrustes, closed form).
+
+    A, B : (..., N, 3) cm; weights (..., N) or (N,). Returns the angle (...,) in radians
+    (positive = counter-clockwise from the first horizontal axis ``(up+1) % 3`` towards the
+    second ``(up+2) % 3``, as :mod:`mocapkit.bodyframe`) and the horizontal translation
+    (..., 3) (its ``up_axis`` component is 0): ``B_h ~ Rot(angle) A_h + t``.
+    """
+    A = np.asarray(A, dtype=float)
+    B = np.asarray(B, dtype=float)
+    a, b = (up_axis + 1) % 3, (up_axis + 2) % 3
+    w = np.ones(A.shape[:-1]) if weights is None else np.broadcast_to(
+        np.asarray(weights, dtype=float), A.shape[:-1])
+    ok = w > 0
+    A2 = np.where(ok[..., None], A[..., [a, b]], 0.0)
+    B2 = np.where(ok[..., None], B[..., [a, b]], 0.0)
+    sw = w.sum(axis=-1)
+    safe = np.where(sw > 0, sw, 1.0)
+    ca = (w[..., None] * A2).sum(axis=-2) / safe[..., None]
+    cb = (w[..., None] * B2).sum(axis=-2) / safe[..., None]
+    Ac = A2 - ca[..., None, :]
+    Bc = B2 - cb[..., None, :]
+    dot = (w * (Ac * Bc).sum(axis=-1)).sum(axis=-1)
+    crs = (w * (Ac[..., 0] * Bc[..., 1] - Ac[..., 1] * Bc[..., 0])).sum(axis=-1)
+    th = np.arctan2(crs, dot)
+    c, s = np.cos(th), np.sin(th)
+    t = np.zeros(A.shape[:-2] + (3,))
+    t[..., a] = cb[..., 0] - (c * ca[..., 0] - s * ca[..., 1])
+    t[..., b] = cb[..., 1] - (s * ca[..., 0] + c * ca[..., 1])
+    return th, t
+
+
+def apply_rigid(R: np.ndarray, t: np.ndarray, X: np.ndarray) -> np.ndarray:
+    """``X @ R^T + t`` for points X (..., K, 3) (or (..., 3)), R (..., 3, 3), t (..., 3)."""
+    X = np.asarray(X, dtype=float)
+    if X.ndim == R.ndim - 1:                     # one point per batch element
+        return np.einsum("...ij,...j->...i", R, X) + t
+    return np.einsum("...ij,...kj->...ki", R, X) + t[..., None, :]
+
+
+# -- clusters -----------------------------------------------------------------------------
+def distance_stats(P: np.ndarray, observed: np.ndarray, *, chunk: int = 2048,
+                   return_range: bool = False):
+    """Mean and standard deviation of every pairwise marker distance over the frames where
+    both markers are observed, and the number of those frames.
+
+    P : (T, J, 3) cm; observed : (T, J). Returns (mean (J, J) cm, std (J, J) cm, n (J, J)
+    int) and, with ``return_range``, (min (J, J), max (J, J)) cm; NaN where a pair is never
+    seen together. Accumulated over chunks of frames, so memory stays O(chunk * J^2).
+    """
+    P = np.asarray(P, dtype=float)
+    obs = np.asarray(observed, dtype=bool) & np.isfinite(P).all(axis=-1)
+    T, J, _ = P.shape
+    s1 = np.zeros((J, J))
+    s2 = np.zeros((J, J))
+    n = np.zeros((J, J))
+    lo = np.full((J, J), np.inf)
+    hi = np.full((J, J), -np.inf)
+    ref = None
+    for a in range(0, T, chunk):                  # chunks of frames (memory), not frames
+        Q = np.where(obs[a:a + chunk, :, None], P[a:a + chunk], 0.0)
+        o = obs[a:a + chunk].astype(float)
+        D = np.linalg.norm(Q[:, :, None, :] - Q[:, None, :, :], axis=-1)
+        both = o[:, :, None] * o[:, None, :]
+        if ref is None:                           # shift for a numerically stable variance
+            with np.errstate(invalid="ignore", divide="ignore"):
+                ref = np.nan_to_num((D * both).sum(0) / both.sum(0))
+        if return_range and len(D):
+            lo = np.minimum(lo, np.where(both > 0, D, np.inf).min(axis=0))
+            hi = np.maximum(hi, np.where(both > 0, D, -np.inf).max(axis=0))
+        Dc = (D - ref) * both
+        s1 += Dc.sum(axis=0)
+        s2 += (Dc * Dc).sum(axis=0)
+        n += both.sum(axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = s1 / n
+        var = np.maximum(s2 / n - mean ** 2, 0.0)
+    mean = np.where(n > 0, mean + ref, np.nan)
+    std = np.where(n > 0, np.sqrt(var), np.nan)
+    if return_range:
+        return mean, std, n.astype(np.int64), np.where(n > 0, lo, np.nan), np.where(n > 0, hi, np.nan)
+    return mean, std, n.astype(np.int64)
+
+
+def find_clusters(P: np.ndarray, observed: np.ndarray, *, max_std_cm: float = 1.0,
+                  min_common: int = 20, min_size: int = 4) -> list[list[int]]:
+    """Rigid clusters found from the data: groups of markers whose pairwise distances vary
+    by less than ``max_std_cm`` (standard deviation over the frames where both are seen).
+
+    Complete-linkage agglomerative clustering (scipy) on the (J, J) matrix of distance
+    standard deviations, cut at ``max_std_cm``: every pair inside a cluster is rigid to
+    that level (a chain A~B~C with A and C not rigid is not merged). Pairs seen together in
+    fewer than ``min_common`` frames cannot be in one cluster. Only clusters of at least
+    ``min_size`` markers are returned (a marker's gap needs 3 donors of its cluster), as
+    lists of marker indices, largest first.
+
+    Measured on the shared captures (docs/results/fill.md, section 4): head bands and
+    technical clusters (marker plates, a wheelchair, a box) keep their distances to a std
+    of 0.04-0.5 cm; pelvis and trunk skin markers 0.5-1 cm; markers across a joint more.
+    The 1 cm default finds the head, pelvis, trunk and technical clusters.
+    """
+    from scipy.cluster.hierarchy import fcluster, linkage
+    from scipy.spatial.distance import squareform
+
+    P = np.asarray(P, dtype=float)
+    J = P.shape[1]
+    if J < 2:
+        return []
+    _, std, n = distance_stats(P, observed)
+    big = 1e6
+    D = np.where((n >= max(int(min_common), 2)) & np.isfinite(std), std, big)
+    D = np.minimum(D, D.T)
+    np.fill_diagonal(D, 0.0)
+    Z = linkage(squareform(D, checks=False), method="complete")
+    lab = fcluster(Z, t=float(max_std_cm), criterion="distance")
+    groups = [np.flatnonzero(lab == k).tolist() for k in np.unique(lab)]
+    groups = [g for g in groups if len(g) >= int(min_size)]
+    return sorted(groups, key=lambda g: (-len(g), g[0]))
+
+
+def parse_clusters(spec, names: Sequence[str]) -> list[list[int]]:
+    """Explicit clusters: a list of lists of marker names (or indices), or a path to a JSON
+    file holding that list. Returns lists of marker indices; unknown names raise
+    :class:`~mocapkit.errors.MocapValueError`; a marker in two clusters too."""
+    path = None
+    if isinstance(spec, (str, os.PathLike)):
+        path = os.fspath(spec)
+        try:
+            with open(path, encoding="utf-8") as f:
+                spec = json.load(f)
+        except OSError as e:
+            raise MocapValueError(f"cannot read the cluster file {path!r}: {e.strerror or e}") from None
+        except json.JSONDecodeError as e:
+            raise MocapFormatError(path, f"not a JSON list of marker-name lists ({e})") from None
+    if not isinstance(spec, (list, tuple)) or not all(isinstance(g, (list, tuple)) for g in spec):
+        what = f"the cluster file {path!r}" if path else "clusters"
+        raise MocapValueError(f"{what} must be a list of lists of marker names, "
+                              f'e.g. [["LFHD", "RFHD", "LBHD", "RBHD"]]')
+    index = {n: i for i, n in enumerate(names)}
+    short = {}
+    for i, n in enumerate(names):                  # "Subject:LFHD" also answers to "LFHD"
+        short.setdefault(str(n).split(":")[-1], []).append(i)
+    out, seen = [], set()
+    for g in spec:
+        idx = []
+        for m in g:
+            if isinstance(m, (int, np.integer)) and not isinstance(m, bool):
+                if not 0 <= int(m) < len(names):
+                    raise MocapValueError(f"cluster marker index {m} out of range (0..{len(names) - 1})")
+                i = int(m)
+            elif str(m) in index:
+                i = index[str(m)]
+            elif len(short.get(str(m), [])) == 1:
+                i = short[str(m)][0]
+            else:
+                more = " ..." if len(names) > 8 else ""
+                raise MocapValueError(f"cluster marker {m!r} is not a marker of this motion "
+                                      f"(markers: {', '.join(map(str, names[:8]))}{more})")
+            if i in seen:
+                raise MocapValueError(f"marker {names[i]!r} is in more than one cluster")
+            seen.add(i)
+            idx.append(i)
+        if idx:
+            out.append(idx)
+    return out
+
+
+# -- the fill -----------------------------------------------------------------------------
+def cluster_template(P: np.ndarray, observed: np.ndarray, *, n_iter: int = 5,
+                     min_points: int = 3) -> np.ndarray:
+    """Robust average shape of a rigid cluster: generalised Procrustes with missing markers.
+
+    P : (T, K, 3) the cluster's markers (cm), observed (T, K). Every frame that sees at
+    least ``min_points`` markers is rigidly aligned (:func:`kabsch`) onto the current
+    template and the template is the per-marker median of the aligned positions;
+    ``n_iter`` rounds, vectorised over frames. Returns (K, 3) cm (NaN for a marker never
+    seen in an aligned frame), in the frame of the frame that sees most markers.
+    """
+    P = np.asarray(P, dtype=float)
+    obs = np.asarray(observed, bool) & np.isfinite(P).all(axis=-1)
+    use = obs.sum(axis=1) >= min_points
+    if not use.any():
+        return np.full(P.shape[1:], np.nan)
+    Q, o = P[use], obs[use]
+    best = int(np.argmax(o.sum(axis=1)))
+    tmpl = np.where(o[best][:, None], Q[best], np.nan)
+    for _ in range(int(n_iter)):
+        have = np.isfinite(tmpl).all(axis=1)
+        w = (o & have[None, :]).astype(float)
+        R, t = kabsch(np.where(have[:, None], tmpl, 0.0)[None].repeat(len(Q), 0), Q, w)
+        # frame -> template: R^T (q - t)
+        aligned = np.einsum("tji,tkj->tki", R, np.where(o[..., None], Q, 0.0) - t[:, None, :])
+        ok = o & (w.sum(axis=1) >= min_points)[:, None]
+        aligned[~ok] = np.nan
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            new = np.nanmedian(aligned, axis=0)
+        tmpl = np.where(np.isfinite(new), new, tmpl)
+    return tmpl
+
+
+def _nearest_ref(ok: np.ndarray, s: int, e: int) -> tuple[int | None, int | None]:
+    """Last frame < s and first frame >= e where ``ok`` (T,) holds."""
+    before = np.flatnonzero(ok[:s])
+    after = np.flatnonzero(ok[e:])
+    return (int(before[-1]) if len(before) else None, int(after[0]) + e if len(after) else None)
+
+
+def rigid_fill(P: np.ndarray, observed: np.ndarray, clusters: Sequence[Sequence[int]], *,
+               reference: str = "ends", min_donors: int = 3, min_spread_cm: float = 0.5
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """Rigid-body gap fill: a marker's missing frames rebuilt from >= ``min_donors`` markers
+    of its rigid cluster by a least-squares rigid fit (:func:`kabsch`).
+
+    Parameters
+    ----------
+    P : (T, J, 3) positions, cm (NaN where missing).
+    observed : (T, J) bool.
+    clusters : lists of marker indices (:func:`find_clusters` or :func:`parse_clusters`).
+    reference : the reference shape the donors are fitted from
+
+        * ``"ends"`` (Vicon Nexus style): the frames nearest to the gap where the missing
+          marker and >= ``min_donors`` donors are observed, one before and one after; each
+          gives a prediction ``R_t p_ref + t_t`` (fit of the donors from the reference frame
+          to frame t, the donors seen in both), and the two are blended linearly over the
+          gap (an edge gap uses its one side). The fill meets both ends of the gap.
+        * ``"average"``: a robust average shape of the cluster over all frames
+          (:func:`cluster_template`) fitted to the donors seen in each frame.
+
+    min_donors : fewest donors seen in a frame (and in the reference frame) for a fit.
+    min_spread_cm : donors (nearly) collinear -- second singular value of their spread
+        below ``min_spread_cm^2`` per unit weight -- give no fit (the rotation about their
+        line is undetermined).
+
+    Returns
+    -------
+    (P_filled (T, J, 3), filled (T, J) bool): observed samples unchanged, filled samples
+    set, everything else NaN (markers outside every cluster, frames with too few donors).
+
+    Measured (docs/results/fill.md, hidden blocks of 0.25-2 s on real captures, RMSE
+    pooled): tennis serve ``"ends"`` 0.71 cm vs ``"average"`` 0.86 cm, HDM05 0.47 vs 0.44
+    cm (its markers are model-based, nearly exactly rigid); ``"ends"`` is the default: the
+    reference frames carry the current skin/cluster deformation and the fill meets both
+    ends of the gap.
+    """
+    P = np.asarray(P, dtype=float)
+    obs = np.asarray(observed, dtype=bool) & np.isfinite(P).all(axis=-1)
+    if reference not in REFERENCES:
+        raise MocapValueError(f"reference must be one of {REFERENCES}, got {reference!r}")
+    T, J, _ = P.shape
+    out = np.where(obs[..., None], P, np.nan)
+    filled = np.zeros((T, J), dtype=bool)
+    k_min = max(int(min_donors), 3)
+    spread_min = float(min_spread_cm) ** 2
+    from .gaps import find_gaps
+
+    for cl in clusters:                                       # loop over clusters / markers / gaps
+        cl = [int(c) for c in cl]
+        if len(cl) < k_min + 1:
+            continue
+        Pc, oc = P[:, cl], obs[:, cl]
+        Qc = np.where(oc[..., None], Pc, 0.0)
+        tmpl = cluster_template(Pc, oc) if reference == "average" else None
+        for g in find_gaps(oc):
+            if g.kind == "never":
+                continue
+            m = g.joint
+            don = np.array([i for i in range(len(cl)) if i != m])
+            s, e = g.start, g.stop
+            fr = np.arange(s, e)
+            od = oc[s:e][:, don]                              # donors seen in the gap frames
+            if reference == "average":
+                have = np.isfinite(tmpl).all(axis=1)
+                if not have[m]:
+                    continue
+                w = od & have[don][None, :]
+                R, t, spr = kabsch(np.where(have[don][:, None], tmpl[don], 0.0)[None].repeat(len(fr), 0),
+                                   Qc[s:e][:, don], w.astype(float), return_spread=True)
+                pred = apply_rigid(R, t, np.broadcast_to(tmpl[m], (len(fr), 3)))
+                good = (w.sum(axis=1) >= k_min) & (spr >= spread_min)
+            else:
+                ok_ref = oc[:, m] & (oc[:, don].sum(axis=1) >= k_min)
+                r0, r1 = _nearest_ref(ok_ref, s, e)
+                preds, goods = [], []
+                for r in (r0, r1):
+                    if r is None:
+                        preds.append(None)
+                        goods.append(np.zeros(len(fr), bool))
+                        continue
+                    w = od & oc[r, don][None, :]
+                    R, t, spr = kabsch(np.broadcast_to(Qc[r, don], (len(fr), len(don), 3)),
+                                       Qc[s:e][:, don], w.astype(float), return_spread=True)
+                    preds.append(apply_rigid(R, t, np.broadcast_to(Pc[r, m], (len(fr), 3))))
+                    goods.append((w.sum(axis=1) >= k_min) & (spr >= spread_min))
+                if r0 is not None and r1 is not None:
+                    a = ((fr - r0) / float(r1 - r0))[:, None]
+                else:
+                    a = np.full((len(fr), 1), 0.0 if r0 is not None else 1.0)
+                a = np.where(~goods[1][:, None], 0.0, np.where(~goods[0][:, None], 1.0, a))
+                p0 = np.where(goods[0][:, None], preds[0] if preds[0] is not None else 0.0, 0.0)
+                p1 = np.where(goods[1][:, None], preds[1] if preds[1] is not None else 0.0, 0.0)
+                pred = (1.0 - a) * p0 + a * p1         # blend of the two predictions
+                good = goods[0] | goods[1]
+            good &= np.isfinite(pred).all(axis=1)
+            if good.any():
+                j = cl[m]
+                out[fr[good], j] = pred[good]
+                filled[fr[good], j] = True
+    return out, filled
