@@ -300,6 +300,8 @@ def fill_linear(X: np.ndarray, mask: np.ndarray, *, ends: str = "hold") -> np.nd
 
 
 def apply_policy(inp, out, *, evidence: str, method: str, policy: GapPolicy | None = None):
+    # ``out.source['fill_codes']`` = {"names": [...], "codes": (T, J) int, -1 = none} lets a
+    # method that combines fills (fill-auto) report which one produced each kept sample.
     """The motion a method may return for ``inp``: unsupported or implausible fills of ``out``
     left missing, fills flagged, a ``gap_report`` in its source.
 
@@ -331,8 +333,13 @@ def apply_policy(inp, out, *, evidence: str, method: str, policy: GapPolicy | No
         raise RuntimeError(f"{method}: returned missing values for observed samples")
     prev = inp.source.get("gap_report") or {}
     by = dict(prev.get("filled_by", {}))
-    for name, n in (out.source.get("fill_counts") or {method: int(filled_now.sum())}).items():
-        by[name] = by.get(name, 0) + int(n)
+    codes = out.source.get("fill_codes")
+    if codes is not None:       # which sub-fill produced each sample (fill-auto): count what was kept
+        c = np.asarray(codes["codes"])
+        for k, name in enumerate(codes["names"]):
+            by[name] = by.get(name, 0) + int((filled_now & (c == k)).sum())
+    else:
+        by[method] = by.get(method, 0) + int(filled_now.sum())
     by = {k: v for k, v in by.items() if v}
     length, _ = gap_lengths(obs_in)
     left = miss & ~keep
@@ -351,7 +358,7 @@ def apply_policy(inp, out, *, evidence: str, method: str, policy: GapPolicy | No
         "restricted": pol.restrict,
     }
     src = dict(out.source)
-    src.pop("fill_counts", None)
+    src.pop("fill_codes", None)
     src["gap_report"] = report
     P[~keep] = np.nan
     from .motion import Motion

@@ -119,6 +119,9 @@ def _guard(fn):
     def denoise(self, motion: Motion, *args, **kwargs) -> Motion:
         if _INSIDE.get():
             return fn(self, motion, *args, **kwargs)
+        if not isinstance(motion, Motion):
+            raise MocapValueError(f"{self.name}: denoise() needs a mocapkit Motion "
+                                  f"(e.g. mocapkit.io.read(path)), got {type(motion).__name__}")
         from ..gaps import apply_policy
 
         work, off = _prepare(motion)
@@ -131,7 +134,10 @@ def _guard(fn):
             raise RuntimeError(f"{self.name}: output shape {raw.positions.shape} != input "
                                f"{motion.positions.shape}")
         if off.any():
-            raw = raw.with_positions(raw.positions + off, raw.observed)
+            Q = raw.positions + off
+            if self.keeps_observed:         # bit-identical measured samples, whatever the shift
+                Q[motion.observed] = motion.positions[motion.observed]
+            raw = raw.with_positions(Q, raw.observed)
         return apply_policy(motion, raw, evidence=self.fill_evidence, method=self.name)
 
     denoise._gap_policy_guard = True

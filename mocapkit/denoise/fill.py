@@ -44,14 +44,14 @@ __all__ = ["FillRigid", "FillPattern", "FillPCA", "pattern_fill", "rigid_fill", 
 
 
 def _result(motion: Motion, X: np.ndarray, filled: np.ndarray, counts: dict[str, int] | None = None) -> Motion:
-    """The method's raw output; ``counts`` (samples per sub-fill) goes to
-    ``source['fill_counts']`` only when more than one sub-fill was used (otherwise the gap
-    policy counts what it kept, which is exact)."""
+    """The method's raw output; ``counts`` (samples per sub-fill, before the gap policy) go
+    to ``source['fill_detail']`` when more than one sub-fill was used (the gap report
+    counts what the policy kept, under the method's name)."""
     obs = motion.observed | filled
     src = dict(motion.source)
     counts = {k: int(v) for k, v in (counts or {}).items() if v}
     if len(counts) > 1:
-        src["fill_counts"] = counts
+        src["fill_detail"] = counts
     return Motion(X, motion.skeleton, motion.fps, obs, src, motion.filled)
 
 

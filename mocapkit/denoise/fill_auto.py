@@ -23,7 +23,7 @@ Each candidate keeps to its own evidence (:func:`mocapkit.gaps.supported` with i
 ``fill_evidence``: interpolation never extrapolates beyond the policy's edge horizon).
 The result's ``source['fill_auto']`` says what was chosen, how often, and the estimated
 RMSE of the fill (the validated errors of the chosen candidates, weighted by gap length);
-``source['fill_counts']`` feeds the gap report (samples filled per candidate).
+``source['fill_codes']`` (the candidate behind each sample) feeds the gap report.
 
 Example
 -------
@@ -207,7 +207,7 @@ class FillAuto(Denoiser):
         """Each gap from its best-validated candidate (next best per frame where it has none)."""
         Y = np.array(motion.positions)
         names = [n for n, _ in methods]
-        counts = dict.fromkeys(names, 0)
+        codes = np.full(motion.observed.shape, -1, dtype=np.int8)
         chosen = dict.fromkeys(names, 0)
         est_sq, est_n, left_gaps, unvalidated = 0.0, 0, 0, 0
         for gi, g in enumerate(gaps):
@@ -227,7 +227,7 @@ class FillAuto(Denoiser):
                 take = ~np.isfinite(seg).all(axis=1) & np.isfinite(Xk).all(axis=1)
                 if take.any():
                     seg[take] = Xk[take]
-                    counts[names[k]] += int(take.sum())
+                    codes[g.start:g.stop, g.joint][take] = k
             chosen[names[order[0]]] += 1
             Y[g.start:g.stop, g.joint] = seg
             n = int(np.isfinite(seg).all(axis=1).sum())
@@ -235,7 +235,7 @@ class FillAuto(Denoiser):
                 est_sq += best ** 2 * n
                 est_n += n
         src = dict(motion.source)
-        src["fill_counts"] = {k: v for k, v in counts.items() if v}
+        src["fill_codes"] = {"names": names, "codes": codes}
         src["fill_auto"] = {
             "gaps": len(gaps), "chosen": {k: v for k, v in chosen.items() if v},
             "left_gaps": left_gaps, "unvalidated_gaps": unvalidated,
