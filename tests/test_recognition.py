@@ -194,3 +194,209 @@ def test_cli_index_search_classify(shared_data, tmp_path, capsys):
     assert cli.main(["index", "build", str(empty), "-o", str(tmp_path / "e.idx"), "-q"]) == 2
     assert "no motion files" in capsys.readouterr().err
     assert not (tmp_path / "e.idx").exists()
+
+
+# ----------------------------------------------------------------- MiniRocket classifier
+from mocapkit.motion import Motion  # noqa: E402
+from mocapkit.recognition import rocket as rk  # noqa: E402
+from mocapkit.recognition.classifier import load_model, train_classifier  # noqa: E402
+from mocapkit.skeleton import Skeleton  # noqa: E402
+
+
+def _reference_conv(x: np.ndarray, weights: np.ndarray, dilation: int, pad: bool) -> np.ndarray:
+    """Direct (loop) dilated convolution of one channel-summed series x (C, L)."""
+    C, L = x.shape
+    h = 4 * dilation
+    out = []
+    for t in range(L):
+        s = 0.0
+        for k in range(9):
+            i = t + (k - 4) * dilation
+            if 0 <= i < L:
+                s += weights[k] * x[:, i].sum()
+        out.append(s)
+    out = np.array(out)
+    return out if pad else out[h:L - h]
+
+
+def test_fit_dilations_and_quantiles_match_the_paper():
+    d, nf = rk.fit_dilations(9)                       # max exponent 0: one dilation
+    assert d.tolist() == [1] and nf.tolist() == [119]
+    d, nf = rk.fit_dilations(64)
+    assert nf.sum() == 119 and d[0] == 1 and d[-1] == 7 and np.all(np.diff(d) > 0)
+    q = rk.golden_quantiles(3)
+    assert np.allclose(q, [0.6180339887, 0.2360679775, 0.8541019662])
+    assert rk.KERNEL_INDICES.shape == (84, 3) and len({tuple(r) for r in rk.KERNEL_INDICES}) == 84
+
+
+def test_minirocket_features_equal_a_direct_convolution(rng):
+    X = rng.normal(size=(3, 4, 40))
+    m = rk.MiniRocket(n_features=84 * 6, seed=3).fit(X)
+    F = m.transform(X)
+    assert F.shape == (3, m.n_features_out) and m.n_features_out == 84 * 6
+    col, b0 = 0, 0
+    for di, (d, f) in enumerate(zip(m.dilations_, m.features_per_dilation_)):
+        for k in (0, 1, 41, 83):
+            w = -np.ones(9)
+            w[rk.KERNEL_INDICES[k]] = 2.0
+            ch = m.masks_[di * 84 + k] > 0
+            pad = (k + di) % 2 == 0
+            b = m.biases_[b0 + k * f:b0 + (k + 1) * f]
+            for n in range(3):
+                c = _reference_conv(X[n][ch], w, int(d), pad)
+                ref = (c[:, None] > b[None, :]).mean(0)
+                assert np.allclose(F[n, col + k * f:col + (k + 1) * f], ref)
+        col += 84 * f
+        b0 += 84 * f
+    # biases are quantiles of one training example's padded output: PPV spans (0, 1)
+    assert 0.2 < F.mean() < 0.8
+
+
+def test_multirocket_poolings_equal_loops(rng):
+    Cv = rng.normal(size=(2, 15, 3))
+    b = rng.normal(scale=0.5, size=(3, 2))
+    P = rk._pool(Cv, b, rk.POOLINGS)
+    for n in range(2):
+        for k in range(3):
+            for j in range(2):
+                z = Cv[n, :, k] - b[k, j]
+                pos = z > 0
+                run = best = 0
+                for v in pos:
+                    run = run + 1 if v else 0
+                    best = max(best, run)
+                ref = [pos.mean(), z[pos].mean() if pos.any() else 0.0,
+                       np.flatnonzero(pos).mean() / 14 if pos.any() else -1.0, best / 15]
+                assert np.allclose(P[n, k, j], ref)
+    with pytest.raises(MocapValueError, match="unknown pooling"):
+        rk._pool(Cv, b, ("max",))
+
+
+def _toy_skeleton(names=("root", "spine", "head", "hand_a", "hand_b")) -> Skeleton:
+    J = len(names)
+    parents = np.array([-1] + [0] * (J - 1))
+    offsets = np.vstack([np.zeros(3), np.tile([0.0, 30.0, 0.0], (J - 1, 1))])
+    offsets[1:, 0] = np.arange(1, J) * 5.0
+    return Skeleton(names, parents, offsets)
+
+
+def _toy_motions(rng, n_per=8, skeleton=None):
+    """Three classes of synthetic 5-joint motions: hand_a waving sideways, hand_a waving up
+    and down, hand_b circling; random speed, phase, amplitude, length and noise (cm)."""
+    sk = skeleton or _toy_skeleton()
+    rest = sk.rest_positions()
+    out, y = [], []
+    for c in range(3):
+        for _ in range(n_per):
+            T = int(rng.integers(40, 80))
+            t = np.arange(T) / 30.0
+            f, ph, a = rng.uniform(0.8, 1.5), rng.uniform(0, 2 * np.pi), rng.uniform(15, 25)
+            P = np.repeat(rest[None], T, axis=0) + rng.normal(0, 0.5, (T, sk.n_joints, 3))
+            s = a * np.sin(2 * np.pi * f * t + ph)
+            if c == 0:
+                P[:, 3, 0] += s
+            elif c == 1:
+                P[:, 3, 1] += s
+            else:
+                P[:, 4, 0] += s
+                P[:, 4, 2] += a * np.cos(2 * np.pi * f * t + ph)
+            P += [rng.uniform(-50, 50), 0, rng.uniform(200, 300)]    # anywhere in the room
+            out.append(Motion(P, sk, 30.0))
+            y.append(["wave", "nod", "circle"][c])
+    return out, np.array(y)
+
+
+def test_rocket_separates_three_synthetic_classes_and_is_deterministic(rng):
+    tr, ytr = _toy_motions(rng)
+    te, yte = _toy_motions(rng, n_per=6)
+    a = rk.RocketClassifier(n_features=2000, seed=1).fit(tr, ytr)
+    b = rk.RocketClassifier(n_features=2000, seed=1).fit(tr, ytr)
+    assert (a.predict_many(te) == yte).all()
+    Xte = np.stack([a.series(m) for m in te])
+    assert Xte.shape == (18, 15, 64)
+    assert np.array_equal(a.decision_series(Xte), b.decision_series(Xte))    # same seed, same model
+    c = rk.RocketClassifier(n_features=2000, seed=2).fit(tr, ytr)
+    assert not np.array_equal(a.rockets_[0].biases_, c.rockets_[0].biases_)  # the seed matters
+    label, conf = a.predict(te[0])
+    assert label == yte[0] and 1 / 3 < conf <= 1
+    P = a.predict_proba_series(Xte)
+    assert np.allclose(P.sum(1), 1) and (a.classes_[P.argmax(1)] == yte).all()
+
+
+def test_trajectories_are_body_centred_and_size_normalised(rng):
+    ms, _ = _toy_motions(rng, n_per=1)
+    m = ms[0]
+    X = rk.trajectories(m, 32)
+    big = Motion(m.positions * 1.7 + [100.0, 0.0, -40.0], m.skeleton, m.fps)   # bigger, elsewhere
+    assert np.allclose(rk.trajectories(big, 32), X, atol=1e-9)
+    assert np.allclose(X[:3, 0], 0.0)             # the root starts at the origin
+    with pytest.raises(MocapValueError, match="length"):
+        rk.trajectories(m, 5)
+
+
+def test_rocket_save_load_round_trip_and_joint_set_error(rng, tmp_path):
+    tr, ytr = _toy_motions(rng)
+    te, _ = _toy_motions(rng, n_per=3)
+    m = rk.RocketClassifier(n_features=1000, seed=0).fit(tr, ytr)
+    path = m.save(tmp_path / "r.npz")
+    back = load_model(path)
+    assert isinstance(back, rk.RocketClassifier) and back.params() == m.params()
+    X = np.stack([m.series(x) for x in te])
+    assert np.array_equal(back.decision_series(X), m.decision_series(X))
+    assert [back.predict(x) for x in te] == [m.predict(x) for x in te]
+    assert isinstance(SkeletonClassifier.load(path), rk.RocketClassifier)    # the CLI's loader
+    other = _toy_skeleton(("root", "spine", "head", "lhand", "rhand"))
+    alien = Motion(te[0].positions, other, 30.0)
+    with pytest.raises(MocapValueError, match=r"trained on a 5-joint skeleton \(root, spine, head, hand_a"):
+        back.predict(alien)
+    six = _toy_skeleton(("root", "spine", "head", "hand_a", "hand_b", "tail"))
+    with pytest.raises(MocapValueError, match="this motion has 6 joints"):
+        back.predict(Motion(np.concatenate([te[0].positions, te[0].positions[:, :1]], 1), six, 30.0))
+    with pytest.raises(MocapValueError, match="different joint sets"):
+        rk.RocketClassifier(n_features=500).fit(tr[:3] + [alien], ["a", "b", "c", "a"])
+    with pytest.raises(NotFittedError):
+        rk.RocketClassifier().predict(te[0])
+
+
+def test_nmc_model_save_load_round_trip(rng, tmp_path):
+    tr, ytr = _toy_motions(rng, n_per=6)
+    te, _ = _toy_motions(rng, n_per=2)
+    m = NMCClassifier(n_clusters=12, max_iter=30, transductive=False).fit(tr, ytr)
+    back = load_model(m.save(tmp_path / "n.npz"))
+    assert isinstance(back, NMCClassifier)
+    assert np.array_equal(back.predict(te), m.predict(te))
+    lab, conf = back.predict(te[0])
+    assert lab == m.predict([te[0]])[0] and 0 < conf <= 1
+    # the stored arrays reproduce scikit-learn's pipeline
+    ref = m._classifier().fit(m.bags(tr), ytr)
+    assert np.allclose(m._proba(m.bags(te)), ref.predict_proba(m.bags(te)), atol=1e-8)
+    with pytest.raises(MocapValueError, match="joint"):
+        back.predict(Motion(te[0].positions, _toy_skeleton(("a", "b", "c", "d", "e")), 30.0))
+
+
+@pytest.mark.shared_data
+def test_train_classifier_on_hdm05_and_mismatch_with_kinect_model(shared_data, tmp_path, capsys):
+    """MiniRocket (the default) on HDM05 ASF/AMC; a Kinect-trained model refuses an AMC clip."""
+    root = shared_data / "hdm05" / "asfamc"
+    lib = tmp_path / "hdm"
+    for cls in ("hopBothLegs1hops", "rotateArmsBothBackward1Reps", "kickLFront1Reps"):
+        (lib / cls).mkdir(parents=True)
+        for f in sorted((root / cls).glob("HDM_bd_*.amc"))[:3] + sorted((root / cls).glob("HDM_mm_*.amc"))[:2]:
+            (lib / cls / f.name).symlink_to(f)
+    for asf in root.glob("*.asf"):
+        for cls in lib.iterdir():
+            (cls / asf.name).symlink_to(asf)
+    res = train_classifier(lib, tmp_path / "h.npz", progress=False)
+    assert res["method"] == "minirocket" and res["n_train"] == 15 and res["train_accuracy"] == 1.0
+    test = sorted((root / "kickLFront1Reps").glob("HDM_dg_*.amc"))[0]
+    assert cli.main(["classify", str(tmp_path / "h.npz"), str(test), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["label"] == "kickLFront1Reps"
+    msr = shared_data / "msr_action3d" / "skeleton3d"
+    kin = tmp_path / "kin"
+    kin.mkdir()
+    for f in sorted(msr.glob("a0[12]_s0[12]_e01_skeleton3D.txt")):
+        (kin / f.name).symlink_to(f)
+    train_classifier(kin, tmp_path / "k.npz", progress=False)
+    assert cli.main(["classify", str(tmp_path / "k.npz"), str(test)]) == 2
+    err = capsys.readouterr().err
+    assert "20-joint skeleton" in err and "31 joints" in err and len(err.strip().splitlines()) == 1

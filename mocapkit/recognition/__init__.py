@@ -1,13 +1,19 @@
 """Action recognition (thesis seed 003 Ch. 6): NMF-based motion clustering (NMC) with a
-bag-of-words classifier, and a skeleton-sequence classifier as the modern reference.
+bag-of-words classifier (the thesis method), a skeleton-sequence classifier, and the
+MiniRocket classifier (the default of ``mocapkit classify train``).
 
 Entry points used by the CLI::
 
-    train_classifier(paths_or_dir, output, labels=None, progress=True, *, C=1.0) -> dict
+    train_classifier(paths_or_dir, output, labels=None, progress=True, *, C=1.0,
+                     method='minirocket') -> dict
     classify(model_path, motion_path) -> (label, confidence)
+    load_model(path) -> a classifier with .predict(motion) -> (label, confidence)
 """
-from .classifier import SkeletonClassifier, classify, sequence_features, train_classifier
+from .classifier import (DEFAULT_METHOD, METHODS, SkeletonClassifier, classify, load_model,
+                         sequence_features, train_classifier)
 from .nmc import NMCClassifier, gonmf, nmf_objective
+from .rocket import MiniRocket, RocketClassifier, trajectories
 
-__all__ = ["SkeletonClassifier", "classify", "sequence_features", "train_classifier",
-           "NMCClassifier", "gonmf", "nmf_objective"]
+__all__ = ["SkeletonClassifier", "classify", "load_model", "sequence_features", "train_classifier",
+           "DEFAULT_METHOD", "METHODS", "NMCClassifier", "gonmf", "nmf_objective",
+           "MiniRocket", "RocketClassifier", "trajectories"]

@@ -18,7 +18,16 @@ L2, C = 1). On ~300 training clips with ~5,000 features it beat an RBF SVM, a ri
 classifier and PCA + LR on MSR-Action3D (``docs/results/retrieval.md``), and it gives
 calibrated-ish probabilities: ``predict`` returns the most probable label and its
 probability as the confidence. A model saves to ``.npz`` (no pickle): scaler, weights,
-classes and parameters.
+classes, parameters and (from this version on) the joint names of the training skeleton.
+
+Model files and the CLI (:func:`train_classifier`, :func:`load_model`, :func:`classify`):
+``mocapkit classify train`` trains the **MiniRocket** classifier by default
+(:class:`mocapkit.recognition.rocket.RocketClassifier`; ``method='skeleton'`` this
+classifier, ``method='nmc'`` the thesis' NMC, :class:`mocapkit.recognition.nmc.NMCClassifier`,
+inductive). :func:`load_model` (and :meth:`SkeletonClassifier.load`, kept as the generic
+loader the CLI calls) returns whichever model a file holds. Every model remembers the joint
+names of its training skeleton and refuses a motion of another joint set with a
+:class:`~mocapkit.errors.MocapValueError` naming both.
 """
 from __future__ import annotations
 
@@ -33,8 +42,11 @@ from ..errors import MocapFormatError, MocapValueError, NotFittedError
 from ..motion import Motion
 from ..retrieval.features import Prepared, gpf, hod, prepare, pyramid_segments
 
-__all__ = ["sequence_features", "SkeletonClassifier", "train_classifier", "classify",
-           "MODEL_FORMAT_VERSION"]
+__all__ = ["sequence_features", "SkeletonClassifier", "train_classifier", "classify", "load_model",
+           "check_joint_set", "METHODS", "DEFAULT_METHOD", "MODEL_FORMAT_VERSION"]
+
+METHODS = ("minirocket", "skeleton", "nmc")
+DEFAULT_METHOD = "minirocket"
 
 MODEL_FORMAT_VERSION = 1
 SMOOTH_S = 0.15
@@ -76,6 +88,33 @@ def sequence_features(seq: Motion | Prepared) -> np.ndarray:
     return np.concatenate([h, _pyramid_stats(gpf(p)), _pyramid_stats(Q.reshape(p.n_frames, -1))])
 
 
+def check_joint_set(joints: Sequence[str], motion: Motion) -> None:
+    """Raise MocapValueError when ``motion``'s joint names are not ``joints`` (the training
+    skeleton's); an empty ``joints`` (a model file from before joint sets were stored)
+    accepts any motion."""
+    mine = tuple(str(j) for j in joints)
+    if not mine:
+        return
+    names = tuple(motion.skeleton.names)
+    if names != mine:
+        src = str(motion.source.get("path", ""))
+        raise MocapValueError(
+            f"{src + ': ' if src else ''}the model was trained on a {len(mine)}-joint skeleton "
+            f"({', '.join(mine[:4])}, ...) but this motion has {len(names)} joints "
+            f"({', '.join(names[:4])}, ...); train a model on clips of this skeleton kind "
+            "('mocapkit classify train DATA -o MODEL')")
+
+
+def joint_set_of(motions: Sequence[Motion]) -> tuple[str, ...]:
+    """The one joint-name tuple of ``motions``; MocapValueError when they mix skeleton kinds."""
+    sets = {m.skeleton.names for m in motions}
+    if len(sets) > 1:
+        desc = "; ".join(f"{len(s)} joints ({', '.join(s[:3])}, ...)" for s in sorted(sets, key=len))
+        raise MocapValueError(f"training motions have {len(sets)} different joint sets ({desc}); "
+                              "train one model per skeleton kind")
+    return next(iter(sets))
+
+
 class SkeletonClassifier:
     """HOD + pose statistics + logistic regression (module doc).
 
@@ -96,7 +135,10 @@ class SkeletonClassifier:
         if len(np.unique(labels)) < 2:
             raise MocapValueError("a classifier needs at least two different labels")
         X = np.stack([sequence_features(s) for s in seqs])
-        return self.fit_features(X, labels)
+        self.fit_features(X, labels)
+        if all(isinstance(s, Motion) for s in seqs):
+            self.joints_ = np.array(joint_set_of(seqs), dtype=str)
+        return self
 
     def fit_features(self, X: np.ndarray, labels: Sequence) -> "SkeletonClassifier":
         from sklearn.linear_model import LogisticRegression
@@ -111,6 +153,7 @@ class SkeletonClassifier:
         self.coef_ = lr.coef_
         self.intercept_ = lr.intercept_
         self.classes_ = lr.classes_.astype(str)
+        self.joints_ = np.array([], dtype=str)
         return self
 
     def _check(self) -> None:
@@ -137,6 +180,8 @@ class SkeletonClassifier:
 
     def predict(self, motion: Motion | Prepared) -> tuple[str, float]:
         """``(label, confidence)`` of one motion; confidence = the label's probability."""
+        if isinstance(motion, Motion):
+            check_joint_set(getattr(self, "joints_", ()), motion)
         pr = self.predict_proba_features(sequence_features(motion))[0]
         i = int(np.argmax(pr))
         return str(self.classes_[i]), float(pr[i])
@@ -150,37 +195,64 @@ class SkeletonClassifier:
                   "params": {"C": self.C, "max_iter": self.max_iter}, "smooth_s": SMOOTH_S}
         arrays = dict(header=np.array(json.dumps(header)), mean=self.mean_, scale=self.scale_,
                       coef=self.coef_, intercept=self.intercept_,
-                      classes=np.array(self.classes_, dtype=str))
+                      classes=np.array(self.classes_, dtype=str),
+                      joints=np.array(getattr(self, "joints_", []), dtype=str))
         atomic_write(p, lambda f: np.savez(f, **arrays), binary=True)
         return p
 
     @classmethod
-    def load(cls, path: str | os.PathLike) -> "SkeletonClassifier":
-        p = Path(path)
-        if not p.is_file():
-            raise MocapFormatError(p, "model file not found")
-        try:
-            with np.load(p, allow_pickle=False) as z:
-                st = {k: z[k] for k in z.files}
-            header = json.loads(str(st["header"]))
-        except Exception as e:
-            raise MocapFormatError(p, f"not a mocapkit classifier model ({type(e).__name__})") from None
-        if header.get("format") != "mocapkit-classifier":
-            raise MocapFormatError(p, f"not a mocapkit classifier model (it holds a {header.get('format')!r}); "
-                                      "train one with 'mocapkit classify train DATA -o MODEL'")
+    def load(cls, path: str | os.PathLike):
+        """Load a classifier model file. Generic: returns the model the file holds
+        (:func:`load_model`) -- this class, a MiniRocket or an NMC model."""
+        return load_model(path)
+
+    @classmethod
+    def from_arrays(cls, header: dict, st: dict, path) -> "SkeletonClassifier":
         if header.get("version") != MODEL_FORMAT_VERSION:
-            raise MocapFormatError(p, f"classifier format {header.get('format')} v{header.get('version')} "
-                                      f"is not supported (expected v{MODEL_FORMAT_VERSION})")
+            raise MocapFormatError(path, f"classifier format {header.get('format')} v{header.get('version')} "
+                                         f"is not supported (expected v{MODEL_FORMAT_VERSION})")
         m = cls(**header["params"])
         m.mean_, m.scale_ = st["mean"], st["scale"]
         m.coef_, m.intercept_ = st["coef"], st["intercept"]
         m.classes_ = st["classes"].astype(str)
+        m.joints_ = st["joints"].astype(str) if "joints" in st else np.array([], dtype=str)
         return m
 
 
+def load_model(path: str | os.PathLike):
+    """The classifier a model file holds: :class:`SkeletonClassifier`,
+    :class:`~mocapkit.recognition.rocket.RocketClassifier` or
+    :class:`~mocapkit.recognition.nmc.NMCClassifier`; MocapFormatError for anything else."""
+    from .nmc import MODEL_FORMAT as NMC_FORMAT, NMCClassifier
+    from .rocket import MODEL_FORMAT as ROCKET_FORMAT, RocketClassifier
+
+    p = Path(path)
+    if not p.is_file():
+        raise MocapFormatError(p, "model file not found")
+    try:
+        with np.load(p, allow_pickle=False) as z:
+            st = {k: z[k] for k in z.files}
+        header = json.loads(str(st["header"]))
+        fmt = header.get("format")
+    except Exception as e:
+        raise MocapFormatError(p, f"not a mocapkit classifier model ({type(e).__name__})") from None
+    kinds = {"mocapkit-classifier": SkeletonClassifier, ROCKET_FORMAT: RocketClassifier,
+             NMC_FORMAT: NMCClassifier}
+    if fmt not in kinds:
+        raise MocapFormatError(p, f"not a mocapkit classifier model (it holds a {fmt!r}); "
+                                  "train one with 'mocapkit classify train DATA -o MODEL'")
+    try:
+        return kinds[fmt].from_arrays(header, st, p)
+    except MocapFormatError:
+        raise
+    except Exception as e:
+        raise MocapFormatError(p, f"damaged {fmt} model ({type(e).__name__}: {e})") from None
+
+
 def train_classifier(paths_or_dir, output: str | os.PathLike, labels: Sequence[str] | None = None,
-                     progress: bool = True, *, C: float = 1.0, overwrite: bool = False) -> dict:
-    """Train a :class:`SkeletonClassifier` on motion files and save it (``.npz``).
+                     progress: bool = True, *, C: float = 1.0, overwrite: bool = False,
+                     method: str = DEFAULT_METHOD, seed: int = 0, **params) -> dict:
+    """Train a classifier on motion files and save it (``.npz``).
 
     Parameters
     ----------
@@ -188,9 +260,17 @@ def train_classifier(paths_or_dir, output: str | os.PathLike, labels: Sequence[s
     output : model file to write.
     labels : one label per file found (default: :func:`mocapkit.retrieval.index.label_of`:
         MSR-Action3D action id, HDM05 class, else the parent folder name).
+    method : ``'minirocket'`` (default, :class:`~mocapkit.recognition.rocket.RocketClassifier`),
+        ``'skeleton'`` (:class:`SkeletonClassifier`) or ``'nmc'`` (the thesis' NMC,
+        :class:`~mocapkit.recognition.nmc.NMCClassifier`, inductive).
+    C : inverse regularisation of the logistic regression of ``'skeleton'`` and ``'nmc'``
+        (MiniRocket chooses its ridge penalty itself by leave-one-out; C is not used).
+    seed : random state (MiniRocket transform, NMC clustering).
+    params : further constructor parameters of the chosen classifier.
 
-    Returns ``{'output', 'n_train', 'classes', 'skipped', 'train_accuracy'}``; unreadable
-    files are skipped and listed.
+    Returns ``{'output', 'method', 'n_train', 'classes', 'skipped', 'train_accuracy'}``;
+    unreadable files (and clips with no observed joint) are skipped and listed. Training
+    files of different joint sets raise MocapValueError.
     """
     from ..bench.core import progress as bar
     from ..errors import MocapError
@@ -198,28 +278,55 @@ def train_classifier(paths_or_dir, output: str | os.PathLike, labels: Sequence[s
     from ..io._atomic import check_output_path
     from ..retrieval.index import find_motion_files, label_of
 
+    if method not in METHODS:
+        raise MocapValueError(f"unknown classifier {method!r}; choose from {', '.join(METHODS)}")
     check_output_path(output, overwrite=overwrite)
     files = find_motion_files(paths_or_dir)
     if labels is not None and len(labels) != len(files):
         raise MocapValueError(f"{len(labels)} labels for {len(files)} files")
-    X, y, skipped = [], [], []
+    if method == "minirocket":
+        from .rocket import RocketClassifier
+
+        model = RocketClassifier(seed=seed, **params)
+        describe = model.series
+    elif method == "nmc":
+        from ..retrieval.features import prepare
+        from .nmc import NMCClassifier
+
+        model = NMCClassifier(C=C, seed=seed, transductive=False, **params)
+        describe = prepare
+    else:
+        model = SkeletonClassifier(C=C, **params)
+
+        def describe(m):
+            return sequence_features(prepare(m, smooth_s=SMOOTH_S))
+    X, y, skipped, motions = [], [], [], []
     for i, f in enumerate(bar(files, total=len(files), desc="features", enable=progress)):
         try:
-            X.append(sequence_features(read(f)))
+            m = read(f)
+            X.append(describe(m))
+            motions.append(m)
             y.append(str(labels[i]) if labels is not None else label_of(f))
         except MocapError as e:
             skipped.append((str(f), str(e)))
     if len(X) < 2:
         raise MocapValueError(f"fewer than two usable training files in {paths_or_dir}")
-    lens = {len(x) for x in X}
-    if len(lens) != 1:
-        raise MocapValueError("training files give different feature layouts (mixed skeletons whose "
-                              "keypoints could not all be named)")
-    X = np.stack(X)
-    model = SkeletonClassifier(C=C).fit_features(X, y)
+    joints = joint_set_of(motions)
+    del motions
+    if method == "minirocket":
+        model.fit_series(np.stack(X), y)
+        pred = model.predict_series(np.stack(X))
+    elif method == "nmc":
+        model.fit(X, y)
+        pred = model.predict(X)
+    else:
+        X = np.stack(X)
+        model.fit_features(X, y)
+        pred = model.predict_features(X)
+    model.joints_ = np.array(joints, dtype=str)
     model.save(output, overwrite=overwrite)
-    acc = float((model.predict_features(X) == np.asarray(y)).mean())
-    return {"output": str(output), "n_train": len(y), "classes": list(model.classes_),
+    acc = float((np.asarray(pred) == np.asarray(y)).mean())
+    return {"output": str(output), "method": method, "n_train": len(y), "classes": [str(c) for c in model.classes_],
             "skipped": skipped, "train_accuracy": acc}
 
 
@@ -227,4 +334,4 @@ def classify(model_path: str | os.PathLike, motion_path: str | os.PathLike) -> t
     """``(label, confidence)`` of the motion file with a saved model (CLI ``mocapkit classify``)."""
     from ..io import read
 
-    return SkeletonClassifier.load(model_path).predict(read(motion_path))
+    return load_model(model_path).predict(read(motion_path))

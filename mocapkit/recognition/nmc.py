@@ -35,6 +35,11 @@ Updates (Algorithm 6), samples are columns of X (d x n) as in the thesis:
   :func:`gonmf` records the objective per iteration (``history``) and the tests check
   it on the settings we use.
 
+Model files: a fitted NMC saves to ``.npz`` (:meth:`NMCClassifier.save`: the basis Z, the
+scaler and the logistic-regression weights, the parameters and the joint names of the
+training skeleton) and is used for new clips inductively; ``mocapkit classify train
+--method nmc`` (library: ``train_classifier(method='nmc')``) trains one.
+
 Out-of-sample windows (``transductive=False``): G for new windows by the G step with Z
 fixed and no graph term (lam2 = 0), from a uniform start. ``transductive=True`` clusters
 the training and test windows together (labels are never used by the clustering), as the
@@ -52,7 +57,10 @@ from ..motion import Motion
 from ..retrieval.features import PLANES, Prepared, orientation_bins, prepare, sliding_windows
 
 __all__ = ["knn_graph", "nmf_objective", "gonmf", "encode_windows", "window_features",
-           "NMCClassifier"]
+           "NMCClassifier", "MODEL_FORMAT"]
+
+MODEL_FORMAT = "mocapkit-nmc"
+MODEL_FORMAT_VERSION = 1
 
 
 def knn_graph(F: np.ndarray, k: int = 5) -> sp.csr_matrix:
@@ -328,9 +336,29 @@ class NMCClassifier:
         if self.test_bow_ is None:     # inductive: train bags coded exactly like test bags
             G = encode_windows(Ftr.T, Z, lam1=self.lam1_abs_, eta=self.eta)
         Btr = np.sqrt(_bow(G, otr, ptr, n_tr, self.bow_levels))
-        self.clf_ = self._classifier().fit(Btr, labels)
-        self.classes_ = self.clf_.classes_
+        clf = self._classifier().fit(Btr, labels)
+        sc, lr = clf[0], clf[-1]
+        self.bow_mean_, self.bow_scale_ = sc.mean_, sc.scale_
+        self.coef_, self.intercept_ = np.atleast_2d(lr.coef_), np.atleast_1d(lr.intercept_)
+        self.classes_ = lr.classes_
+        motions = all(isinstance(s, Motion) for s in seqs)
+        if motions and len({s.skeleton.names for s in seqs}) == 1:
+            self.joints_ = np.array(seqs[0].skeleton.names, dtype=str)
+        else:                  # Prepared clips (or mixed kinds): no joint-set check
+            self.joints_ = np.array([], dtype=str)
         return self
+
+    def _proba(self, B: np.ndarray) -> np.ndarray:
+        """Logistic-regression probabilities of bags B (n, d) (scikit-learn's, from the arrays)."""
+        S = ((B - self.bow_mean_) / self.bow_scale_) @ self.coef_.T + self.intercept_
+        if S.shape[1] == 1:                                   # binary: sigmoid = softmax([0, s])
+            S = np.hstack([np.zeros_like(S), S])
+        S = S - S.max(axis=1, keepdims=True)
+        E = np.exp(S)
+        return E / E.sum(axis=1, keepdims=True)
+
+    def _labels(self, B: np.ndarray) -> np.ndarray:
+        return np.asarray(self.classes_)[np.argmax(self._proba(B), axis=1)]
 
     def bags(self, seqs: Sequence) -> np.ndarray:
         """Bags of words (Hellinger-mapped) of new sequences with the learnt Z."""
@@ -340,10 +368,73 @@ class NMCClassifier:
         G = encode_windows(F.T, self.Z_, lam1=self.lam1_abs_, eta=self.eta)
         return np.sqrt(_bow(G, o, p, len(seqs), self.bow_levels))
 
-    def predict(self, seqs: Sequence | None = None) -> np.ndarray:
-        """Labels of ``seqs`` (inductive) or, with None, of the transductive test set."""
+    def predict(self, seqs: Sequence | Motion | None = None):
+        """Labels of ``seqs`` (inductive) or, with None, of the transductive test set.
+
+        Given one :class:`~mocapkit.motion.Motion` (not a list) it returns ``(label,
+        confidence)`` like the other classifiers (the CLI's interface), after checking the
+        motion's joint set against the training skeleton's."""
+        if isinstance(seqs, Motion):
+            from .classifier import check_joint_set
+
+            check_joint_set(getattr(self, "joints_", ()), seqs)
+            pr = self._proba(self.bags([seqs]))[0]
+            i = int(np.argmax(pr))
+            return str(self.classes_[i]), float(pr[i])
         if seqs is None:
             if getattr(self, "test_bow_", None) is None:
                 raise MocapValueError("no transductive test set: pass sequences to predict")
-            return self.clf_.predict(self.test_bow_)
-        return self.clf_.predict(self.bags(seqs))
+            return self._labels(self.test_bow_)
+        return self._labels(self.bags(seqs))
+
+    # -- save / load ---------------------------------------------------------------
+    def params(self) -> dict:
+        return {"window": int(self.window), "stride": int(self.stride), "n_clusters": int(self.n_clusters),
+                "lam1": float(self.lam1), "lam2": float(self.lam2), "n_neighbors": int(self.n_neighbors),
+                "max_iter": int(self.max_iter), "eta": float(self.eta), "transductive": bool(self.transductive),
+                "bow_levels": [int(v) for v in self.bow_levels], "C": float(self.C),
+                "block_weights": [float(v) for v in self.block_weights], "seed": int(self.seed)}
+
+    def save(self, path, *, overwrite: bool = False):
+        """Write the fitted model (inductive use) to ``.npz`` (no pickle)."""
+        import json
+
+        from ..io._atomic import atomic_write, check_output_path
+
+        if not hasattr(self, "Z_"):
+            raise NotFittedError("NMC is not fitted")
+        p = check_output_path(path, overwrite=overwrite)
+        header = {"format": MODEL_FORMAT, "version": MODEL_FORMAT_VERSION, "params": self.params(),
+                  "lam1_abs": float(self.lam1_abs_)}
+        arrays = dict(header=np.array(json.dumps(header)), Z=self.Z_, bow_mean=self.bow_mean_,
+                      bow_scale=self.bow_scale_, coef=self.coef_, intercept=self.intercept_,
+                      classes=np.array(self.classes_, dtype=str), joints=np.array(self.joints_, dtype=str))
+        atomic_write(p, lambda f: np.savez(f, **arrays), binary=True)
+        return p
+
+    @classmethod
+    def from_arrays(cls, header: dict, st: dict, path) -> "NMCClassifier":
+        from ..errors import MocapFormatError
+
+        if header.get("version") != MODEL_FORMAT_VERSION:
+            raise MocapFormatError(path, f"classifier format {MODEL_FORMAT} v{header.get('version')} is not "
+                                         f"supported (expected v{MODEL_FORMAT_VERSION})")
+        m = cls(**header["params"])
+        m.Z_ = st["Z"]
+        m.lam1_abs_ = float(header["lam1_abs"])
+        m.bow_mean_, m.bow_scale_ = st["bow_mean"], st["bow_scale"]
+        m.coef_, m.intercept_ = st["coef"], st["intercept"]
+        m.classes_ = st["classes"].astype(str)
+        m.joints_ = st["joints"].astype(str)
+        m.test_bow_ = None
+        return m
+
+    @classmethod
+    def load(cls, path) -> "NMCClassifier":
+        from ..errors import MocapFormatError
+        from .classifier import load_model
+
+        m = load_model(path)
+        if not isinstance(m, cls):
+            raise MocapFormatError(path, f"not an NMC model (it holds a {type(m).__name__})")
+        return m

@@ -20,6 +20,12 @@
 * ``recognition-cross-subject`` -- MSR-Action3D cross-subject split (odd subjects train,
   even subjects test), the field's usual benchmark; same methods; NMC over 3 NMF seeds.
 
+* ``recognition-msr-half``, ``recognition-msr-cross-subject``, ``recognition-hdm05-cross-actor``
+  -- the default classifier (MiniRocket, :mod:`mocapkit.recognition.rocket`) against the
+  skeleton classifier and NMC, on the 557 MSR-Action3D clips of the authors' list and on
+  HDM05 (leave one actor out; 2 actors train / 3 test); accuracy, confusions, errors per
+  subject/actor, training and inference time per clip (see the block comment below).
+
 MSR-Action3D: 567 files, one (a13_s09_e02) has no tracked frame and is skipped (rows say
 ``n_clips``). Files are read and described once per process (module cache).
 ``ctx.quick``: one split per data set, a 64-word codebook, d-grid (400, 800), smaller NMF.
@@ -279,3 +285,214 @@ def recognition_cross_subject(ctx: Context) -> Iterator[Row]:
                             f"subjects 1,3,5,7,9 train / 2,4,6,8,10 test ({len(seeds)} NMF seed"
                             f"{'s' if len(seeds) > 1 else ''})",
                             None if fd is None else str(fd / "nmc_confusion_cross_subject.png"))
+
+
+# ------------------------------------------------------- recognition: MiniRocket and co.
+# Protocols ``recognition-msr-half``, ``recognition-msr-cross-subject`` and
+# ``recognition-hdm05-cross-actor`` (benchmarks/run_recognition.py -> docs/results/recognition.md):
+# MSR-Action3D restricted to the 557 sequences of ``files_used_in_cvpr12_paper.txt`` (the
+# list the data set's authors used), HDM05 all 141 clips. Methods: ``minirocket`` (the
+# default classifier, :class:`mocapkit.recognition.rocket.RocketClassifier`),
+# (HDM05: the 140 cut clips of the 6 class folders; ``takes/`` holds one uncut take, no class),
+# ``minirocket-heading-start`` (MSR only: heading normalised from the hips, the setting
+# 'auto' replaces for Kinect files), ``classifier`` (HOD + pose statistics + logistic
+# regression), ``nmc`` (thesis NMC, transductive, our defaults) and on the half split
+# ``nmc-thesis-window`` (the thesis' stated windows: M = 60 frames, stride M/2 = 30).
+# Rows: accuracy (fraction, mean +- std over splits / seeds) with the confusion matrix,
+# the most frequent confusions and errors per test subject/actor in ``extra``; training
+# seconds per training clip and inference milliseconds per test clip (features included,
+# file reading excluded) as their own rows.
+RECOG_PNG = {"recognition-msr-half": "recognition_confusion_msr_half.png",
+             "recognition-msr-cross-subject": "recognition_confusion_msr_cross_subject.png",
+             "recognition-hdm05-cross-actor": "recognition_confusion_hdm05.png"}
+
+
+def _recog_data(ctx: Context, which: str) -> dict:
+    """Clips, labels, groups and per-clip inputs of every recognition method (cached)."""
+    from ...errors import MocapError
+    from ...recognition.classifier import SMOOTH_S, sequence_features
+    from ...recognition.rocket import trajectories
+    from ...retrieval.features import prepare
+
+    key = ("recog", str(ctx.data_dir), which)
+    if key in _CACHE:
+        return _CACHE[key]
+    root = ctx.need_data()
+    keep = None
+    if which == "msr":
+        lst = root / "msr_action3d" / "files_used_in_cvpr12_paper.txt"
+        keep = set(lst.read_text().split()) if lst.is_file() else None
+    d: dict[str, list] = {k: [] for k in ("path", "label", "group", "series", "series_start", "prep", "feat")}
+    t_series = t_feat = 0.0
+    skipped = []
+    for path, lab, grp, m in _motions(ctx, which):
+        if keep is not None and Path(path).name[:11] not in keep:
+            continue
+        if which == "hdm" and Path(path).parent.name == "takes":     # an uncut take, not a class
+            continue
+        try:
+            t0 = time.perf_counter()
+            s = trajectories(m, 64)
+            t_series += time.perf_counter() - t0
+            ss = trajectories(m, 64, heading="start") if which == "msr" else None
+            t0 = time.perf_counter()
+            p = prepare(m, smooth_s=SMOOTH_S)
+            f = sequence_features(p)
+            t_feat += time.perf_counter() - t0
+        except MocapError:
+            skipped.append(path)
+            continue
+        for k, v in (("path", path), ("label", lab), ("group", grp), ("series", s), ("series_start", ss),
+                     ("prep", p), ("feat", f)):
+            d[k].append(v)
+    n = len(d["path"])
+    out = {"paths": d["path"], "labels": np.array(d["label"]), "groups": np.array(d["group"]),
+           "X": np.stack(d["series"]), "X_start": None if which != "msr" else np.stack(d["series_start"]),
+           "prep": d["prep"], "feat": np.stack(d["feat"]), "skipped": skipped,
+           "s_series": t_series / n, "s_feat": t_feat / n, "list": None if keep is None else len(keep)}
+    _CACHE[key] = out
+    return out
+
+
+def _gkey(g: str):
+    return (0, int(g), "") if str(g).isdigit() else (1, 0, str(g))
+
+
+def _top_confusions(conf: np.ndarray, classes: np.ndarray, k: int = 8) -> list:
+    C = conf.copy()
+    np.fill_diagonal(C, 0)
+    idx = np.dstack(np.unravel_index(np.argsort(-C, axis=None), C.shape))[0]
+    return [[str(classes[i]), str(classes[j]), int(C[i, j])] for i, j in idx[:k] if C[i, j] > 0]
+
+
+def _recognise(ctx: Context, name: str, which: str, splits: list, cond: str, methods: dict,
+               paper: dict | None = None, figure: bool = True) -> Iterator[Row]:
+    """Run ``methods`` ({name: (kind, params, seeds)}) over ``splits`` [(train, test, tag)];
+    the confusion matrix of ``minirocket`` goes to ``RECOG_PNG[name]`` when ``figure``."""
+    from ...recognition.classifier import SkeletonClassifier
+    from ...recognition.nmc import NMCClassifier
+    from ...recognition.rocket import RocketClassifier
+
+    D = _recog_data(ctx, which)
+    y, groups = D["labels"], D["groups"]
+    classes = np.unique(y)
+    for meth, (kind, params, seeds) in methods.items():
+        acc, fit_s, tr_clip, inf_clip, tags = [], [], [], [], []
+        conf = np.zeros((len(classes), len(classes)), int)
+        err_by_group: dict[str, int] = {}
+        for tr, te, tag in splits:
+            for seed in seeds:
+                with _one_thread():
+                    t0 = time.perf_counter()
+                    if kind == "rocket":
+                        X = D["X_start"] if params.get("heading") == "start" else D["X"]
+                        kw = {k: v for k, v in params.items() if k != "heading"}
+                        m = RocketClassifier(seed=seed, **kw).fit_series(X[tr], y[tr])
+                        t_fit = time.perf_counter() - t0
+                        t0 = time.perf_counter()
+                        pred = m.predict_series(X[te])
+                        t_inf = time.perf_counter() - t0
+                        per_tr, per_te = D["s_series"], D["s_series"]
+                    elif kind == "classifier":
+                        m = SkeletonClassifier().fit_features(D["feat"][tr], y[tr])
+                        t_fit = time.perf_counter() - t0
+                        t0 = time.perf_counter()
+                        pred = m.predict_features(D["feat"][te])
+                        t_inf = time.perf_counter() - t0
+                        per_tr, per_te = D["s_feat"], D["s_feat"]
+                    else:                                  # nmc, transductive (thesis)
+                        P = D["prep"]
+                        m = NMCClassifier(seed=seed, **params).fit([P[i] for i in tr], y[tr],
+                                                                   test_seqs=[P[i] for i in te])
+                        pred = m.predict()
+                        t_fit, t_inf = time.perf_counter() - t0, 0.0
+                        per_tr, per_te = D["s_feat"], D["s_feat"]
+                acc.append(float((pred == y[te]).mean()))
+                fit_s.append(t_fit)
+                tr_clip.append(t_fit / len(tr) + per_tr)
+                inf_clip.append(1000.0 * (t_inf / len(te) + per_te))
+                tags.append(f"{tag}, seed {seed}" if len(seeds) > 1 else str(tag))
+                np.add.at(conf, (np.searchsorted(classes, y[te]), np.searchsorted(classes, pred)), 1)
+                for g in groups[te][pred != y[te]]:
+                    err_by_group[str(g)] = err_by_group.get(str(g), 0) + 1
+        n_by_group: dict[str, int] = {}
+        for tr, te, _ in splits:
+            for g in groups[te]:
+                n_by_group[str(g)] = n_by_group.get(str(g), 0) + len(seeds)
+        extra = {"n_train": int(len(splits[0][0])), "n_test": int(len(splits[0][1])), "n_clips": int(len(y)),
+                 "clip_list": D["list"], "skipped": D["skipped"], "params": dict(params),
+                 "per_split": [round(a, 4) for a in acc], "splits": tags, "confusion": conf.tolist(),
+                 "classes": classes.tolist(), "top_confusions": _top_confusions(conf, classes),
+                 "errors_by_group": dict(sorted(err_by_group.items(), key=lambda kv: _gkey(kv[0]))),
+                 "tested_by_group": dict(sorted(n_by_group.items(), key=lambda kv: _gkey(kv[0]))),
+                 "nmc_inference": "transductive: test clips join the clustering" if kind == "nmc" else None}
+        yield from _rows(name, which if which != "msr" else "msr-action3d", cond, meth, {"accuracy": acc},
+                         fit_s, extra, (paper or {}).get(meth))
+        for metric, unit, v in (("train_s_per_clip", "s", tr_clip), ("inference_ms_per_clip", "ms", inf_clip)):
+            v = np.asarray(v)
+            yield Row(name, which if which != "msr" else "msr-action3d", cond, meth, metric, unit, float(v.mean()),
+                      std=float(v.std()) if len(v) > 1 else None, n=len(v))
+        fd = _figures_dir(ctx)
+        if meth == "minirocket" and fd is not None and figure:
+            _plot_confusion(conf, classes, str(fd / RECOG_PNG[name]),
+                            f"MiniRocket, {which if which != 'msr' else 'MSR-Action3D'} ({cond})")
+
+
+def _recog_methods(ctx: Context, which: str, extra: dict | None = None, rocket_seeds=(0,),
+                   nmc_seeds=(0,)) -> dict:
+    quick = ctx.quick
+    rk = {"n_features": 2000} if quick else {}
+    nmc = dict(n_clusters=64, max_iter=60) if quick else {}
+    out = {"minirocket": ("rocket", dict(rk), tuple(rocket_seeds))}
+    if which == "msr" and not quick:
+        out["minirocket-heading-start"] = ("rocket", dict(rk, heading="start"), tuple(rocket_seeds))
+    out["classifier"] = ("classifier", {}, (0,))
+    out["nmc"] = ("nmc", nmc, tuple(nmc_seeds))
+    out.update(extra or {})
+    only = ctx.options.get("methods")
+    return {k: v for k, v in out.items() if not only or k in only}
+
+
+@protocol("recognition-msr-half", "MSR-Action3D (557 clips of the authors' list), random half of each "
+          "class for training (thesis protocol, 5 seeds): MiniRocket (default), skeleton classifier, NMC")
+def recognition_msr_half(ctx: Context) -> Iterator[Row]:
+    D = _recog_data(ctx, "msr")
+    seeds = range(ctx.seed, ctx.seed + (1 if ctx.quick else int(ctx.options.get("seeds", 5))))
+    splits = [(*_class_halves(D["labels"], s), f"split {s}") for s in seeds]
+    extra = {} if ctx.quick else {"nmc-thesis-window": ("nmc", dict(window=60, stride=30), (0,))}
+    yield from _recognise(ctx, "recognition-msr-half", "msr", splits,
+                          f"random half of each class ({len(splits)} split{'s' if len(splits) > 1 else ''})",
+                          _recog_methods(ctx, "msr", extra), {"nmc": {"accuracy": NMC_PAPER},
+                                                              "nmc-thesis-window": {"accuracy": NMC_PAPER}})
+
+
+@protocol("recognition-msr-cross-subject", "MSR-Action3D (557 clips) cross-subject: subjects 1,3,5,7,9 "
+          "train, 2,4,6,8,10 test; MiniRocket over 3 transform seeds, skeleton classifier, NMC")
+def recognition_msr_cross_subject(ctx: Context) -> Iterator[Row]:
+    D = _recog_data(ctx, "msr")
+    g = D["groups"]
+    splits = [(np.flatnonzero(g % 2 == 1), np.flatnonzero(g % 2 == 0), "odd/even subjects")]
+    n = 1 if ctx.quick else int(ctx.options.get("seeds", 3))
+    seeds = tuple(range(ctx.seed, ctx.seed + n))
+    yield from _recognise(ctx, "recognition-msr-cross-subject", "msr", splits,
+                          f"subjects 1,3,5,7,9 train / 2,4,6,8,10 test ({n} seed{'s' if n > 1 else ''})",
+                          _recog_methods(ctx, "msr", rocket_seeds=seeds, nmc_seeds=seeds))
+
+
+@protocol("recognition-hdm05-cross-actor", "HDM05 (140 cut clips, 6 classes, 5 actors) cross-actor: "
+          "leave one actor out (5 folds) and 2 actors train / 3 test (10 pairs)")
+def recognition_hdm05_cross_actor(ctx: Context) -> Iterator[Row]:
+    D = _recog_data(ctx, "hdm")
+    g = D["groups"]
+    actors = sorted(set(g.tolist()))
+    loao = [(np.flatnonzero(g != a), np.flatnonzero(g == a), f"test {a}") for a in actors]
+    pairs = [(np.flatnonzero(np.isin(g, p)), np.flatnonzero(~np.isin(g, p)), "train " + "+".join(p))
+             for p in itertools.combinations(actors, 2)]
+    if ctx.quick:
+        loao, pairs = loao[:1], pairs[:1]
+    meths = _recog_methods(ctx, "hdm")
+    yield from _recognise(ctx, "recognition-hdm05-cross-actor", "hdm", loao,
+                          f"leave one actor out ({len(loao)} folds)", meths)
+    yield from _recognise(ctx, "recognition-hdm05-cross-actor", "hdm", pairs,
+                          f"2 actors train / 3 test ({len(pairs)} pair{'s' if len(pairs) > 1 else ''})", meths,
+                          figure=False)
