@@ -12,11 +12,19 @@ file, so (decision, METHODS.md §6 "self-validation"):
    conservative test). Hides of one marker never touch each other or a real gap; all
    hides of a round are hidden together, so each candidate runs once per round.
 2. Every candidate fills the hidden file; its RMSE on each hidden stretch (cm) scores it
-   for the gap the stretch was shaped after. A gap without a usable stretch (a marker
-   seen too little) borrows the pooled scores of the validated gaps of the same kind
-   (interior/edge) and a similar length (factor-2 bins, nearest bin if its own is empty).
-3. On the real file every candidate runs once more; each gap takes the values of its
-   best candidate (per frame, the next best where the best has none). A gap whose best
+   for the gap the stretch was shaped after. Interpolation is also scored on the gap's
+   own frames (round 3), and so is the pattern fill: the same frames are hidden in up to three *neighbouring*
+   markers (nearest on average, observed throughout the gap and its ends) -- a marker
+   moves with its neighbours, so what interpolation does to them over those frames is
+   what it does to the missing one, while the stretch next to the gap may be quiet when
+   the gap is not (a tennis serve: standing still, then the swing). A candidate's score
+   is the **worst** of its rounds (no fill is trusted on its best day), shrunk towards its
+   score on all the file's gaps of the same kind and length (:func:`_pooled`: a few
+   hidden frames are a noisy judge); a gap without a usable stretch (a marker seen too
+   little) takes that file-wide score alone.
+3. On the real file every candidate runs once more; each gap takes the average of the
+   candidates validated within a factor 1.5 of its best, weighted by 1 / error^2 (model
+   averaging as Tits et al. 2018; per frame, the next best where none of them has a value). A gap whose best
    validated error exceeds ``max_error_cm`` is left missing: no fill is trusted there.
 
 Each candidate keeps to its own evidence (:func:`mocapkit.gaps.supported` with its
@@ -42,6 +50,10 @@ from ..errors import MocapValueError
 from ..gaps import Gap, current_policy, find_gaps, supported
 from ..motion import Motion
 from .base import Denoiser, available, get, register
+
+#: fills that follow a trajectory's shape in time (besides interpolation): validated on
+#: the gap's own frames in neighbouring markers too (round 3)
+_SHAPE_FILLS = ("fill-pattern",)
 
 #: candidates tried by default, cheapest first (names in the registry; missing ones skipped)
 DEFAULT_CANDIDATES = ("linear", "spline", "fill-pattern", "fill-rigid", "fill-pca")
@@ -101,24 +113,92 @@ def _hides(obs: np.ndarray, gaps: Sequence[Gap], rounds: int) -> list[list[tuple
     return out
 
 
-def _pooled(err: np.ndarray, gaps: Sequence[Gap]) -> np.ndarray:
-    """Scores for gaps without their own validation: mean over validated gaps of the same
-    kind class (interior / edge) and length bin (factor 2; the nearest non-empty bin)."""
+def _stretch_errors(X: np.ndarray, P: np.ndarray, hide, n_gaps: int) -> tuple[np.ndarray, np.ndarray]:
+    """(n_gaps,) RMSE per coordinate (cm) of fill ``X`` on the hidden stretches of each gap
+    (pooled over a gap's stretches; inf where the fill covers under half of them, NaN for
+    gaps without a stretch) and the number of frames it was measured on."""
+    sq = np.zeros(n_gaps)
+    cnt = np.zeros(n_gaps)
+    tot = np.zeros(n_gaps)
+    for gi, j, a, b in hide:
+        d = X[a:b, j] - P[a:b, j]
+        ok = np.isfinite(d).all(axis=1)
+        sq[gi] += float((d[ok] ** 2).sum())
+        cnt[gi] += ok.sum()
+        tot[gi] += b - a
+    with np.errstate(invalid="ignore", divide="ignore"):
+        e = np.sqrt(sq / (3 * cnt))
+    e[cnt < 0.5 * tot] = np.inf            # covering little of the stretch validates nothing
+    e[tot == 0] = np.nan
+    return e, cnt
+
+
+def _neighbour_hides(P: np.ndarray, obs: np.ndarray, gaps: Sequence[Gap],
+                     n_neighbours: int = 3) -> list[tuple[int, int, int, int]]:
+    """Round 3 (module docstring): each interior gap's own frames hidden in up to
+    ``n_neighbours`` markers nearest to its marker (mean distance) that are observed over
+    the gap and one frame each side. Per-channel fills only, so hides of different
+    markers do not interact; hides of one marker must not touch."""
+    from ..rigid import distance_stats
+
+    T, J = obs.shape
+    dmean, _, _ = distance_stats(P, obs)
+    order = np.argsort(np.where(np.isfinite(dmean), dmean, np.inf), axis=1)
+    used = ~obs.copy()
+    out = []
+    for gi, g in enumerate(gaps):
+        if g.kind != "interior":
+            continue
+        a, b = g.start, g.stop
+        k = 0
+        for n in order[g.joint]:
+            if k >= n_neighbours:
+                break
+            if n == g.joint or not np.isfinite(dmean[g.joint, n]):
+                continue
+            if obs[a - 1:b + 1, n].all() and _free(used, n, a, b):
+                used[a:b, n] = True
+                out.append((gi, int(n), a, b))
+                k += 1
+    return out
+
+
+def _pooled(err: np.ndarray, n: np.ndarray, gaps: Sequence[Gap], n0: float) -> np.ndarray:
+    """Each candidate's score per gap, shrunk towards the file's experience with gaps like it.
+
+    For a gap class (interior / edge) and length bin (factor 2), ``pool`` is a candidate's
+    RMSE over all its validated gaps of that class and bin (the nearest non-empty bin; all
+    its validated gaps when the class has none). A gap's own score, measured on ``n``
+    frames, is combined with it as ``sqrt((n e^2 + n0 pool^2) / (n + n0))``: a 2-frame gap
+    is judged mostly by how the candidate did on all short gaps of the file, a 500-frame
+    gap by its own stretches. A gap without a score of its own takes ``pool``; inf (the
+    candidate could not fill the stretch) stays inf; a candidate validated nowhere stays
+    NaN.
+    """
     out = err.copy()
-    have = np.isfinite(err).any(axis=1)
-    if have.all() or not have.any():
-        return out
     edge = np.array([g.kind != "interior" for g in gaps])
     lbin = np.floor(np.log2(np.maximum([g.length for g in gaps], 1))).astype(int)
-    for cls in (False, True):
-        src = have & (edge == cls)
-        if not src.any():
-            src = have
-        bins = np.unique(lbin[src])
-        table = {b: np.nanmean(err[src & (lbin == b)], axis=0) for b in bins}
-        for gi in np.flatnonzero(~have & (edge == cls)):
-            b = bins[np.argmin(np.abs(bins - lbin[gi]))]
-            out[gi] = table[b]
+    for k in range(err.shape[1]):
+        col, nk = err[:, k], n[:, k]
+        have = np.isfinite(col)
+        if not have.any():
+            continue
+        for cls in (False, True):
+            rows = np.flatnonzero(edge == cls)
+            if not len(rows):
+                continue
+            src = have & (edge == cls)
+            if not src.any():
+                src = have
+            bins = np.unique(lbin[src])
+            table = {b: np.sqrt(np.sum(nk[m] * col[m] ** 2) / max(np.sum(nk[m]), 1e-12))
+                     for b in bins for m in [src & (lbin == b)]}
+            for gi in rows:
+                pool = table[bins[np.argmin(np.abs(bins - lbin[gi]))]]
+                if np.isnan(col[gi]):
+                    out[gi, k] = pool
+                elif np.isfinite(col[gi]):
+                    out[gi, k] = np.sqrt((nk[gi] * col[gi] ** 2 + n0 * pool ** 2) / (nk[gi] + n0))
     return out
 
 
@@ -134,6 +214,11 @@ class FillAuto(Denoiser):
         None fills every supported gap.
     rounds : validation rounds (1: stretches before interior gaps only; 2: before and
         after).
+    average : combine the candidates validated within a factor 1.5 of a gap's best,
+        weighted by 1 / error^2 (model averaging, Tits et al. 2018, PLoS ONE e0199744);
+        False takes the best alone.
+    prior_frames : weight, in validated frames, of the file-wide score of gaps of the same
+        kind and length against a gap's own stretches (:func:`_pooled`).
 
     Observed samples are returned unchanged.
     """
@@ -147,10 +232,13 @@ class FillAuto(Denoiser):
     clean_tolerance_cm = 1e-9
 
     def __init__(self, candidates: Sequence[str] = DEFAULT_CANDIDATES,
-                 max_error_cm: float | None = 10.0, rounds: int = 2):
+                 max_error_cm: float | None = 5.0, rounds: int = 2, average: bool = False,
+                 prior_frames: float = 20.0):
         self.candidates = candidates
         self.max_error_cm = max_error_cm
         self.rounds = rounds
+        self.average = average
+        self.prior_frames = prior_frames
 
     def _methods(self) -> list[tuple[str, Denoiser]]:
         names = [self.candidates] if isinstance(self.candidates, str) else list(self.candidates)
@@ -174,32 +262,28 @@ class FillAuto(Denoiser):
             return motion
         methods = self._methods()
         P = motion.positions
-        K = len(methods)
-        sq = np.zeros((len(gaps), K))
-        cnt = np.zeros((len(gaps), K))
-        tot = np.zeros(len(gaps))
-        for hide in _hides(obs, gaps, int(self.rounds)):
+        rounds = list(_hides(obs, gaps, int(self.rounds)))
+        interp = [k for k, (n, m) in enumerate(methods)
+                  if m.fill_evidence == "interp" or n in _SHAPE_FILLS]
+        if interp:
+            rounds.append(_neighbour_hides(P, obs, gaps))
+        err = np.full((len(gaps), len(methods)), np.nan)
+        cnt = np.zeros((len(gaps), len(methods)))
+        for r, hide in enumerate(rounds):
             if not hide:
                 continue
+            neighbour_round = interp and r == len(rounds) - 1
             mask = obs.copy()
             for _, j, a, b in hide:
                 mask[a:b, j] = False
             trial = motion.with_observed(mask)
             for k, (_, m) in enumerate(methods):
-                X = _candidate_fill(m, trial)
-                for gi, j, a, b in hide:
-                    d = X[a:b, j] - P[a:b, j]
-                    ok = np.isfinite(d).all(axis=1)
-                    sq[gi, k] += float((d[ok] ** 2).sum())
-                    cnt[gi, k] += ok.sum()
-            for gi, j, a, b in hide:
-                tot[gi] += b - a
-        with np.errstate(invalid="ignore", divide="ignore"):
-            err = np.sqrt(sq / (3 * cnt))
-            # a candidate that covers little of the hidden stretch is not validated for it
-            err[cnt < 0.9 * tot[:, None]] = np.inf
-        err[tot == 0] = np.nan
-        err = _pooled(err, gaps)
+                if neighbour_round and k not in interp:
+                    continue                 # neighbours hidden: cross-marker fills lose donors
+                e, c = _stretch_errors(_candidate_fill(m, trial), P, hide, len(gaps))
+                err[:, k] = np.fmax(err[:, k], e)      # the worst round counts
+                cnt[:, k] += c
+        err = _pooled(err, cnt, gaps, float(self.prior_frames))
         fills = [_candidate_fill(m, motion) for _, m in methods]
         return self._assemble(motion, gaps, methods, fills, err)
 
@@ -222,6 +306,24 @@ class FillAuto(Denoiser):
                 left_gaps += 1
                 continue
             seg = np.full((g.length, 3), np.nan)
+            if self.max_error_cm is not None and np.isfinite(e).any():
+                # per-frame fallback only to candidates validated under the threshold too
+                order = [k for k in order if e[k] <= float(self.max_error_cm)]
+            if self.average and np.isfinite(best):
+                # model averaging (Tits et al. 2018): the candidates validated within a factor
+                # 1.5 of the best, weighted by 1 / error^2, per frame where they have values
+                near = [k for k in order if e[k] <= 1.5 * best]
+                w = 1.0 / np.maximum(np.array([e[k] for k in near]), 1e-3) ** 2
+                stack = np.stack([fills[k][g.start:g.stop, g.joint] for k in near])   # (K, L, 3)
+                have = np.isfinite(stack).all(axis=2)                                  # (K, L)
+                wk = np.where(have, w[:, None], 0.0)
+                tot = wk.sum(axis=0)
+                with np.errstate(invalid="ignore", divide="ignore"):
+                    avg = np.einsum("kl,klc->lc", wk, np.nan_to_num(stack)) / tot[:, None]
+                ok = tot > 0
+                seg[ok] = avg[ok]
+                first = np.argmax(have, axis=0)                                        # best present
+                codes[g.start:g.stop, g.joint][ok] = np.asarray(near)[first[ok]]
             for k in order:
                 Xk = fills[k][g.start:g.stop, g.joint]
                 take = ~np.isfinite(seg).all(axis=1) & np.isfinite(Xk).all(axis=1)
