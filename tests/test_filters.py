@@ -63,12 +63,16 @@ def test_fill_gaps_ends_and_linear():
 
 
 def test_never_observed_joint_is_named():
+    """Issue 18: a never-observed joint is returned missing and named in the gap report
+    (it used to raise here and be filled with (0, 0, 0) by the low-rank methods)."""
     mo = smooth_motion(T=50, J=3)
     obs = mo.observed.copy()
     obs[:, 2] = False
     for name in ("spline", "gaussian", "kalman-cv"):
-        with pytest.raises(MocapValueError, match="m2"):
-            denoise.get(name).denoise(mo.with_observed(obs))
+        out = denoise.get(name).denoise(mo.with_observed(obs))
+        assert not out.observed[:, 2].any() and np.isnan(out.positions[:, 2]).all()
+        assert out.observed[:, :2].all() and np.isfinite(out.positions[:, :2]).all()
+        assert out.source["gap_report"]["never_observed"] == ["m2"]
 
 
 def test_linear_fill_keeps_observed_and_interpolates():

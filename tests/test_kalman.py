@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from mocapkit import Motion, Skeleton, denoise, signal
+from mocapkit import Motion, Skeleton, denoise, gaps, signal
 from mocapkit.denoise.base import Denoiser
 from mocapkit.errors import MocapValueError, NotFittedError
 
@@ -128,12 +128,18 @@ def test_kalman_cv_on_constant_velocity_beats_noise():
     err = np.sqrt(np.mean((out.positions - clean.positions) ** 2))
     # measured: factor 11-14 over seeds (2 cm -> 0.14-0.18 cm); require 6
     assert 2.0 / err > 6.0, err
-    # with 30 % missing markers it still fills and smooths
+    # with 30 % missing markers it still fills and smooths (every entry scored: FILL_ALL)
     obs = rng.random(clean.observed.shape) > 0.3
     obs[0] = True
-    out2 = denoise.get("kalman-cv").denoise(noisy.with_observed(obs))
+    with gaps.use_policy(gaps.FILL_ALL):
+        out2 = denoise.get("kalman-cv").denoise(noisy.with_observed(obs))
     assert out2.observed.all() and np.isfinite(out2.positions).all()
     assert np.sqrt(np.mean((out2.positions - clean.positions) ** 2)) < 0.5
+    # default policy: a subset of the same fills (the rest left missing, NaN, reported)
+    out3 = denoise.get("kalman-cv").denoise(noisy.with_observed(obs))
+    assert out3.observed[obs].all() and np.isnan(out3.positions[~out3.observed]).all()
+    assert out3.source["gap_report"]["left_missing"] == int((~out3.observed).sum())
+    np.testing.assert_allclose(out3.positions[out3.observed], out2.positions[out3.observed])
 
 
 def test_kalman_cv_constant_acceleration_and_fixed_params():
@@ -269,17 +275,24 @@ def test_kalman_learned_denoises_and_fills_unobserved_joint():
     out = m.denoise(noisy)
     err = np.sqrt(np.mean((out.positions - test.positions) ** 2))
     assert err < 1.2, err
-    # a wrist never observed: recovered from the other joints through the learned model
+    # a wrist seen in the first frame only: recovered from the other joints through the
+    # learned model (a trailing gap with marker evidence, filled under the default policy)
     obs = noisy.observed.copy()
     j = test.skeleton.index("lwrist")
-    obs[:, j] = False
+    obs[1:, j] = False
     out2 = m.denoise(noisy.with_observed(obs))
     assert out2.observed.all() and np.isfinite(out2.positions).all()
     err_j = np.sqrt(np.mean((out2.positions[:, j] - test.positions[:, j]) ** 2))
     assert err_j < 5.0, err_j
+    # never observed at all: returned missing (issue 18), the other joints unchanged
+    obs[0, j] = False
+    out_n = m.denoise(noisy.with_observed(obs))
+    assert not out_n.observed[:, j].any() and np.isnan(out_n.positions[:, j]).all()
+    assert out_n.observed[:, np.arange(test.n_joints) != j].all()
     # 30 % missing markers
     obs = rng.random(obs.shape) > 0.3
-    out3 = m.denoise(noisy.with_observed(obs))
+    with gaps.use_policy(gaps.FILL_ALL):
+        out3 = m.denoise(noisy.with_observed(obs))
     assert out3.observed.all() and np.sqrt(np.mean((out3.positions - test.positions) ** 2)) < 2.0
     with pytest.raises(MocapValueError, match="fps"):
         m.denoise(test.resample(30.0))
@@ -318,7 +331,8 @@ def test_kalman_on_real_clip(shared_data):
     learned = denoise.get("kalman-learned").fit(clips[:2])
     for m in (denoise.get("kalman-cv"), denoise.get("kalman-identity"), learned):
         for inp in (noisy, noisy_m):
-            out = m.denoise(inp)
+            with gaps.use_policy(gaps.FILL_ALL):             # every entry scored
+                out = m.denoise(inp)
             assert out.observed.all() and np.isfinite(out.positions).all()
         err = np.sqrt(np.mean((m.denoise(noisy).positions - test.positions) ** 2))
         assert err < 2.0, (m.name, err)

@@ -286,6 +286,23 @@ def test_shipped_checkpoint_denoises_a_bundled_clip():
     assert np.isfinite(out2.positions).all() and metrics.rmse(truth, out2) < metrics.rmse(truth, noisy)
 
 
+@pytest.mark.skipif(not pretrained_path("bra").is_file(), reason="no shipped bra checkpoint")
+def test_network_refuses_a_body_in_other_units():
+    """Issue 18 (scale sanity): a clip in metres or millimetres given as cm came back
+    ~30 cm (in cm) off; now it is refused with one clear error naming the size ratio."""
+    from mocapkit import io
+    from mocapkit.datasets import bundled
+    from mocapkit.errors import MocapValueError
+
+    truth = io.read(bundled("16_15.amc")).slice(0, 120)
+    m = denoise.get("bra")
+    assert m.denoise(truth).observed.all()
+    for s, word in ((0.01, "0.0"), (10.0, "11")):
+        with pytest.raises(MocapValueError, match=f"body is {word}.* times the size.*units"):
+            m.denoise(truth.with_positions(truth.positions * s))
+    m.denoise(truth.with_positions(truth.positions * 0.7))        # a child: still fine
+
+
 def test_train_cli_small_run_writes_checkpoint_and_resumes(tmp_path):
     from mocapkit.datasets import BUNDLED_DIR
 

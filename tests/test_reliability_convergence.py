@@ -72,7 +72,16 @@ def test_max_iter_1_warns_once_and_records(clip, lou_chai_model, name):
     s = d.convergence_
     assert s["method"] == name and s["converged"] is False
     assert s["iterations"] == 1 and s["max_iter"] == 1 and s["n_not_converged"] >= 1
-    assert np.isfinite(out.positions).all()
+    # one iteration is not a solution, but never garbage: an estimate far from the data
+    # (tsmc / trnn / svt / rpca after 1 iteration: every marker near the origin, 14-80 cm
+    # off) is replaced by the measured samples + linear gaps, with a MocapWarning
+    # (issue 18); whatever the gap policy leaves missing is NaN
+    inp = _noisy(clip.slice(0, 120))
+    assert out.observed[inp.observed].all()
+    assert np.isfinite(out.positions[out.observed]).all()
+    assert np.isnan(out.positions[~out.observed]).all()
+    d = (out.positions - inp.positions)[inp.observed]
+    assert np.sqrt(np.mean(d ** 2)) < 5.0, name
     json.dumps(s)                                     # JSON-able, so Denoiser.save can keep it
 
 
@@ -113,7 +122,7 @@ def test_reporting_does_not_change_results(clip):
     A1, E1, info = lr.slra(X, 50, mask=M, tol=1e-5, return_info=True)
     np.testing.assert_array_equal(A0, A1)
     assert (info["residual"][info["converged"]] < 1e-5).all()
-    out = denoise.get("slra", segment=50, tol=1e-5).denoise(m)
+    out = denoise.get("slra", segment=50, tol=1e-5, missing="free").denoise(m)
     np.testing.assert_array_equal(out.matrix(), A0)
     B0, _ = lr.rpca_ialm(X, mask=M, max_iter=3)
     B1, _, inf1 = lr.rpca_ialm(X, mask=M, max_iter=3, return_info=True)

@@ -4,7 +4,7 @@ import warnings
 import numpy as np
 import pytest
 
-from mocapkit import Motion, Skeleton, denoise
+from mocapkit import Motion, Skeleton, denoise, gaps
 from mocapkit.detect import detect_report, trust_data, trusted_mask
 from mocapkit.errors import MocapValueError
 from mocapkit.motion import fill_gaps_linear
@@ -286,7 +286,8 @@ def test_training_free_denoisers_fill_and_report(name):
     obs = rng.random((240, J)) > 0.3
     obs[[0, -1]] = True
     noisy = m.with_observed(obs)
-    out = denoise.get(name).denoise(noisy)
+    with gaps.use_policy(gaps.FILL_ALL):                 # the method's fill, every entry
+        out = denoise.get(name).denoise(noisy)
     assert out.observed.all() and np.isfinite(out.positions).all()
     miss = ~obs
     lin = fill_gaps_linear(noisy.matrix(), noisy.matrix_mask()).reshape(240, J, 3)
@@ -295,6 +296,48 @@ def test_training_free_denoisers_fill_and_report(name):
     assert out.source["solver"]["method"] == name and out.source["solver"]["converged"]
     if name == "dynammo":
         np.testing.assert_array_equal(out.positions[obs], noisy.positions[obs])
+
+
+def test_evidence_blend_weights_and_protocol_frames_untouched():
+    """mocapkit.solvers.evidence: beta_t = clip((r_t - 0.15) / 0.2, 0, 1) on the fraction of
+    markers observed in a frame; the thesis' 60 %-per-frame protocol (12 of 31 seen) and
+    anything denser keep the model's fill, a frame with 2 of 31 takes the linear fill."""
+    from mocapkit.solvers.evidence import blend_weight, evidence_blend
+
+    obs = np.ones((5, 31), bool)
+    obs[1, 12:] = False                     # 12 of 31 observed: r = 0.387
+    obs[2, 2:] = False                      # 2 of 31: r = 0.065
+    obs[3, 7:] = False                      # 7 of 31: r = 0.226 -> beta = 0.379
+    obs[4, :] = False
+    w = blend_weight(obs)
+    np.testing.assert_allclose(w, [1, 1, 0, (7 / 31 - 0.15) / 0.2, 0])
+    A = np.full((5, 93), 10.0)
+    L = np.zeros((5, 93))
+    mask = np.repeat(obs, 3, axis=1)
+    B = evidence_blend(A, L, mask, obs)
+    np.testing.assert_array_equal(B[mask], 10.0)                       # observed untouched
+    np.testing.assert_allclose(B[3][~mask[3]], 10.0 * w[3])
+    assert (B[2][~mask[2]] == 0).all() and (B[1] == 10).all()
+    L[3, 40] = np.nan                                                  # no linear value: keep A
+    assert evidence_blend(A, L, mask, obs)[3, 40] == 10.0
+
+
+@pytest.mark.parametrize("name", ["tsmc", "trnn"])
+def test_thesis_95_percent_missing_not_worse_than_linear(name):
+    """Issue 18: tsmc / trnn filled 76 / 32 cm off on a 95 %-missing walk (linear: 8 cm)."""
+    from mocapkit import corrupt, gaps, io
+    from mocapkit.datasets import bundled
+
+    truth = io.read(bundled("16_15.amc")).slice(240, 471)
+    inp, _ = corrupt.missing(truth, ratio=0.95, per_frame=False, seed=1)
+    with gaps.use_policy(gaps.FILL_ALL), warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        out = denoise.get(name).denoise(inp)
+        lin = denoise.get("linear").denoise(inp)
+    miss = ~inp.observed
+    e = np.sqrt(np.mean((out.positions - truth.positions)[miss] ** 2))
+    el = np.sqrt(np.mean((lin.positions - truth.positions)[miss] ** 2))
+    assert e <= 1.05 * el, (e, el)
 
 
 # ----------------------------------------------------------------------------------------

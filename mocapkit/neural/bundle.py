@@ -185,12 +185,41 @@ class Bundle:
         ref = C.ground_reference(P[:, 0], observed[:, 0], sigma=float(self.meta["reference_sigma"]),
                                  up_axis=up, fallback=C.joint_mean_track(P))
         local = np.where(observed[..., None], P, np.nan) - ref[:, None, :]
+        self._check_scale(local, observed)
         Z = self.norm_in.forward_fill(local.reshape(T, -1))
         f = int(self.meta["clip_frames"])
         W, starts, left = C.split_clips(Z, f, int(self.meta["clip_hop"]))
         Y = self.run_windows(W, postprocess=postprocess, threads=threads)
         out = self.norm_out.inverse(C.overlap_add(Y, starts, T, left))
         return out.reshape(T, -1, 3) + ref[:, None, :]
+
+    #: the input's body may be this much smaller or larger than the training bodies
+    SCALE_RANGE = (0.4, 2.5)
+
+    def _check_scale(self, local: np.ndarray, observed: np.ndarray) -> None:
+        """Refuse a body whose size is far from the training data's (issue 18: a clip in
+        metres or millimetres came back tens of cm off).  Size = the median over frames
+        (with >= 3 observed joints) of the RMS distance of the joints from their centroid,
+        compared with the same for the training mean pose (``norm_in.mean``)."""
+        ok = observed.sum(axis=1) >= 3
+        if not ok.any():
+            return
+        L = local[ok]
+        W = observed[ok][..., None]
+        n = W.sum(axis=1)
+        c = np.where(W, np.nan_to_num(L), 0.0).sum(axis=1) / n
+        d2 = np.where(W[..., 0], ((np.nan_to_num(L) - c[:, None]) ** 2).sum(axis=2), 0.0)
+        size = float(np.median(np.sqrt(d2.sum(axis=1) / n[:, 0])))
+        mp = self.norm_in.mean.reshape(-1, 3)
+        ref = float(np.sqrt(((mp - mp.mean(axis=0)) ** 2).sum(axis=1).mean()))
+        if not (ref > 0 and np.isfinite(size)):
+            return
+        lo, hi = self.SCALE_RANGE
+        if not lo <= size / ref <= hi:
+            raise MocapValueError(
+                f"the motion's body is {size / ref:.3g} times the size of the bodies this network "
+                f"was trained on (joint spread {size:.3g} cm vs {ref:.3g} cm): check the units "
+                f"(metres or millimetres read as cm?) or train on such data")
 
     def refine(self, motion: Motion, *, postprocess: bool | None = None, threads: int | None = None) -> Motion:
         """Refine a whole motion.

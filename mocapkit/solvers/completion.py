@@ -51,6 +51,7 @@ import numpy as np
 from scipy import fft as _fft
 
 from ..errors import ConvergenceWarning, MocapValueError
+from . import _linalg
 
 __all__ = ["second_difference_matrix", "smooth_solve", "estimate_rank", "soft_threshold",
            "tsmc", "trnn", "lds_em_complete"]
@@ -196,7 +197,7 @@ def _singular_values(X: np.ndarray) -> np.ndarray:
     """Singular values (descending) of a (T, C) matrix via its small Gram matrix."""
     T, C = X.shape
     G = X.T @ X if T >= C else X @ X.T
-    w = np.linalg.eigvalsh(G)[::-1]
+    w = _linalg.eigvalsh(G, what="singular values")[::-1]
     return np.sqrt(np.clip(w, 0.0, None))
 
 
@@ -381,7 +382,7 @@ def tsmc(X: Any, mask: Any = None, *, rank: int | str | None = None, alpha: floa
 # --------------------------------------------------------------------------------------
 def _orth_max(N: np.ndarray) -> np.ndarray:
     """argmax_W tr(W N) s.t. W W^T = I (thesis Appendix Lemma 1): W = Q P^T, N = P S Q^T."""
-    P, _, Qt = np.linalg.svd(N, full_matrices=False)
+    P, _, Qt = _linalg.svd(N, full_matrices=False, what="trnn")
     return Qt.T @ P.T
 
 
@@ -468,7 +469,7 @@ def trnn(X: Any, mask: Any = None, *, r: int = 15, d: int | str | None = None, l
     # P, Q from the top-r singular vectors of the interpolated data
     if r > 0:
         G = Xlin.T @ Xlin
-        w, Vg = np.linalg.eigh(G)
+        w, Vg = _linalg.eigh(G, what="trnn")
         Vr = Vg[:, ::-1][:, :r]                               # (C, r)
         Ur = Xlin @ Vr
         Ur /= np.maximum(np.linalg.norm(Ur, axis=0, keepdims=True), 1e-300)
@@ -529,7 +530,7 @@ def trnn(X: Any, mask: Any = None, *, r: int = 15, d: int | str | None = None, l
 def _psd_floor(S: np.ndarray, floor: float) -> np.ndarray:
     """Symmetrise and lift the eigenvalues of a covariance to at least ``floor``."""
     S = 0.5 * (S + S.T)
-    w, V = np.linalg.eigh(S)
+    w, V = _linalg.eigh(S, what="dynammo")
     return (V * np.maximum(w, floor)) @ V.T
 
 
@@ -716,7 +717,7 @@ def lds_em_complete(X: Any, mask: Any = None, *, k: int | None = None, max_iter:
     scale = max(float(Xc.var()), 1e-12)
     floor = min_var * scale
     # PCA initialisation
-    _, Vg = np.linalg.eigh(Xc.T @ Xc)
+    _, Vg = _linalg.eigh(Xc.T @ Xc, what="dynammo")
     Cm = Vg[:, ::-1][:, :k].copy()                        # (C, k)
     Zs = Xc @ Cm
     A = np.linalg.lstsq(Zs[:-1], Zs[1:], rcond=None)[0].T

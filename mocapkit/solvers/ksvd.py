@@ -43,6 +43,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import MocapValueError
+from . import _linalg
 
 __all__ = ["batch_omp", "ksvd", "KSVDResult", "normalize_atoms"]
 
@@ -258,7 +259,7 @@ def ksvd(Y, n_atoms: int, *, sparsity: int, n_iter: int = 10, init="data",
             g = coef_flat[pos]
             E = R[I] + np.outer(g, D[:, k])                    # (|I|, n) residual without atom k
             if exact:
-                U, s, Vt = np.linalg.svd(E, full_matrices=False)
+                U, s, Vt = _linalg.svd(E, full_matrices=False, what="k-svd")
                 d = Vt[0]
                 g = U[:, 0] * s[0]
             else:

@@ -62,6 +62,8 @@ from typing import Iterable
 import numpy as np
 
 from ..errors import MocapValueError
+from . import _linalg
+from .completion import _one_blas_thread
 
 __all__ = ["window_matrix", "lag_covariance", "learn_bases", "choose_k", "welsch",
            "welsch_weight", "window_counts", "coefficients", "overlap_add",
@@ -219,6 +221,7 @@ def choose_k(eigvals: np.ndarray, energy: float | None = 0.99, n_bases: int | No
     return int(min(n, np.searchsorted(np.cumsum(ev) / tot, e - 1e-12) + 1))
 
 
+@_one_blas_thread
 def learn_bases(clips: Iterable[np.ndarray], M: int, *, energy: float | None = 0.99,
                 n_bases: int | None = None, method: str = "lag") -> tuple[np.ndarray, np.ndarray, int]:
     """M-SSA filter bases (Sec. 3.1): eigenvectors of the grand lag-covariance.
@@ -240,7 +243,7 @@ def learn_bases(clips: Iterable[np.ndarray], M: int, *, energy: float | None = 0
     """
     G, S = lag_covariance(clips, M, method=method)
     C = G / S
-    w, V = np.linalg.eigh(C)
+    w, V = _linalg.eigh(C, what="lou-chai bases")
     w, V = w[::-1], V[:, ::-1]
     k = choose_k(w, energy, n_bases)
     E = np.ascontiguousarray(V[:, :k])
@@ -403,6 +406,7 @@ def _prior(Z, A, n_t) -> float:
     return max(float(n_t @ np.einsum("tl,tl->t", Z, Z) - np.einsum("tl,tl->", Z, A)), 0.0)
 
 
+@_one_blas_thread
 def robust_filter(Y: np.ndarray, E: np.ndarray, M: int, *, mask: np.ndarray | None = None,
                   lam: float = 0.1, p: float = 3.0, max_iter: int = 20, tol: float = 1e-4,
                   Z0: np.ndarray | None = None, method: str = "auto", fill_iter: int = 100,

@@ -54,6 +54,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import MocapValueError
+from . import _linalg
 
 __all__ = ["soft_threshold", "lasso_fista", "lasso_admm", "l1l1_admm", "dictionary_svd",
            "DictionarySVD", "lipschitz_constant", "lasso_objective", "l1l1_objective"]
@@ -70,7 +71,7 @@ def lipschitz_constant(D: np.ndarray) -> float:
     """Lipschitz constant ``2 ||D||_2^2`` of the gradient of ``||z - D theta||^2``."""
     D = np.asarray(D, dtype=np.float64)
     G = D.T @ D if D.shape[1] <= D.shape[0] else D @ D.T
-    return float(2.0 * np.linalg.eigvalsh(G)[-1])
+    return float(2.0 * _linalg.eigvalsh(G, what="sparse coding")[-1])
 
 
 def lasso_objective(Z, D, Theta, lam) -> np.ndarray:
@@ -175,7 +176,7 @@ class DictionarySVD:
         D = np.asarray(D, dtype=np.float64)
         if D.ndim != 2:
             raise MocapValueError(f"dictionary must be a 2-D (n, K) array, got shape {D.shape}")
-        P, sv, Vt = np.linalg.svd(D, full_matrices=False)
+        P, sv, Vt = _linalg.svd(D, full_matrices=False, what="sparse coding")
         top = float(sv[0]) if sv.size else 0.0
         cut = max(float(rank_tol), 0.0) ** 0.5 * top
         keep = sv > max(cut, top * max(D.shape) * np.finfo(np.float64).eps)
