@@ -13,9 +13,9 @@ Every method is one class deriving from :class:`Denoiser`, registered with
 
 The base class wraps every subclass's ``denoise`` once (:func:`_guard`, as scikit-learn
 wraps ``transform`` for ``set_output``) so the rules shared by all methods live in one
-place: the input is moved near the origin before the method and back after it (whole
-10 m steps, so data in a normal capture volume is untouched and a clip 100 m away gives
-the same result shifted), a never-observed joint gets a placeholder the method may use
+place: the input is moved near the origin before the method and back after it (when it lies
+more than 50 m away, by whole 10 m steps: data in a normal capture volume is untouched
+and a clip 100 m away gives the same result shifted), a never-observed joint gets a placeholder the method may use
 and is returned missing, and the result goes through :func:`mocapkit.gaps.apply_policy`
 (fills without evidence or far outside the capture volume are left missing, fills are
 flagged in ``Motion.filled`` and summarised in ``source['gap_report']``).
@@ -74,8 +74,12 @@ def get(name: str, **params: Any) -> "Denoiser":
     return cls(**params)
 
 
-#: whole steps (cm) by which the base class moves an input towards the origin
+#: whole steps (cm) by which the base class moves an input towards the origin, and the
+#: distance of the capture volume's centre from the origin beyond which it does (50 m: a
+#: clip in any real capture volume, or scaled x10, is left where it is, so every method
+#: keeps its own behaviour there; a clip 100 m or 10 km away is solved as if at home)
 RECENTRE_STEP_CM = 1000.0
+RECENTRE_BEYOND_CM = 5000.0
 
 _INSIDE = contextvars.ContextVar("mocapkit_denoise_depth", default=0)
 
@@ -87,6 +91,8 @@ def _recentre_offset(motion: Motion) -> np.ndarray:
     if len(P) == 0:
         return np.zeros(3)
     centre = 0.5 * (P.min(axis=0) + P.max(axis=0))
+    if np.abs(centre).max() <= RECENTRE_BEYOND_CM:
+        return np.zeros(3)
     return np.round(centre / RECENTRE_STEP_CM) * RECENTRE_STEP_CM
 
 
@@ -103,9 +109,10 @@ def _prepare(motion: Motion) -> tuple[Motion, np.ndarray]:
     if never.any() and obs.any():
         from ..gaps import fill_linear
 
-        with np.errstate(invalid="ignore"):
-            c = np.nanmean(np.where(obs[..., None], P, np.nan), axis=1)      # (T, 3)
-        c = fill_linear(c, np.isfinite(c))
+        n = obs.sum(axis=1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            c = np.where(obs[..., None], np.nan_to_num(P), 0.0).sum(axis=1) / n[:, None]   # (T, 3)
+        c = fill_linear(c, (n > 0)[:, None].repeat(3, axis=1))
         P = P.copy()
         P[:, never] = c[:, None, :]
         obs = obs | never[None, :]

@@ -240,6 +240,10 @@ class FillAuto(Denoiser):
         self.average = average
         self.prior_frames = prior_frames
 
+    @classmethod
+    def quick_params(cls) -> dict:
+        return {"rounds": 1}
+
     def _methods(self) -> list[tuple[str, Denoiser]]:
         names = [self.candidates] if isinstance(self.candidates, str) else list(self.candidates)
         known = available()
@@ -252,6 +256,12 @@ class FillAuto(Denoiser):
         return out
 
     def denoise(self, motion: Motion) -> Motion:
+        from threadpoolctl import threadpool_limits
+
+        with threadpool_limits(1):          # many small decompositions: one thread is fastest
+            return self._denoise(motion)
+
+    def _denoise(self, motion: Motion) -> Motion:
         if self.max_error_cm is not None and not float(self.max_error_cm) > 0:
             raise MocapValueError(f"fill-auto: max_error_cm must be positive, got {self.max_error_cm!r}")
         if int(self.rounds) not in (1, 2):
