@@ -86,7 +86,10 @@ def motion():
 
 def _check(out, motion):
     assert out.positions.shape == motion.positions.shape == (T_FRAMES, 31, 3)
-    assert out.observed.all() and np.isfinite(out.positions).all()
+    # the gap policy may leave an unsupported (edge) gap missing; everything else is filled
+    assert out.observed[motion.observed].all()
+    assert np.isfinite(out.positions[out.observed]).all() and np.isnan(out.positions[~out.observed]).all()
+    assert out.observed.mean() > 0.99
 
 
 @pytest.mark.slow
