@@ -187,18 +187,12 @@ class SkeletonClassifier:
         return str(self.classes_[i]), float(pr[i])
 
     def save(self, path: str | os.PathLike, *, overwrite: bool = False) -> Path:
-        from ..io._atomic import atomic_write, check_output_path
+        from .model_file import write_model
 
         self._check()
-        p = check_output_path(path, overwrite=overwrite)
         header = {"format": "mocapkit-classifier", "version": MODEL_FORMAT_VERSION,
                   "params": {"C": self.C, "max_iter": self.max_iter}, "smooth_s": SMOOTH_S}
-        arrays = dict(header=np.array(json.dumps(header)), mean=self.mean_, scale=self.scale_,
-                      coef=self.coef_, intercept=self.intercept_,
-                      classes=np.array(self.classes_, dtype=str),
-                      joints=np.array(getattr(self, "joints_", []), dtype=str))
-        atomic_write(p, lambda f: np.savez(f, **arrays), binary=True)
-        return p
+        return write_model(self, path, header, overwrite=overwrite)
 
     @classmethod
     def load(cls, path: str | os.PathLike):
@@ -208,15 +202,9 @@ class SkeletonClassifier:
 
     @classmethod
     def from_arrays(cls, header: dict, st: dict, path) -> "SkeletonClassifier":
-        if header.get("version") != MODEL_FORMAT_VERSION:
-            raise MocapFormatError(path, f"classifier format {header.get('format')} v{header.get('version')} "
-                                         f"is not supported (expected v{MODEL_FORMAT_VERSION})")
-        m = cls(**header["params"])
-        m.mean_, m.scale_ = st["mean"], st["scale"]
-        m.coef_, m.intercept_ = st["coef"], st["intercept"]
-        m.classes_ = st["classes"].astype(str)
-        m.joints_ = st["joints"].astype(str) if "joints" in st else np.array([], dtype=str)
-        return m
+        from .model_file import read_head
+
+        return read_head(cls(**header["params"]), header, st, path, MODEL_FORMAT_VERSION)
 
 
 def load_model(path: str | os.PathLike):

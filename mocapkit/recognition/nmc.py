@@ -397,35 +397,25 @@ class NMCClassifier:
 
     def save(self, path, *, overwrite: bool = False):
         """Write the fitted model (inductive use) to ``.npz`` (no pickle)."""
-        import json
-
-        from ..io._atomic import atomic_write, check_output_path
+        from .model_file import write_model
 
         if not hasattr(self, "Z_"):
             raise NotFittedError("NMC is not fitted")
-        p = check_output_path(path, overwrite=overwrite)
         header = {"format": MODEL_FORMAT, "version": MODEL_FORMAT_VERSION, "params": self.params(),
                   "lam1_abs": float(self.lam1_abs_)}
-        arrays = dict(header=np.array(json.dumps(header)), Z=self.Z_, bow_mean=self.bow_mean_,
-                      bow_scale=self.bow_scale_, coef=self.coef_, intercept=self.intercept_,
-                      classes=np.array(self.classes_, dtype=str), joints=np.array(self.joints_, dtype=str))
-        atomic_write(p, lambda f: np.savez(f, **arrays), binary=True)
-        return p
+        self.mean_, self.scale_ = self.bow_mean_, self.bow_scale_      # the shared read-out names
+        return write_model(self, path, header, {"Z": self.Z_}, overwrite=overwrite)
 
     @classmethod
     def from_arrays(cls, header: dict, st: dict, path) -> "NMCClassifier":
-        from ..errors import MocapFormatError
+        from .model_file import read_head
 
-        if header.get("version") != MODEL_FORMAT_VERSION:
-            raise MocapFormatError(path, f"classifier format {MODEL_FORMAT} v{header.get('version')} is not "
-                                         f"supported (expected v{MODEL_FORMAT_VERSION})")
-        m = cls(**header["params"])
+        if "bow_mean" in st:                    # files written before the shared layout
+            st = {**st, "mean": st["bow_mean"], "scale": st["bow_scale"]}
+        m = read_head(cls(**header["params"]), header, st, path, MODEL_FORMAT_VERSION)
         m.Z_ = st["Z"]
         m.lam1_abs_ = float(header["lam1_abs"])
-        m.bow_mean_, m.bow_scale_ = st["bow_mean"], st["bow_scale"]
-        m.coef_, m.intercept_ = st["coef"], st["intercept"]
-        m.classes_ = st["classes"].astype(str)
-        m.joints_ = st["joints"].astype(str)
+        m.bow_mean_, m.bow_scale_ = m.mean_, m.scale_
         m.test_bow_ = None
         return m
 

@@ -487,35 +487,26 @@ class RocketClassifier:
 
     # -- save / load ---------------------------------------------------------------
     def save(self, path: str | os.PathLike, *, overwrite: bool = False) -> Path:
-        from ..io._atomic import atomic_write, check_output_path
+        from .model_file import write_model
 
         self._check()
-        p = check_output_path(path, overwrite=overwrite)
         header = {"format": MODEL_FORMAT, "version": MODEL_FORMAT_VERSION, "params": self.params(),
                   "alpha": self.alpha_, "temperature": self.temperature_}
-        arrays = dict(header=np.array(json.dumps(header)), mean=self.mean_, scale=self.scale_,
-                      coef=self.coef_, intercept=self.intercept_, classes=np.array(self.classes_, dtype=str),
-                      joints=np.array(self.joints_, dtype=str))
+        arrays: dict = {}
         for i, r in enumerate(self.rockets_):
             arrays.update(r.state(f"r{i}_"))
-        atomic_write(p, lambda f: np.savez(f, **arrays), binary=True)
-        return p
+        return write_model(self, path, header, arrays, overwrite=overwrite)
 
     @classmethod
     def from_arrays(cls, header: dict, st: dict, path) -> "RocketClassifier":
-        if header.get("version") != MODEL_FORMAT_VERSION:
-            raise MocapFormatError(path, f"classifier format {MODEL_FORMAT} v{header.get('version')} is not "
-                                         f"supported (expected v{MODEL_FORMAT_VERSION})")
-        m = cls(**header["params"])
+        from .model_file import read_head
+
+        m = read_head(cls(**header["params"]), header, st, path, MODEL_FORMAT_VERSION)
         rp = dict(n_features=m.n_features, max_dilations=m.max_dilations, pooling=m.pooling,
                   max_channels=m.max_channels)
         m.rockets_ = [MiniRocket.from_state(st, "r0_", dict(rp, seed=m.seed))]
         if m.diff:
             m.rockets_.append(MiniRocket.from_state(st, "r1_", dict(rp, seed=m.seed + 1)))
-        m.mean_, m.scale_ = st["mean"], st["scale"]
-        m.coef_, m.intercept_ = st["coef"], st["intercept"]
-        m.classes_ = st["classes"].astype(str)
-        m.joints_ = st["joints"].astype(str)
         m.alpha_ = float(header["alpha"])
         m.temperature_ = float(header["temperature"])
         return m

@@ -230,18 +230,15 @@ def short(key: str) -> str:
 # peers
 # ---------------------------------------------------------------------------------------
 def fill_linear(motion: Motion) -> tuple[np.ndarray, np.ndarray]:
-    """Linear interpolation per marker, edges held; markers with < 2 observed frames left missing."""
-    P = np.array(motion.positions)
-    obs = motion.observed.copy()
-    t = np.arange(motion.n_frames)
-    for j in np.flatnonzero(~obs.all(axis=0)):
-        m = motion.observed[:, j]
-        if m.sum() < 2:
-            continue
-        for c in range(3):
-            P[:, j, c] = np.interp(t, t[m], P[m, j, c])
-        obs[:, j] = True
-    return P, obs
+    """Linear interpolation per marker, edges held (the package's one gap filler,
+    :func:`mocapkit.gaps.fill_linear`, without the gap policy); markers with < 2 observed
+    frames left missing."""
+    from ...gaps import fill_linear as _fill
+
+    few = motion.observed.sum(axis=0) < 2
+    X = _fill(motion.matrix(), motion.matrix_mask() & ~np.repeat(few, 3)[None, :])
+    obs = np.isfinite(X).reshape(motion.n_frames, motion.n_joints, 3).all(axis=2)
+    return X.reshape(motion.positions.shape), obs
 
 
 def fill_cubic(motion: Motion) -> tuple[np.ndarray, np.ndarray]:
