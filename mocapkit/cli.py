@@ -711,7 +711,7 @@ def cmd_search(a: argparse.Namespace) -> int:
 
 
 def cmd_classify(a: argparse.Namespace) -> int:
-    from .recognition.classifier import SkeletonClassifier, train_classifier
+    from .recognition.classifier import load_model, train_classifier
 
     if a.model == "train":
         if not a.output:
@@ -729,7 +729,8 @@ def cmd_classify(a: argparse.Namespace) -> int:
         if not a.C > 0:
             raise MocapValueError(f"--C {a.C}: give a positive number")
         try:
-            res = train_classifier(a.file, a.output, progress=not a.quiet, C=a.C, overwrite=a.force)
+            res = train_classifier(a.file, a.output, progress=not a.quiet, C=a.C, overwrite=a.force,
+                                   method=a.method)
         except ValueError as e:             # scikit-learn's, e.g. one class left after skipped files
             if isinstance(e, MocapError):
                 raise
@@ -737,7 +738,7 @@ def cmd_classify(a: argparse.Namespace) -> int:
         print(f"wrote {res['output']} ({res['n_train']} clips, {len(res['classes'])} classes, "
               f"training accuracy {res['train_accuracy']:.3f}, {len(res['skipped'])} skipped)")
         return 0
-    label, conf = SkeletonClassifier.load(a.model).predict(_read(a.file, a.skeleton))
+    label, conf = load_model(a.model).predict(_read(a.file, a.skeleton))
     print(json.dumps({"label": label, "confidence": conf}) if a.json else f"{label}\t{conf:.3f}")
     return 0
 
@@ -895,7 +896,11 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("model", help="model file (.npz), or 'train'")
     s.add_argument("file", help="motion file to classify (with 'train': folder of labelled clips)")
     s.add_argument("-o", "--output", help="with 'train': model file to write")
-    s.add_argument("--C", type=float, default=1.0, help="with 'train': inverse L2 strength (default 1)")
+    s.add_argument("--method", choices=("minirocket", "skeleton", "nmc"), default="minirocket",
+                   help="with 'train': minirocket (default; MiniRocket features + ridge), skeleton "
+                        "(hand-made features + logistic regression) or nmc (the thesis' NMC)")
+    s.add_argument("--C", type=float, default=1.0,
+                   help="with 'train --method skeleton|nmc': inverse L2 strength (default 1)")
     s.add_argument("--json", action="store_true")
     common(s)
     s.set_defaults(func=cmd_classify)

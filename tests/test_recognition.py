@@ -400,3 +400,28 @@ def test_train_classifier_on_hdm05_and_mismatch_with_kinect_model(shared_data, t
     assert cli.main(["classify", str(tmp_path / "k.npz"), str(test)]) == 2
     err = capsys.readouterr().err
     assert "20-joint skeleton" in err and "31 joints" in err and len(err.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize("method", ["skeleton", "nmc"])
+def test_cli_classify_train_each_method(method, shared_data, tmp_path, capsys):
+    """Every classifier the CLI offers trains and predicts end to end (the skeleton path
+    once failed with a NameError)."""
+    from mocapkit.cli import main
+
+    root = shared_data / "hdm05" / "asfamc"
+    picked = tmp_path / "train"
+    for cls in ("hopBothLegs1hops", "kickLFront1Reps"):
+        (picked / cls).mkdir(parents=True)
+        for f in sorted((root / cls).glob("*.amc"))[:4]:
+            (picked / cls / f.name).symlink_to(f)
+        for a in sorted(root.glob("*.asf")):
+            if not (picked / cls / a.name).exists():
+                (picked / cls / a.name).symlink_to(a)
+    model = tmp_path / "m.npz"
+    assert main(["classify", "train", str(picked), "-o", str(model), "--method", method, "-q"]) == 0
+    capsys.readouterr()
+    probe = sorted((root / "kickLFront1Reps").glob("*.amc"))[-1]
+    assert main(["classify", str(model), str(probe)]) == 0
+    from mocapkit.retrieval.index import label_of
+
+    assert capsys.readouterr().out.strip().split("\t")[0] == label_of(probe)

@@ -278,7 +278,6 @@ def train_classifier(paths_or_dir, output: str | os.PathLike, labels: Sequence[s
         model = RocketClassifier(seed=seed, **params)
         describe = model.series
     elif method == "nmc":
-        from ..retrieval.features import prepare
         from .nmc import NMCClassifier
 
         model = NMCClassifier(C=C, seed=seed, transductive=False, **params)
