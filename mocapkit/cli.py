@@ -423,7 +423,8 @@ def cmd_denoise(a: argparse.Namespace) -> int:
         auto = out.source.get("fill_auto")
         if auto and auto.get("estimated_rmse_cm") is not None:
             chose = ", ".join(f"{k} {v}" for k, v in sorted(auto["chosen"].items(), key=lambda kv: -kv[1]))
-            print(f"fill-auto: {auto['gaps']} gaps, chose {chose or 'nothing'}; estimated fill error "
+            print(f"fill-auto: {auto['gaps']} gaps, best validated fill per gap: {chose or 'none'}; "
+                  f"estimated fill error "
                   f"{auto['estimated_rmse_cm']:.2f} cm RMSE (from observed stretches hidden like the "
                   f"file's own gaps)" + (f"; {auto['left_gaps']} gaps left missing (no fill validated "
                                         f"under {auto['max_error_cm']:g} cm)" if auto["left_gaps"] else ""))

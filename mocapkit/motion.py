@@ -231,7 +231,11 @@ class Motion:
         max - min over joints and summarised by the median over frames.
         """
         P = self.positions
-        ext = np.nanmax(P, axis=1) - np.nanmin(P, axis=1)          # (T, 3)
+        seen = self.observed.any(axis=1)                            # frames with a marker
+        if not seen.any():
+            return float("nan")
+        Q = P[seen]
+        ext = np.nanmax(Q, axis=1) - np.nanmin(Q, axis=1)          # (T', 3)
         ext = ext[np.isfinite(ext).all(axis=1)]
         if len(ext) == 0:
             return float("nan")
