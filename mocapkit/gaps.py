@@ -233,10 +233,12 @@ def capture_volume(positions: np.ndarray, observed: np.ndarray) -> tuple[np.ndar
 
 
 def outside_volume(positions: np.ndarray, lo: np.ndarray, hi: np.ndarray, margin_cm: float) -> np.ndarray:
-    """(T, J) bool: samples more than ``margin_cm`` outside the box, or not finite."""
+    """(T, J) bool: samples farther than ``margin_cm`` (Euclidean distance to the box) outside
+    the box, or not finite."""
     P = np.asarray(positions)
     with np.errstate(invalid="ignore"):
-        out = ((P < lo - margin_cm) | (P > hi + margin_cm)).any(axis=-1)
+        d = np.linalg.norm(np.maximum(np.maximum(lo - P, P - hi), 0.0), axis=-1)
+        out = d > margin_cm
     return out | ~np.isfinite(P).all(axis=-1)
 
 
