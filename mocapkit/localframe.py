@@ -108,13 +108,14 @@ class LocalFrame:
 
 def _fill_linear(V: np.ndarray) -> np.ndarray:
     """Fill NaN rows of a (T, k) track by linear interpolation (ends held)."""
+    from .gaps import fill_linear
+
     ok = np.isfinite(V).all(axis=1)
     if ok.all():
         return V
     if not ok.any():
         raise MocapValueError("local frame: a joint that defines the frame is never observed")
-    t = np.arange(V.shape[0])
-    return np.stack([np.interp(t, t[ok], V[ok, c]) for c in range(V.shape[1])], axis=1)
+    return fill_linear(V, np.repeat(ok[:, None], V.shape[1], axis=1))
 
 
 def _robust_smooth(V: np.ndarray, fps: float, median_s: float, sigma_s: float) -> np.ndarray:

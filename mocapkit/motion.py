@@ -251,17 +251,15 @@ class Motion:
 
 
 def fill_gaps_linear(X: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    """Fill unobserved entries of a (T, C) matrix by linear interpolation in time.
+    """A solver's starting point: :func:`mocapkit.gaps.fill_linear` (linear in time, ends
+    held) with a never-observed channel set to 0 instead of NaN.
 
-    Leading/trailing gaps take the nearest observed value; a channel with no observed
-    value becomes 0. Vectorised per channel with ``np.interp`` (C is small, T is large).
+    Solvers need a finite matrix to start from; the value of a never-observed channel is
+    never returned to the user (the gap policy leaves it missing), so 0 only keeps the
+    arithmetic finite. For what a *user* gets, see :mod:`mocapkit.gaps`.
     """
-    X = np.array(X, dtype=float, copy=True)
-    mask = np.asarray(mask, dtype=bool) & np.isfinite(X)
-    if mask.all():
-        return X
-    t = np.arange(X.shape[0])
-    for c in np.flatnonzero(~mask.all(axis=0)):
-        m = mask[:, c]
-        X[:, c] = np.interp(t, t[m], X[m, c]) if m.any() else 0.0
-    return X
+    from .gaps import fill_linear
+
+    Y = fill_linear(X, mask)
+    Y[~np.isfinite(Y)] = 0.0
+    return Y
