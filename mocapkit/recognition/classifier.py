@@ -31,7 +31,6 @@ names of its training skeleton and refuses a motion of another joint set with a
 """
 from __future__ import annotations
 
-import json
 import os
 from pathlib import Path
 from typing import Sequence
@@ -214,16 +213,11 @@ def load_model(path: str | os.PathLike):
     from .nmc import MODEL_FORMAT as NMC_FORMAT, NMCClassifier
     from .rocket import MODEL_FORMAT as ROCKET_FORMAT, RocketClassifier
 
+    from ..io._npz import read_npz
+
     p = Path(path)
-    if not p.is_file():
-        raise MocapFormatError(p, "model file not found")
-    try:
-        with np.load(p, allow_pickle=False) as z:
-            st = {k: z[k] for k in z.files}
-        header = json.loads(str(st["header"]))
-        fmt = header.get("format")
-    except Exception as e:
-        raise MocapFormatError(p, f"not a mocapkit classifier model ({type(e).__name__})") from None
+    header, st = read_npz(p, "classifier model")
+    fmt = header.get("format")
     kinds = {"mocapkit-classifier": SkeletonClassifier, ROCKET_FORMAT: RocketClassifier,
              NMC_FORMAT: NMCClassifier}
     if fmt not in kinds:

@@ -348,18 +348,10 @@ class MotionIndex:
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> "MotionIndex":
+        from ..io._npz import read_npz
+
         p = Path(path)
-        if not p.is_file():
-            raise MocapFormatError(p, "index file not found")
-        try:
-            with np.load(p, allow_pickle=False) as z:
-                st = {k: z[k] for k in z.files}
-        except Exception as e:                                    # not an npz archive
-            raise MocapFormatError(p, f"not a mocapkit index file ({type(e).__name__})") from None
-        try:
-            header = json.loads(str(st["header"]))
-        except (KeyError, ValueError):
-            raise MocapFormatError(p, "not a mocapkit index file (no header)") from None
+        header, st = read_npz(p, "index file")
         if header.get("format") != "mocapkit-index":
             raise MocapFormatError(p, f"not a mocapkit index file (it holds a {header.get('format')!r}); "
                                       "build one with 'mocapkit index build'")
