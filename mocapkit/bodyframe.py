@@ -66,6 +66,12 @@ class BodyTransform:
     up_axis: int
     heading: np.ndarray
 
+    @classmethod
+    def identity(cls, n_frames: int, up_axis: int = 2) -> "BodyTransform":
+        """The world frame itself (no translation, no rotation) for ``n_frames`` frames."""
+        return cls(origin=np.zeros((n_frames, 3)), rotation=np.broadcast_to(np.eye(3), (n_frames, 3, 3)).copy(),
+                   up_axis=int(up_axis), heading=np.zeros(n_frames))
+
     @property
     def n_frames(self) -> int:
         return self.origin.shape[0]

@@ -50,7 +50,7 @@ import numpy as np
 from .errors import MocapValueError
 
 __all__ = ["Gap", "GapPolicy", "DEFAULT_POLICY", "FILL_ALL", "find_gaps", "gap_lengths",
-           "gap_table", "supported", "capture_volume", "outside_volume", "outside_envelope", "fill_linear",
+           "gap_table", "supported", "capture_volume", "outside_volume", "outside_envelope", "fill_linear", "frame_centroid",
            "use_policy", "current_policy", "apply_policy", "summary_line"]
 
 
@@ -253,21 +253,18 @@ def outside_envelope(positions: np.ndarray, observed: np.ndarray, candidate: np.
     P = np.asarray(positions, dtype=float)
     obs = np.asarray(observed, dtype=bool)
     cand = np.asarray(candidate, dtype=bool)
-    out = np.zeros_like(cand)
-    n = obs.sum(axis=1)
-    frames = cand.any(axis=1) & (n >= min_markers)
-    if not frames.any() or not obs.any():
-        return out
-    W = obs[..., None]
-    c = np.where(W, np.nan_to_num(P), 0.0).sum(axis=1) / np.maximum(n, 1)[:, None]   # (T, 3)
-    d = np.linalg.norm(np.nan_to_num(P) - c[:, None, :], axis=2)                     # (T, J)
-    d_obs = np.where(obs & (n >= min_markers)[:, None], d, -np.inf)
-    r = d_obs.max(axis=0)
-    enough = (obs & (n >= min_markers)[:, None]).sum(axis=0) >= 10
+    c, n = frame_centroid(P, obs)                                                     # (T, 3)
+    frames = (n >= min_markers)[:, None]                                              # has a reference
+    if not (cand & frames).any():
+        return np.zeros_like(cand)
+    with np.errstate(invalid="ignore"):
+        d = np.linalg.norm(np.nan_to_num(P) - c[:, None, :], axis=2)                  # (T, J)
+    ref = obs & frames
+    r = np.where(ref, d, -np.inf).max(axis=0)
+    enough = ref.sum(axis=0) >= 10
     r_all = r[enough].max() if enough.any() else (r.max() if np.isfinite(r.max()) else np.inf)
     r = np.where(enough, r, r_all)
-    out = cand & frames[:, None] & (d > 1.25 * r[None, :] + margin_cm)
-    return out
+    return cand & frames & (d > 1.25 * r[None, :] + margin_cm)
 
 
 def fill_linear(X: np.ndarray, mask: np.ndarray, *, ends: str = "hold") -> np.ndarray:
@@ -288,17 +285,27 @@ def fill_linear(X: np.ndarray, mask: np.ndarray, *, ends: str = "hold") -> np.nd
     if mask.all():
         return X
     t = np.arange(X.shape[0])
-    for c in np.flatnonzero(~mask.all(axis=0)):     # loop over channels (C small, T large)
+    # one np.interp per incomplete channel (C small, T large). Not signal.fill_gaps: it gives
+    # the same values to 1e-14, but solvers started from it (pca_fill.lowrank_complete) were
+    # measured to land elsewhere -- see the note in that function
+    for c in np.flatnonzero(~mask.all(axis=0)):
         m = mask[:, c]
-        if not m.any():
-            X[:, c] = np.nan
-            continue
-        X[:, c] = np.interp(t, t[m], X[m, c])
-        if ends == "nan":
-            first, last = np.flatnonzero(m)[[0, -1]]
-            X[:first, c] = np.nan
-            X[last + 1:, c] = np.nan
+        X[:, c] = np.interp(t, t[m], X[m, c]) if m.any() else np.nan
+    if ends == "nan":
+        first = np.argmax(mask, axis=0)
+        last = X.shape[0] - 1 - np.argmax(mask[::-1], axis=0)
+        X[(t[:, None] < first) | (t[:, None] > last)] = np.nan
     return X
+
+
+def frame_centroid(positions: np.ndarray, observed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per frame, the centroid (T, 3) of the observed markers (NaN where none is) and how
+    many markers it averages (T,)."""
+    obs = np.asarray(observed, dtype=bool)
+    n = obs.sum(axis=1)
+    s = np.where(obs[..., None], np.nan_to_num(np.asarray(positions, dtype=float)), 0.0).sum(axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return s / n[:, None], n
 
 
 def apply_policy(inp, out, *, evidence: str, method: str, policy: GapPolicy | None = None):

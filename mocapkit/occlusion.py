@@ -181,10 +181,3 @@ def drop_duplicate_markers(motion: Motion, tol_cm: float = 1e-6) -> tuple[Motion
     if not dropped:
         return motion, []
     return motion.select([names[j] for j in sorted(kept)]), dropped
-
-
-def gaps(observed_column: np.ndarray) -> list[tuple[int, int]]:
-    """Runs of missing frames ``[(start, stop), ...]`` (stop exclusive) of one (T,) mask column."""
-    m = np.concatenate([[False], ~np.asarray(observed_column, dtype=bool), [False]])
-    d = np.diff(m.astype(np.int8))
-    return list(zip(np.flatnonzero(d == 1).tolist(), np.flatnonzero(d == -1).tolist()))

@@ -7,7 +7,8 @@ import pytest
 from mocapkit import bench
 from mocapkit.bench.protocols import real_gaps as R
 from mocapkit.motion import Motion
-from mocapkit.occlusion import (apply_mask, drop_duplicate_markers, fully_observed_markers, gaps,
+from mocapkit.gaps import find_gaps
+from mocapkit.occlusion import (apply_mask, drop_duplicate_markers, fully_observed_markers,
                                 resample_mask, transplant_mask)
 from mocapkit.skeleton import Skeleton
 
@@ -81,7 +82,8 @@ def test_transplant_never_invents_black_out_frames():
 
 
 def test_gaps_and_apply_mask():
-    assert gaps(np.array([0, 0, 1, 1, 0, 1, 0], dtype=bool)) == [(0, 2), (4, 5), (6, 7)]
+    assert [(g.start, g.stop) for g in find_gaps(np.array([[0], [0], [1], [1], [0], [1], [0]], dtype=bool))] \
+        == [(0, 2), (4, 5), (6, 7)]
     P = np.arange(4 * 2 * 3, dtype=float).reshape(4, 2, 3)
     P[0, 1] = np.nan
     m = _markers(P)

@@ -107,11 +107,9 @@ def _prepare(motion: Motion) -> tuple[Motion, np.ndarray]:
     P = motion.positions - off
     obs = motion.observed
     if never.any() and obs.any():
-        from ..gaps import fill_linear
+        from ..gaps import fill_linear, frame_centroid
 
-        n = obs.sum(axis=1)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            c = np.where(obs[..., None], np.nan_to_num(P), 0.0).sum(axis=1) / n[:, None]   # (T, 3)
+        c, n = frame_centroid(P, obs)
         c = fill_linear(c, (n > 0)[:, None].repeat(3, axis=1))
         P = P.copy()
         P[:, never] = c[:, None, :]
@@ -301,15 +299,6 @@ def _jsonable(obj: Any) -> Any:
     if isinstance(obj, np.ndarray):
         return obj.tolist()
     return obj
-
-
-def check_output(inp: Motion, out: Motion, method: str) -> Motion:
-    """Validate a denoiser's output against its input (same T, J; observed stays observed)."""
-    if out.positions.shape != inp.positions.shape:
-        raise RuntimeError(f"{method}: output shape {out.positions.shape} != input {inp.positions.shape}")
-    if not out.observed[inp.observed].all():
-        raise RuntimeError(f"{method}: output lost observed entries")
-    return out
 
 
 def report_convergence(den: Denoiser, *, iterations: Any, converged: Any, residual: Any,

@@ -23,10 +23,10 @@ file, so (decision, METHODS.md §6 "self-validation"):
    hidden frames are a noisy judge); a gap without a usable stretch (a marker seen too
    little) takes that file-wide score alone.
 3. On the real file every candidate runs once more; each gap takes the values of its best
-   candidate (per frame, the next best validated one where the best has none; with
-   ``average=True`` the average of the candidates within a factor 1.5 of the best, weighted
-   by 1 / error^2, as the model averaging of Tits et al. 2018 -- measured on real-gaps it
-   did not pay: worst case 1.49 vs 1.44 x the best peer).
+   candidate (per frame, the next best validated one where the best has none). Model
+   averaging as Tits et al. 2018 (the candidates within a factor 1.5 of the best, weighted
+   by 1 / error^2) was measured on real-gaps and did not pay (worst case 1.49 vs 1.44 x the
+   best peer), so it is not offered.
    Fills whose scores differ by less than the capture's noise level (the package's one
    robust estimate, :func:`mocapkit.solvers.lowrank.noise_level`) are tied, and a tie goes
    to the smooth interpolation: below the noise no score is evidence. A gap whose best
@@ -63,7 +63,7 @@ _SHAPE_FILLS = ("fill-pattern",)
 #: preferred, in this order, when fills tie within the capture's noise level
 _SIMPLE_FIRST = ("spline", "linear")
 
-#: candidates tried by default, cheapest first (names in the registry; missing ones skipped)
+#: candidates tried by default, cheapest first (registry names)
 DEFAULT_CANDIDATES = ("linear", "spline", "fill-pattern", "fill-rigid", "fill-pca")
 
 
@@ -217,14 +217,11 @@ class FillAuto(Denoiser):
     Parameters
     ----------
     candidates : registry names of the fills to choose from (default
-        :data:`DEFAULT_CANDIDATES`; names not registered are skipped).
+        :data:`DEFAULT_CANDIDATES`).
     max_error_cm : a gap whose best validated RMSE is above this (cm) is left missing;
         None fills every supported gap.
     rounds : validation rounds (1: stretches before interior gaps only; 2: before and
         after).
-    average : combine the candidates validated within a factor 1.5 of a gap's best,
-        weighted by 1 / error^2 (model averaging, Tits et al. 2018, PLoS ONE e0199744);
-        False takes the best alone.
     prior_frames : weight, in validated frames, of the file-wide score of gaps of the same
         kind and length against a gap's own stretches (:func:`_pooled`).
 
@@ -240,12 +237,10 @@ class FillAuto(Denoiser):
     clean_tolerance_cm = 1e-9
 
     def __init__(self, candidates: Sequence[str] = DEFAULT_CANDIDATES,
-                 max_error_cm: float | None = 5.0, rounds: int = 2, average: bool = False,
-                 prior_frames: float = 20.0):
+                 max_error_cm: float | None = 5.0, rounds: int = 2, prior_frames: float = 20.0):
         self.candidates = candidates
         self.max_error_cm = max_error_cm
         self.rounds = rounds
-        self.average = average
         self.prior_frames = prior_frames
 
     @classmethod
@@ -255,13 +250,11 @@ class FillAuto(Denoiser):
     def _methods(self) -> list[tuple[str, Denoiser]]:
         names = [self.candidates] if isinstance(self.candidates, str) else list(self.candidates)
         known = available()
-        bad = [n for n in names if n not in known and not n.startswith("fill-")]
-        if bad or self.name in names:
-            raise MocapValueError(f"fill-auto: unknown or invalid candidate(s) {bad or [self.name]}")
-        out = [(n, get(n)) for n in names if n in known]
-        if not out:
-            raise MocapValueError("fill-auto: no candidate fill is available")
-        return out
+        bad = [n for n in names if n not in known or n == self.name]
+        if bad or not names:
+            raise MocapValueError(f"fill-auto: unknown or invalid candidate(s) {bad or names}; "
+                                  f"give registry names of fills")
+        return [(n, get(n)) for n in names]
 
     def denoise(self, motion: Motion) -> Motion:
         from threadpoolctl import threadpool_limits
@@ -338,21 +331,6 @@ class FillAuto(Denoiser):
             if self.max_error_cm is not None and np.isfinite(e).any():
                 # per-frame fallback only to candidates validated under the threshold too
                 order = [k for k in order if e[k] <= float(self.max_error_cm)]
-            if self.average and np.isfinite(best):
-                # model averaging (Tits et al. 2018): the candidates validated within a factor
-                # 1.5 of the best, weighted by 1 / error^2, per frame where they have values
-                near = [k for k in order if e[k] <= 1.5 * best]
-                w = 1.0 / np.maximum(np.array([e[k] for k in near]), 1e-3) ** 2
-                stack = np.stack([fills[k][g.start:g.stop, g.joint] for k in near])   # (K, L, 3)
-                have = np.isfinite(stack).all(axis=2)                                  # (K, L)
-                wk = np.where(have, w[:, None], 0.0)
-                tot = wk.sum(axis=0)
-                with np.errstate(invalid="ignore", divide="ignore"):
-                    avg = np.einsum("kl,klc->lc", wk, np.nan_to_num(stack)) / tot[:, None]
-                ok = tot > 0
-                seg[ok] = avg[ok]
-                first = np.argmax(have, axis=0)                                        # best present
-                codes[g.start:g.stop, g.joint][ok] = np.asarray(near)[first[ok]]
             for k in order:
                 Xk = fills[k][g.start:g.stop, g.joint]
                 take = ~np.isfinite(seg).all(axis=1) & np.isfinite(Xk).all(axis=1)
@@ -362,8 +340,9 @@ class FillAuto(Denoiser):
             chosen[names[order[0]]] += 1
             Y[g.start:g.stop, g.joint] = seg
             n = int(np.isfinite(seg).all(axis=1).sum())
-            if n and np.isfinite(best):
-                est_sq += best ** 2 * n
+            used = e[order[0]]                          # the score of the fill actually used
+            if n and np.isfinite(used):
+                est_sq += used ** 2 * n
                 est_n += n
         src = dict(motion.source)
         src["fill_codes"] = {"names": names, "codes": codes}

@@ -42,7 +42,7 @@ from typing import Any, Sequence
 from ..errors import MocapFormatError, MocapValueError
 from ..motion import Motion
 from ..neural import pretrained_path, require_torch
-from .base import Denoiser, check_output, register
+from .base import Denoiser, register
 
 _PARAMS = ("hidden", "dropout", "batch_size", "lambdas_perceptual", "lambdas_denoise", "lr_perceptual",
            "lr_denoise", "epochs_perceptual", "epochs_denoise", "steps_perceptual", "steps_denoise",
@@ -139,8 +139,7 @@ class _NeuralDenoiser(Denoiser):
     def denoise(self, motion: Motion) -> Motion:
         b = self._bundle()
         post = bool(self.postprocess) and self._perceptual
-        out = b.refine(motion, postprocess=post, threads=self.threads)
-        return check_output(motion, out, self.name)
+        return b.refine(motion, postprocess=post, threads=self.threads)  # checked by the guard
 
     # -- persistence ------------------------------------------------------------------------
     def save(self, path: str | os.PathLike, *, half: bool = False) -> None:
