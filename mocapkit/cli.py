@@ -315,6 +315,12 @@ def cmd_info(a: argparse.Namespace) -> int:
         "units": m.source.get("units", ""),
     }
     table = None
+    diag = None
+    if a.diagnose:
+        from .diagnose import diagnose
+
+        diag = diagnose(m)
+        info["diagnosis"] = diag.as_dict()
     if a.gaps:
         from .gaps import find_gaps, gap_table
 
@@ -331,7 +337,10 @@ def cmd_info(a: argparse.Namespace) -> int:
         print(json.dumps(info, indent=1, default=str))
     else:
         for k, v in info.items():
-            print(f"{k:>16}: {v}")
+            if k != "diagnosis":
+                print(f"{k:>16}: {v}")
+        for line in (diag.lines() if diag is not None else []):
+            print(f"{'diagnosis':>16}: {line}")
         if table is None:
             print(f"{'joint names':>16}: {', '.join(m.skeleton.names)}")
         else:
@@ -420,7 +429,8 @@ def cmd_denoise(a: argparse.Namespace) -> int:
               f"{m.n_frames / max(dt, 1e-9):.0f} frames/s)")
         if not m.observed.all():
             print(gaps.summary_line(out.source.get("gap_report")))
-        auto = out.source.get("fill_auto")
+        _print_auto(out.source.get("auto"))
+        auto = out.source.get("fill_auto") if "auto" not in out.source else None
         if auto and auto.get("estimated_rmse_cm") is not None:
             chose = ", ".join(f"{k} {v}" for k, v in sorted(auto["chosen"].items(), key=lambda kv: -kv[1]))
             print(f"fill-auto: {auto['gaps']} gaps, best validated fill per gap: {chose or 'none'}; "
@@ -429,6 +439,23 @@ def cmd_denoise(a: argparse.Namespace) -> int:
                   f"file's own gaps)" + (f"; {auto['left_gaps']} gaps left missing (no fill validated "
                                         f"under {auto['max_error_cm']:g} cm)" if auto["left_gaps"] else ""))
     return 0
+
+
+def _print_auto(src: dict | None) -> None:
+    """One line: what ``auto`` chose and its estimated error."""
+    if not src:
+        return
+    d = src.get("diagnosis") or {}
+    chain = " -> ".join(src.get("chain") or []) or "nothing to do (kept as measured)"
+    est = src.get("estimated_rmse_cm")
+    facts = []
+    if d:
+        facts.append(f"noise {d['noise_cm']:.2f} cm")
+        facts.append(f"spikes {100 * d['spike_rate']:.1f} %")
+        if d.get("n_gaps"):
+            facts.append(f"{d['n_gaps']} gaps")
+    print(f"auto: {chain} ({', '.join(facts)}); estimated error "
+          + (f"{est:.2f} cm RMSE ({src.get('how', '')})" if est is not None else "not available"))
 
 
 def cmd_train(a: argparse.Namespace) -> int:
@@ -764,6 +791,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--json", action="store_true")
     s.add_argument("--gaps", action="store_true",
                    help="per marker: missing %%, number of gaps, longest gap, edge gaps, filled frames")
+    s.add_argument("--diagnose", action="store_true",
+                   help="estimated noise (cm), spike rate, gaps by length and position, frame rate")
     s.add_argument("--skeleton")
     s.set_defaults(func=cmd_info)
 

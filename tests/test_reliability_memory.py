@@ -95,8 +95,7 @@ def _check(out, motion):
 @pytest.mark.slow
 @needs_rss
 def test_100k_frames_default_method_memory(motion):
-    d = denoise.default()
-    assert d.name == "kalman-cv"
+    d = denoise.get("kalman-cv", gate=5.0)         # the default of 0.1 (now: auto)
     out, peak = peak_rss(lambda: d.denoise(motion))
     _check(out, motion)
     assert peak < 16 * motion.positions.nbytes, f"{peak / motion.positions.nbytes:.1f}x"

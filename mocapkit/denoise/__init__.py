@@ -13,13 +13,13 @@ import importlib
 
 from .base import Denoiser, available, get, register  # noqa: F401
 
-DEFAULT_METHOD = "kalman-cv"
-DEFAULT_PARAMS = {"gate": 5.0}
-"""Method (and settings) used when none is named: the constant-velocity RTS smoother with a
-5-sigma outlier gate was the most accurate general-purpose method on mixed corruption
-(2 cm noise + 5 % 15 cm spikes + 10 % missing: 0.66 cm RMSE on three bundled CMU clips,
-vs 0.96 for gaussian+median and 1.18 for SLRA; see docs/methods.md), needs no training
-and fills gaps."""
+DEFAULT_METHOD = "auto"
+DEFAULT_PARAMS: dict = {}
+"""Method (and settings) used when none is named for skeleton data: ``auto`` (diagnose,
+remove spikes, smooth by the best of GCV spline / MSSA by SURE, fill long gaps by
+fill-auto), measured better than the previous default ``kalman-cv`` with ``gate=5`` in the
+``auto`` protocol (docs/results/auto.md). Marker captures get ``fill-auto``
+(:func:`default_for`)."""
 
 
 def default(**params):
@@ -35,7 +35,8 @@ def default_for(motion):
 
     return _default_for(motion)
 
-_FAMILIES = ("filters", "fill", "kalman", "lowrank", "bases", "sparse", "wavelet", "thesis", "neural", "fill_auto")
+_FAMILIES = ("filters", "fill", "kalman", "lowrank", "bases", "sparse", "wavelet", "thesis", "neural", "fill_auto",
+             "mssa", "auto")
 
 
 def _import_families() -> None:

@@ -5,7 +5,7 @@ import error inside one is raised.
 """
 import importlib
 
-_MODULES = ("smoke", "lowrank", "louchai", "xiao", "thesis", "bra", "retrieval", "real_gaps")
+_MODULES = ("smoke", "lowrank", "louchai", "xiao", "thesis", "bra", "retrieval", "real_gaps", "auto")
 
 for _m in _MODULES:
     try:

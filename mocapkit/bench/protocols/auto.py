@@ -1,0 +1,221 @@
+"""``auto``: does ``--method auto`` clean clips without tuning as well as the best that could
+be chosen with the truth in hand (issue #19, item 4)?
+
+Protocol
+--------
+*Clips*: one per behaviour of ../shared/data -- CMU (original ASF/AMC) walk 16_15, run
+09_06, jump 131_03, dance 05_02, martial arts 135_02, soccer kick 11_01, balance 49_18,
+duck under 131_05, and HDM05 kickLFront1Reps and hopBothLegs1hops (first file of each folder).
+Each is cropped to 1 s .. 1 s + ``max_seconds`` (8 s; the first second of several CMU
+files holds a T-pose or a one-frame jump; clips under 3 s start at frame 2) and
+resampled to 30 and to 120 fps.
+
+*Conditions* (:func:`mocapkit.corrupt.combine`, seed = ``ctx.seed`` + clip index):
+``clean``; ``gauss1`` / ``gauss3`` (Gaussian 1 / 3 cm per coordinate); ``spikes`` (10 %
+of joint samples moved 15 cm in a random direction); ``mixed`` (2 cm + 10 % x 15 cm);
+``missing30`` (30 % of the joints removed in every frame); ``gaps10x60`` (ten gaps of
+60 frames, each on one random joint; skipped on clips under 120 frames).
+
+*Methods*, same run: ``auto`` (default settings); ``kalman-cv-gate5`` (the default of
+0.1); ``oracle-classical`` -- gaps filled by a cubic spline, then a running median of
+1/3/5/7 frames followed by a Gaussian of sigma 0.5-8 frames or none, the best of the
+grid *chosen on the truth* (the best any classical filter can do); and the candidates
+``gcv-spline``, ``gcv-spline`` robust, ``mssa``, ``gaussian``, ``kalman-cv``,
+``fill-auto`` (not on ``missing30``: its per-gap validation takes ~60 s per 600 frames
+there), ``trnn`` at their defaults (``svt`` was never the best in a first run and is
+left out to keep the run short). ``best`` = the lowest-RMSE candidate per case.
+The protocol runs with every gap filled (FILL_ALL) so every method is scored on every
+sample.
+
+*Scores*: RMSE (cm, all coordinates) per case; auto's estimated RMSE
+(``source['auto']['estimated_rmse_cm']``) beside it; seconds. Summary rows (``clip =
+'summary'``), per frame rate and condition: median and worst over clips of auto /
+oracle-classical and auto / best; on ``clean`` the error auto adds; over the corrupted
+conditions the share of cases whose estimate is within a factor 1.5 of the truth; auto's
+time over the time of the method it ran (see :func:`_picked`).
+
+``ctx.quick``: two clips, 30 fps, three conditions, 4 s crops.
+"""
+from __future__ import annotations
+
+import time
+import warnings
+from pathlib import Path
+from typing import Any, Iterator
+
+import numpy as np
+
+from ... import corrupt, io, metrics, signal
+from ...motion import Motion
+from ..core import Context, Row, protocol
+
+NAME = "auto"
+CLIPS = (("walk", "cmu/asfamc/16/16_15.amc"), ("run", "cmu/asfamc/09/09_06.amc"),
+         ("jump", "cmu/asfamc/131/131_03.amc"), ("dance", "cmu/asfamc/05/05_02.amc"),
+         ("martial-arts", "cmu/asfamc/135/135_02.amc"), ("kick", "cmu/asfamc/11/11_01.amc"),
+         ("balance", "cmu/asfamc/49/49_18.amc"), ("duck", "cmu/asfamc/131/131_05.amc"),
+         ("hdm05-kick", "hdm05/asfamc/kickLFront1Reps"), ("hdm05-hop", "hdm05/asfamc/hopBothLegs1hops"))
+SPIKES = ("outliers", {"ratio": 0.1, "magnitude_cm": 15.0})
+CONDITIONS = {
+    "clean": [],
+    "gauss1": [("gaussian", {"sigma_cm": 1.0})],
+    "gauss3": [("gaussian", {"sigma_cm": 3.0})],
+    "spikes": [SPIKES],
+    "mixed": [("gaussian", {"sigma_cm": 2.0}), SPIKES],
+    "missing30": [("missing", {"ratio": 0.3})],
+    "gaps10x60": [("block_gaps", {"n_markers": 1, "length": 60, "n_blocks": 10})],
+}
+CANDIDATES = (("gcv-spline", {}), ("gcv-spline-robust", {"robust": True}), ("mssa", {}), ("gaussian", {}),
+              ("kalman-cv", {}), ("fill-auto", {}), ("trnn", {}))
+
+
+def _path(data: Path, rel: str) -> Path | None:
+    p = data / rel
+    if p.is_dir():
+        files = sorted(p.glob("*.amc"))
+        return files[0] if files else None
+    return p if p.is_file() else None
+
+
+def load_clips(data: Path, quick: bool, max_seconds: float) -> Iterator[tuple[str, Motion]]:
+    """(label, clip at 120 fps, cropped) for every behaviour whose file exists."""
+    chosen = CLIPS[:2] if quick else CLIPS
+    for label, rel in chosen:
+        p = _path(data, rel)
+        if p is None:
+            continue
+        m = io.read(p)
+        m = m if m.fps == 120 else m.resample(120.0)
+        start = int(m.fps) if m.n_frames >= 3 * m.fps else 2
+        yield label, m.slice(start, min(m.n_frames, start + int(max_seconds * m.fps)))
+
+
+def oracle_classical(truth: Motion, noisy: Motion) -> float:
+    """Lowest RMSE of spline fill + median(1/3/5/7) + Gaussian(0.5-8 frames or none)."""
+    X = signal.fill_gaps(noisy.matrix(), noisy.matrix_mask(), kind="cubic", ends="nearest")
+    best = np.inf
+    for k in (1, 3, 5, 7):
+        Xm = signal.median(X, window=k) if k > 1 else X
+        best = min(best, metrics.rmse(truth, noisy.with_matrix(Xm)))
+        for sg in (0.5, 0.75, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0):
+            best = min(best, metrics.rmse(truth, noisy.with_matrix(signal.gaussian(Xm, sigma=sg))))
+    return float(best)
+
+
+def _method(name: str, params: dict):
+    from ...denoise import get
+
+    base = "gcv-spline" if name.startswith("gcv-spline") else name
+    if name == "kalman-cv-gate5":
+        return get("kalman-cv", gate=5.0)
+    return get(base, **params)
+
+
+def _run(truth: Motion, noisy: Motion, name: str, params: dict) -> tuple[float, float, Motion | None]:
+    t0 = time.perf_counter()
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            out = _method(name, params).denoise(noisy)
+    except Exception:                        # a failure is a NaN row; the run goes on
+        return float("nan"), time.perf_counter() - t0, None
+    dt = time.perf_counter() - t0
+    if not out.observed.all():
+        return float("nan"), dt, out
+    return metrics.rmse(truth, out), dt, out
+
+
+def _case(ctx_seed: int, label: str, fps: int, truth: Motion, cond: str, steps: list) -> Iterator[Row]:
+    noisy, _ = corrupt.combine(truth, steps, seed=ctx_seed) if steps else (truth, None)
+    clip = f"{label}@{fps}"
+    res = {}
+    for name, params in (("auto", {}), ("kalman-cv-gate5", {})) + CANDIDATES:
+        if name == "fill-auto" and cond == "missing30":
+            continue                 # thousands of 1-3 frame gaps: ~60 s per 600 frames
+        e, dt, out = _run(truth, noisy, name, params)
+        res[name] = (e, dt, out)
+        extra: dict[str, Any] = {}
+        if name == "auto" and out is not None:
+            a = out.source.get("auto", {})
+            extra = {"estimate": a.get("estimated_rmse_cm"), "chain": a.get("chain")}
+        yield Row(NAME, clip, cond, name, "rmse", "cm", e, seconds=dt, extra=extra)
+    t0 = time.perf_counter()
+    yield Row(NAME, clip, cond, "oracle-classical", "rmse", "cm", oracle_classical(truth, noisy),
+              seconds=time.perf_counter() - t0)
+    cands = {n: res[n][0] for n, _ in CANDIDATES if n in res and np.isfinite(res[n][0])}
+    if cands:
+        b = min(cands, key=cands.get)
+        yield Row(NAME, clip, cond, "best", "rmse", "cm", cands[b], extra={"method": b})
+
+
+@protocol(NAME, "auto vs the old default, the oracle-tuned classical filter and the best "
+                "candidate per case: 10 behaviours x 30/120 fps x 7 conditions")
+def auto_protocol(ctx: Context) -> Iterator[Row]:
+    data = ctx.need_data()
+    quick = ctx.quick
+    max_s = float(ctx.options.get("max_seconds", 4.0 if quick else 8.0))
+    conds = {k: CONDITIONS[k] for k in (("clean", "gauss3", "spikes") if quick else CONDITIONS)}
+    rows: list[Row] = []
+    log = ctx.options.get("log")
+    for i, (label, clip) in enumerate(load_clips(data, quick, max_s)):
+        for fps in ((30,) if quick else (30, 120)):
+            truth = clip if fps == 120 else clip.resample(float(fps))
+            for cond, steps in conds.items():
+                if cond == "gaps10x60" and truth.n_frames < 120:
+                    continue                        # a 60-frame gap needs a longer clip
+                case = list(_case(ctx.seed + i, label, fps, truth, cond, steps))
+                rows.extend(case)
+                yield from case
+                if log:
+                    log(f"{label}@{fps} {cond}: " + ", ".join(
+                        f"{r.method}={r.value:.3f}" for r in case if r.method in ("auto", "oracle-classical", "best"))
+                        + f" est={case[0].extra.get('estimate')} {case[0].extra.get('chain')} best={case[-1].extra.get('method')}")
+    yield from summarise(rows)
+
+
+def _picked(case: dict[str, Row]) -> str:
+    """The candidate auto's chain ran (for the time ratio): the last of its steps that is
+    a method of the run (fill-auto, mssa, gcv-spline robust or plain)."""
+    chain = case["auto"].extra.get("chain") or []
+    if "fill-auto" in chain:
+        return "fill-auto"
+    if any("mssa" in c for c in chain):
+        return "mssa"
+    return "gcv-spline-robust" if "spike removal" in chain else "gcv-spline"
+
+
+def summarise(rows: list[Row]) -> Iterator[Row]:
+    """The summary rows of the module docstring, from the case rows."""
+    by: dict[tuple, dict[str, Row]] = {}
+    for r in rows:
+        by.setdefault((r.clip, r.condition), {})[r.method] = r
+    groups: dict[tuple, list[dict[str, Row]]] = {}
+    for (clip, cond), d in by.items():
+        groups.setdefault((clip.split("@")[1], cond), []).append(d)
+    est_ok = []
+    for (fps, cond), cases in sorted(groups.items()):
+        ro = [d["auto"].value / d["oracle-classical"].value for d in cases
+              if d["oracle-classical"].value > 0 and np.isfinite(d["auto"].value)]
+        rb = [d["auto"].value / d["best"].value for d in cases if "best" in d and d["best"].value > 0]
+        cond_fps = f"{cond}@{fps}"
+        if ro:
+            yield Row(NAME, "summary", cond_fps, "auto", "ratio_oracle_median", "x", float(np.median(ro)), n=len(ro))
+            yield Row(NAME, "summary", cond_fps, "auto", "ratio_oracle_worst", "x", float(np.max(ro)), n=len(ro))
+        if rb:
+            yield Row(NAME, "summary", cond_fps, "auto", "ratio_best_median", "x", float(np.median(rb)), n=len(rb))
+            yield Row(NAME, "summary", cond_fps, "auto", "ratio_best_worst", "x", float(np.max(rb)), n=len(rb))
+        if cond == "clean":
+            yield Row(NAME, "summary", cond_fps, "auto", "added_worst", "cm",
+                      float(np.nanmax([d["auto"].value for d in cases])), n=len(cases))
+        else:
+            for d in cases:
+                est = d["auto"].extra.get("estimate")
+                if est and d["auto"].value > 0:
+                    est_ok.append(1 / 1.5 <= est / d["auto"].value <= 1.5)
+        t = [d["auto"].seconds / d[_picked(d)].seconds for d in cases
+             if d["auto"].seconds and d.get(_picked(d)) and d[_picked(d)].seconds]
+        if t:
+            yield Row(NAME, "summary", cond_fps, "auto", "time_ratio_gcv_median", "x", float(np.median(t)), n=len(t))
+    if est_ok:
+        yield Row(NAME, "summary", "corrupted", "auto", "estimate_within_1.5x", "%",
+                  100.0 * float(np.mean(est_ok)), n=len(est_ok))

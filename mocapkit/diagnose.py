@@ -1,0 +1,125 @@
+"""What is wrong with a clip: noise level, spikes, gaps and frame rate, measured on the clip.
+
+One robust smoothing-spline fit (:func:`mocapkit.solvers.gcv_spline.gcv_smooth`, smoothing
+chosen by GCV, bisquare outlier rejection on each point's 3-D residual) gives both numbers
+a cleaning tool needs first:
+
+* **noise** -- the GCV noise estimate sigma^2 = RSS / (n - tr H) on the samples kept
+  (Wahba 1990 Sec. 4.7), median over coordinates, cm. Unlike second differences it is not
+  inflated by fast motion at 30 fps (the spline follows the motion).
+* **spikes** -- samples off the fit by more than 4.685 x max(residual scale, 1 cm): the
+  acceleration/residual test of QTM and Nexus, made robust. Rate = spikes / observed.
+
+Gaps come from the observed mask (:func:`mocapkit.gaps.find_gaps`): count, length in
+frames and seconds by bin, and how many touch the clip's ends.
+
+>>> from mocapkit import datasets, io, corrupt
+>>> clip = io.read(datasets.bundled("16_15.amc"))
+>>> noisy, _ = corrupt.combine(clip, [("gaussian", {"sigma_cm": 1.0})], seed=0)
+>>> d = diagnose(noisy)
+>>> 0.7 < d.noise_cm < 1.3, d.spike_rate < 0.005
+(True, True)
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .gaps import find_gaps
+from .motion import Motion
+from .solvers.gcv_spline import GCVInfo, gcv_smooth
+
+__all__ = ["Diagnosis", "diagnose", "robust_fit", "SPIKE_RATE"]
+
+#: spike rate above which a clip is called spiky (and auto removes outliers). Under
+#: Gaussian noise alone the test flags < 0.3 % of samples (measured on CMU at 30/120 fps).
+SPIKE_RATE = 0.005
+
+_BINS = ((1, 2), (3, 10), (11, 30), (31, 120), (121, None))      # gap lengths, frames
+
+
+@dataclass(frozen=True)
+class Diagnosis:
+    """Measured properties of one clip (cm, seconds, Hz); see the module docstring."""
+    fps: float
+    n_frames: int
+    n_points: int
+    noise_cm: float
+    spike_rate: float
+    n_spikes: int
+    missing: float                      # fraction of point samples unobserved
+    n_gaps: int
+    gap_bins: dict = field(default_factory=dict)      # "3-10 frames" -> count
+    edge_gaps: int = 0
+    longest_gap: int = 0                # frames
+    never_observed: int = 0             # points
+
+    @property
+    def spiky(self) -> bool:
+        return self.spike_rate > SPIKE_RATE
+
+    def lines(self) -> list[str]:
+        """Human-readable report, one fact per line."""
+        dur = self.n_frames / self.fps
+        out = [f"frames: {self.n_frames} at {self.fps:g} fps ({dur:.1f} s), {self.n_points} points",
+               f"noise: {self.noise_cm:.3f} cm RMS (GCV estimate on the samples kept)",
+               f"spikes: {self.n_spikes} samples ({100 * self.spike_rate:.2f} % of observed)"
+               + ("  -> outlier removal advised" if self.spiky else "")]
+        if self.n_gaps:
+            bins = ", ".join(f"{k}: {v}" for k, v in self.gap_bins.items() if v)
+            out.append(f"gaps: {self.n_gaps} ({100 * self.missing:.1f} % of samples missing; {bins}); "
+                       f"longest {self.longest_gap} frames ({self.longest_gap / self.fps:.2f} s); "
+                       f"{self.edge_gaps} at the clip's ends")
+        else:
+            out.append("gaps: none")
+        if self.never_observed:
+            out.append(f"never observed: {self.never_observed} point(s) (left missing)")
+        return out
+
+    def as_dict(self) -> dict:
+        d = dict(self.__dict__)
+        d["spiky"] = self.spiky
+        return d
+
+
+def robust_fit(motion: Motion) -> tuple[np.ndarray, GCVInfo, np.ndarray]:
+    """Robust GCV spline fit of the observed points. Returns (fit (T, 3J), info, usable
+    (J,) bool -- points with at least one observed sample; the fit covers those only)."""
+    X, M = motion.matrix(), motion.matrix_mask()
+    usable = motion.observed.any(axis=0)
+    cols = np.repeat(usable, 3)
+    fit = np.full_like(X, np.nan)
+    f, info = gcv_smooth(X[:, cols], M[:, cols], robust=True, group=3)
+    fit[:, cols] = f
+    return fit, info, usable
+
+
+def diagnose(motion: Motion, fit: tuple | None = None) -> Diagnosis:
+    """Diagnose ``motion``; ``fit`` reuses a :func:`robust_fit` result."""
+    if not isinstance(motion, Motion):
+        from .errors import MocapValueError
+        raise MocapValueError(f"diagnose: expected a Motion, got {type(motion).__name__}")
+    T, J = motion.observed.shape
+    obs = motion.observed
+    usable = obs.any(axis=0)
+    if T >= 8 and usable.any():
+        _, info, _ = fit if fit is not None else robust_fit(motion)
+        noise = float(np.median(info.sigma))
+        n_spk = int(info.rejected[:, ::3].sum())
+    else:
+        noise, n_spk = float("nan"), 0
+    gaps = [g for g in find_gaps(obs) if g.kind != "never"]
+    lengths = np.array([g.length for g in gaps], dtype=int)
+    bins = {}
+    for lo, hi in _BINS:
+        sel = (lengths >= lo) & ((lengths <= hi) if hi else True)
+        bins[f"{lo}-{hi} frames" if hi else f">{lo - 1} frames"] = int(sel.sum())
+    return Diagnosis(
+        fps=float(motion.fps), n_frames=T, n_points=J, noise_cm=noise,
+        spike_rate=n_spk / max(int(obs.sum()), 1), n_spikes=n_spk,
+        missing=float(1 - obs[:, usable].mean()) if usable.any() else 1.0,
+        n_gaps=len(gaps), gap_bins=bins,
+        edge_gaps=sum(g.kind in ("leading", "trailing") for g in gaps),
+        longest_gap=int(lengths.max()) if len(lengths) else 0,
+        never_observed=int((~usable).sum()))

@@ -1,0 +1,296 @@
+"""Automatic smoothing spline: penalised least squares with the smoothing chosen by
+generalised cross-validation (GCV), vectorised over channels.
+
+The biomechanics community's automatic filter is Woltring's GCVSPL (Woltring 1986, "A
+Fortran package for generalized, cross-validatory spline smoothing and differentiation",
+Adv. Eng. Software 8:104-113): a natural spline of order 2m-1 minimising
+
+    sum_i w_i (y_i - f(t_i))^2 + p * integral (f^(m)(t))^2 dt                     (W1)
+
+with p chosen by minimising the GCV score of Craven & Wahba (1979)
+
+    GCV(p) = (1/n) ||W^1/2 (I - H_p) y||^2 / (1 - tr(H_p)/n)^2                    (W2)
+
+For equally spaced samples (every mocap clip) we use the discrete counterpart of (W1)
+(Whittaker-Henderson graduation; Garcia 2010, "Robust smoothing of gridded data in one and
+higher dimensions with missing values", Comput. Stat. Data Anal. 54:1167-1178, eq. 3-7):
+the m-th difference replaces the m-th derivative, and with reflective ends the hat matrix
+is diagonal in the orthonormal DCT-II basis,
+
+    H_s = C^T diag(Gamma) C,   Gamma_k = 1 / (1 + s (2 - 2 cos(pi k / n))^m)      (G7)
+
+so one DCT per channel gives the fit, RSS (Parseval) and tr(H) = sum Gamma for *every*
+candidate s at once: the GCV grid is a (grid x n) @ (n x channels) product. m = 2 is the
+cubic-spline analogue (penalised acceleration), m = 3 Woltring's quintic mode.
+
+Missing samples and outliers follow Garcia (2010, Sec. 3-4): the weighted problem is
+solved by the fixed-point (EM) iteration y* = W y + (1 - W) f, f = H_s y*, started from a
+linear fill; ``robust=True`` recomputes bisquare weights from studentised residuals
+(``u = r / (1.4826 MAD(r) sqrt(1 - tr(H)/n))``, tuning constant 4.685) three times.
+
+The error estimate (SURE with the GCV variance estimate sigma^2 = RSS / (n - tr H),
+Wahba 1990 Sec. 4.7) simplifies to  E||f - x||^2 / n  ~=  sigma^2 tr(H) / n.
+
+Example
+-------
+>>> import numpy as np
+>>> from mocapkit.solvers.gcv_spline import gcv_smooth
+>>> t = np.linspace(0, 2 * np.pi, 400)[:, None]
+>>> truth = np.hstack([np.sin(t), np.cos(2 * t)]) * 10          # cm
+>>> noisy = truth + np.random.default_rng(0).normal(0, 1.0, truth.shape)
+>>> fit, info = gcv_smooth(noisy)
+>>> bool(np.sqrt(np.mean((fit - truth) ** 2)) < 0.35)
+True
+>>> bool(0.9 < info.sigma.mean() < 1.1)          # noise level recovered (cm)
+True
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+from scipy.fft import dct, idct
+from scipy.linalg import solve_banded, solveh_banded
+from scipy.stats import chi2
+
+from ..errors import MocapValueError
+
+__all__ = ["gcv_smooth", "GCVInfo", "cutoff_hz"]
+
+_BISQUARE = 4.685
+_GRID = np.logspace(-4, 11, 61)           # candidate s (dimensionless); 4 per decade
+
+
+@dataclass(frozen=True)
+class GCVInfo:
+    """What :func:`gcv_smooth` chose, per channel (C,) arrays.
+
+    s -- smoothing parameter of (G7); trace -- tr(H_s), the effective number of
+    parameters; sigma -- estimated noise std (units of the data); error -- estimated RMS
+    error of the fit against the noise-free signal (units of the data); outliers --
+    number of samples rejected by the robust iteration; n_iter -- robust passes run;
+    rejected -- (T, C) bool, True on the observed samples the robust iteration rejected;
+    smooth_error -- estimated RMS error on the samples the fit kept (SURE, see above);
+    hole_error -- estimated RMS error at the filled samples (missing or rejected), by
+    self-validation (see ``validate``); ``error`` then covers all samples.
+    """
+    s: np.ndarray
+    trace: np.ndarray
+    sigma: np.ndarray
+    error: np.ndarray
+    outliers: np.ndarray
+    n_iter: int
+    rejected: np.ndarray
+    smooth_error: np.ndarray
+    hole_error: np.ndarray | None = None
+
+
+def _eig(n: int, order: int) -> np.ndarray:
+    """(n,) eigenvalues of the m-th order difference penalty in the DCT-II basis (G7)."""
+    return (2.0 - 2.0 * np.cos(np.pi * np.arange(n) / n)) ** order
+
+
+def cutoff_hz(s: np.ndarray | float, order: int, fps: float) -> np.ndarray:
+    """Frequency (Hz) where the smoother's gain is 1/2: s (2 - 2 cos w)^m = 1."""
+    c = np.clip(1.0 - 0.5 * np.asarray(s, float) ** (-1.0 / order), -1.0, 1.0)
+    return np.arccos(c) / (2 * np.pi) * fps
+
+
+def _choose_s(Yd: np.ndarray, lam: np.ndarray, n_obs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per-channel s minimising (W2) on the grid, refined by a parabola in log s.
+
+    Yd (n, C) DCT coefficients of the (completed) series; RSS by Parseval. Returns s (C,)
+    and the minimum log GCV score (C,) (comparable between penalty orders).
+    """
+    n = Yd.shape[0]
+    G = 1.0 / (1.0 + _GRID[:, None] * lam[None, :])            # (grid, n)
+    rss = ((1.0 - G) ** 2) @ (Yd ** 2)                           # (grid, C)
+    tr = G.sum(axis=1)                                           # (grid,)
+    # Garcia (2010) eq. 9: RSS over the observed samples, tr(H)/n over all of them
+    score = np.log(rss / n_obs + 1e-300) - 2 * np.log(np.maximum(1 - tr / n, 1e-12))[:, None]
+    i = np.clip(np.argmin(score, axis=0), 1, len(_GRID) - 2)
+    cols = np.arange(Yd.shape[1])
+    a, b, c = score[i - 1, cols], score[i, cols], score[i + 1, cols]
+    den = a - 2 * b + c
+    step = np.where(den > 0, 0.5 * (a - c) / np.where(den > 0, den, 1), 0.0)
+    step = np.clip(step, -1, 1)
+    logs = np.log10(_GRID[i]) + step * (np.log10(_GRID[1]) - np.log10(_GRID[0]))
+    return 10.0 ** logs, b - 0.25 * (a - c) * step
+
+
+def _penalty_bands(n: int, order: int) -> np.ndarray:
+    """Upper banded form (order+1, n) of D^T D, D the (n - m, n) m-th difference matrix."""
+    d = np.diff(np.eye(2 * order + 1), n=order, axis=0)[0]          # binomial stencil
+    P = np.zeros((order + 1, n))
+    rows = np.arange(n - order)
+    for k in range(order + 1):                                      # band at offset k
+        acc = np.zeros(n)
+        for a in range(order + 1 - k):
+            np.add.at(acc, rows + a + k, d[a] * d[a + k])
+        P[order - k] = acc
+    return P
+
+
+def _solve_weighted(Y: np.ndarray, W: np.ndarray, s: np.ndarray, order: int) -> np.ndarray:
+    """Exact minimiser of sum w (y - f)^2 + s ||D_m f||^2 per column (Whittaker 1923;
+    Garcia 2010 eq. 5): a banded SPD system per column, (W + s D^T D) f = W y.
+
+    One banded Cholesky solve per column (O(T m^2)); the loop runs over channels, not
+    frames. The DCT of (G7) is used only to choose s: at the clip's ends the two
+    discretisations differ slightly, and one solver for the fit keeps it one thing.
+    """
+    out = Y.copy()                 # a column with < order + 1 weighted samples keeps Y
+    P = _penalty_bands(Y.shape[0], order)
+    ok = (W > 0).sum(axis=0) > order
+    for c in np.flatnonzero(ok):
+        ab = s[c] * P
+        ab[order] += W[:, c]
+        try:
+            out[:, c] = solveh_banded(ab, W[:, c] * Y[:, c], check_finite=False)
+        except np.linalg.LinAlgError:
+            # numerically singular (huge s, few weights): LU with pivoting on the same band
+            full = np.vstack([ab, ab[-2::-1] * 0])
+            for k in range(1, order + 1):
+                full[order + k, :-k] = ab[order - k, k:]
+            out[:, c] = solve_banded((order, order), full, W[:, c] * Y[:, c], check_finite=False)
+    return out
+
+
+def _select_and_fit(Y: np.ndarray, W: np.ndarray, order: int, s_fixed: np.ndarray | None,
+                    f: np.ndarray, passes: int = 2) -> tuple[np.ndarray, np.ndarray]:
+    """s by (W2) on the series completed with the current fit, then the exact weighted fit."""
+    if s_fixed is not None:
+        return _solve_weighted(Y, W, s_fixed, order), s_fixed
+    n_obs = np.maximum(W.sum(axis=0), 1.0)
+    lam = _eig(Y.shape[0], order)
+    for _ in range(passes):
+        s, _ = _choose_s(dct(W * Y + (1.0 - W) * f, type=2, norm="ortho", axis=0), lam, n_obs)
+        f = _solve_weighted(Y, W, s, order)
+    return f, s
+
+
+def gcv_smooth(X, mask=None, *, order: int = 2, s: float | np.ndarray | None = None,
+               robust: bool = False, group: int = 1, min_scale: float = 1.0,
+               n_robust: int = 3, validate: bool = True) -> tuple[np.ndarray, GCVInfo]:
+    """Smooth every column of ``X`` (T, C) with its own GCV-chosen smoothing spline.
+
+    Parameters
+    ----------
+    X : (T, C) array, units of the data (cm for mocap). Entries outside ``mask`` are ignored
+        (may be NaN).
+    mask : (T, C) bool, True where observed; None = all observed.
+    order : penalty order m of (G7): 2 (cubic-spline analogue; measured best or within
+        2 % of 3 on CMU clips at 30 and 120 fps, and it adds the least to a clean clip),
+        3 (quintic, Woltring's mode for derivatives) or 1 (velocity).
+    s : fixed smoothing parameter (scalar or (C,)) instead of GCV.
+    robust : outlier rejection. Bisquare re-weighting (Garcia 2010 Sec. 4), then a final
+        fit on the samples it kept (weight 1) -- the soft weights alone were measured to
+        cost 4 % on pure Gaussian noise. Rejected samples are filled by the spline.
+    group : number of consecutive columns that form one point (3 for x, y, z of a joint):
+        robust weights are computed from the point's residual norm and shared by its
+        columns, since a corrupted marker is wrong in all its coordinates at once (a
+        15 cm spike may move one axis by only a few cm).
+    min_scale : floor of the residual scale in the robust weights (units of the data; 1 cm
+        for mocap: a sample is rejected only if it is off by more than 4.685 x max(scale,
+        min_scale)), so that noise-free fast motion is not turned into "outliers".
+    n_robust : re-weighting passes of the robust iteration.
+    validate : estimate the error at filled samples (missing or rejected) by hiding the
+        clip's own hole pattern elsewhere (one extra fit); otherwise ``info.error``
+        covers the smoothing of trusted samples only.
+
+    Returns
+    -------
+    fit : (T, C) smoothed, gap-free series.
+    info : :class:`GCVInfo` per channel.
+    """
+    if order not in (1, 2, 3):
+        raise MocapValueError(f"gcv spline: order must be 1, 2 or 3, got {order!r}")
+    Y = np.asarray(X, dtype=float)
+    if Y.ndim != 2:
+        raise MocapValueError(f"gcv spline: expected a (T, C) matrix, got shape {Y.shape}")
+    T, C = Y.shape
+    M = np.isfinite(Y) if mask is None else (np.asarray(mask, bool) & np.isfinite(Y))
+    if T < 8:
+        raise MocapValueError(f"gcv spline: needs at least 8 frames, got {T}")
+    if group < 1 or C % group:
+        raise MocapValueError(f"gcv spline: group={group} does not divide {C} columns")
+    empty = ~M.any(axis=0)
+    if empty.any():
+        raise MocapValueError(f"gcv spline: column(s) {np.flatnonzero(empty)[:10].tolist()} have "
+                              f"no observed sample")
+    s_fixed = None if s is None else np.broadcast_to(np.asarray(s, float), (C,)).copy()
+    from ..gaps import fill_linear                    # the one gap filler
+    Y0 = fill_linear(np.where(M, Y, np.nan), M, ends="hold")
+    W = M.astype(float)
+    f, s_ = _select_and_fit(Y0, W, order, s_fixed, Y0)
+    n_iter = 0
+    if robust:
+        for n_iter in range(1, n_robust + 1):
+            W = _bisquare(Y0 - f, M, _trace(T, s_, order) / T, group, min_scale)
+            f, s_ = _select_and_fit(Y0, W, order, s_fixed, f)
+        W = (W > 0).astype(float)
+        f, s_ = _select_and_fit(Y0, W, order, s_fixed, f)
+    info = _info(Y0, f, M, W, _trace(T, s_, order), s_, n_iter)
+    if validate and (W == 0).any():
+        info = _with_hole_error(info, Y0, W, s_, order, group)
+    return f, info
+
+
+def _trace(T: int, s: np.ndarray, order: int) -> np.ndarray:
+    """tr(H_s) per channel from (G7)."""
+    return (1.0 / (1.0 + _eig(T, order)[:, None] * s[None, :])).sum(axis=0)
+
+
+def _with_hole_error(info: GCVInfo, Y: np.ndarray, W: np.ndarray, s: np.ndarray, order: int,
+                     group: int) -> GCVInfo:
+    """Add the error at the samples the fit had to fill (missing or rejected) by
+    self-validation: the clip's own hole pattern shifted by a third of the clip hides
+    trusted samples, the spline (same s) predicts them, and the prediction error minus
+    the noise variance estimates the fill error (same gap lengths, same motion).
+    """
+    T = Y.shape[0]
+    holes = W == 0
+    hide = np.roll(holes, T // 3, axis=0) & ~holes
+    if group > 1:                                   # hide whole points, as holes come
+        pts = hide.reshape(T, -1, group).any(axis=2)
+        hide = np.repeat(pts, group, axis=1) & ~holes
+    n_hide = hide.sum(axis=0)
+    if not n_hide.any():
+        return info
+    f = _solve_weighted(Y, np.where(hide, 0.0, W), s, order)
+    mse = np.where(hide, (f - Y) ** 2, 0.0).sum(axis=0) / np.maximum(n_hide, 1)
+    e_hole = np.sqrt(np.maximum(mse - info.sigma ** 2, 0.0))
+    e_hole = np.where(n_hide > 0, e_hole, np.sqrt(np.nanmean(np.where(n_hide > 0, e_hole, np.nan) ** 2)))
+    n_fill = holes.sum(axis=0)
+    err = np.sqrt(((T - n_fill) * info.error ** 2 + n_fill * e_hole ** 2) / T)
+    return replace(info, error=err, hole_error=np.nan_to_num(e_hole))
+
+
+def _bisquare(R: np.ndarray, M: np.ndarray, h: np.ndarray, group: int,
+              min_scale: float) -> np.ndarray:
+    """Bisquare weights (T, C) from residuals R and mean leverages h (C,), per point."""
+    T, C = R.shape
+    R = np.where(M, R, np.nan).reshape(T, C // group, group)
+    norm = np.sqrt(np.sum(R ** 2, axis=2))                                    # (T, points)
+    # median of a chi distribution with `group` dof: the MAD constant 0.6745 for group 1
+    med = float(np.sqrt(chi2.ppf(0.5, group)))
+    lev = np.sqrt(np.maximum(1 - h.reshape(-1, group).mean(axis=1), 1e-6))
+    scale = np.nanmedian(norm, axis=0) / med / lev
+    u = np.nan_to_num(norm / (_BISQUARE * np.maximum(scale, min_scale)), nan=2.0)
+    w = np.where(u < 1, (1 - u ** 2) ** 2, 0.0)
+    return np.repeat(w, group, axis=1) * M
+
+
+def _info(Y: np.ndarray, f: np.ndarray, M: np.ndarray, W: np.ndarray, tr: np.ndarray,
+          s: np.ndarray, n_iter: int) -> GCVInfo:
+    T = Y.shape[0]
+    use = W > 0.5
+    n_use = np.maximum(use.sum(axis=0), 1)
+    rss = np.where(use, (Y - f) ** 2, 0.0).sum(axis=0)
+    # GCV variance estimate over the trusted samples (Wahba 1990 Sec. 4.7); the fit's
+    # error ~ sigma sqrt(tr H / n) (SURE at the GCV estimate, see module docstring)
+    sigma = np.sqrt(rss / np.maximum(n_use * (1 - tr / T), 1e-12))
+    err = sigma * np.sqrt(tr / T)
+    rejected = M & (W == 0)
+    return GCVInfo(s=s, trace=tr, sigma=sigma, error=err, outliers=rejected.sum(axis=0),
+                   n_iter=n_iter, rejected=rejected, smooth_error=err)

@@ -1,0 +1,144 @@
+"""Multichannel singular spectrum denoising with optimal singular-value shrinkage, and a
+Monte-Carlo SURE to judge any denoiser on the clip itself.
+
+A smoothing spline treats every coordinate alone; the body moves as one, so the lagged
+trajectory matrix of a clip (rows = windows of ``window`` frames of all channels, the
+embedding of multichannel SSA, Broomhead & King 1986) is close to low rank while white
+noise spreads over every singular value. Its singular values are shrunk by the
+Frobenius-optimal shrinker of Gavish & Donoho (2017, "Optimal shrinkage of singular
+values", IEEE Trans. Inf. Theory 63:2137, eq. 7): in units of ``sigma sqrt(n)`` (n the
+larger dimension, beta = m/n <= 1)
+
+    eta(y) = sqrt((y^2 - beta - 1)^2 - 4 beta) / y   for y > 1 + sqrt(beta), else 0  (GD7)
+
+and the windows are averaged back to frames. The noise level ``sigma`` comes from the GCV
+spline (:func:`mocapkit.solvers.gcv_spline.gcv_smooth`). Long clips are processed in
+blocks of ``block`` frames with tapered overlaps (the rank of a 2,000-frame block is what
+matters; cost stays linear in T).
+
+:func:`sure` is Stein's unbiased risk estimate for any denoiser f under white Gaussian
+noise of known sigma, with the divergence by one random probe (Ramani, Blu & Unser 2008,
+"Monte-Carlo SURE", IEEE Trans. Image Process. 17:1540, eq. 9-10):
+
+    MSE ~= ||y - f(y)||^2 / N - sigma^2 + 2 sigma^2 b^T (f(y + e b) - f(y)) / (e N)
+
+>>> import numpy as np
+>>> rng = np.random.default_rng(0)
+>>> t = np.linspace(0, 4 * np.pi, 300)[:, None]
+>>> truth = np.hstack([np.sin(t + k) * (5 + k) for k in range(6)])        # cm, rank 2
+>>> noisy = truth + rng.normal(0, 1.0, truth.shape)
+>>> out = mssa_denoise(noisy, 1.0, window=8)
+>>> bool(np.sqrt(np.mean((out - truth) ** 2)) < 0.3)        # noise: 1 cm
+True
+>>> est = sure(lambda Y: mssa_denoise(Y, 1.0, window=8), noisy, 1.0, rng=1)   # MSE, cm^2
+>>> bool(abs(est - np.mean((out - truth) ** 2)) < 0.1)    # SURE's own spread ~ sqrt(2/N)
+True
+"""
+from __future__ import annotations
+
+from typing import Callable
+
+import numpy as np
+
+from ..errors import MocapValueError
+
+__all__ = ["mssa_denoise", "shrink", "sure"]
+
+
+def shrink(y: np.ndarray, beta: float) -> np.ndarray:
+    """Frobenius-optimal shrinker (GD7); y in units of sigma sqrt(n)."""
+    t = (y ** 2 - beta - 1) ** 2 - 4 * beta
+    return np.where(y > 1 + np.sqrt(beta), np.sqrt(np.maximum(t, 0)) / np.maximum(y, 1e-300), 0.0)
+
+
+def _block(X: np.ndarray, sigma: float, window: int) -> np.ndarray:
+    """One block: embed, shrink, average back. X (T, C) centred.
+
+    Only the singular values above the noise edge survive (GD7), so a randomized SVD
+    (Halko, Martinsson & Tropp 2011; scikit-learn's implementation, fixed seed so the
+    map is deterministic) of growing rank replaces the full decomposition: it stops once
+    the smallest value it found is under the edge. Measured 15-20x faster than the full
+    eigendecomposition of the (C L)^2 Gram matrix at 120 fps (93 channels x 16 lags).
+    """
+    from sklearn.utils.extmath import randomized_svd
+
+    from ..denoise.sparse import lagged_windows, overlap_mean       # the window helpers
+
+    T, C = X.shape
+    H = lagged_windows(X, window)                                     # (m, C window)
+    m, n = H.shape
+    big, beta = max(m, n), min(m, n) / max(m, n)
+    unit = sigma * np.sqrt(big)
+    edge = unit * (1 + np.sqrt(beta))
+    k = 128
+    while True:
+        if 2 * k >= min(m, n):                 # small matrix: the exact SVD is cheaper
+            U, S, Vt = np.linalg.svd(H, full_matrices=False)
+            break
+        U, S, Vt = randomized_svd(H, k, n_oversamples=10, n_iter=4, random_state=0)
+        if S[-1] <= edge:
+            break
+        k *= 2
+    keep = S > edge
+    if not keep.any():
+        return np.zeros_like(X)
+    Hd = (U[:, keep] * shrink(S[keep] / unit, beta) * unit) @ Vt[keep]
+    return overlap_mean(Hd, T, window)
+
+
+def mssa_denoise(X, sigma: float, *, window: int, block: int = 2048) -> np.ndarray:
+    """Denoise a complete (T, C) matrix (cm) with white noise of std ``sigma`` (cm).
+
+    window : embedding length in frames (about 0.13 s: 4 at 30 fps, 16 at 120 fps was
+        measured best on CMU clips). block : frames per block for long clips.
+    """
+    X = np.asarray(X, dtype=float)
+    if X.ndim != 2 or not np.isfinite(X).all():
+        raise MocapValueError("mssa: needs a complete, finite (T, C) matrix")
+    T = X.shape[0]
+    window = int(window)
+    if not (2 <= window <= T // 2):
+        raise MocapValueError(f"mssa: window must be 2..T/2 frames, got {window} for T={T}")
+    if not (sigma > 0):
+        return X.copy()
+    mu = X.mean(axis=0)
+    Xc = X - mu
+    if T <= block:
+        return _block(Xc, float(sigma), window) + mu
+    ov = 4 * window                                                    # overlap per side
+    out = np.zeros_like(Xc)
+    wsum = np.zeros(T)
+    for a in range(0, T, block - 2 * ov):
+        b = min(T, a + block)
+        a = max(0, b - block)
+        w = np.ones(b - a)
+        ramp = np.linspace(0.0, 1.0, ov + 2)[1:-1]
+        if a > 0:
+            w[:ov] = ramp
+        if b < T:
+            w[-ov:] = ramp[::-1]
+        out[a:b] += _block(Xc[a:b], float(sigma), window) * w[:, None]
+        wsum[a:b] += w
+        if b == T:
+            break
+    return out / wsum[:, None] + mu
+
+
+def sure(f: Callable[[np.ndarray], np.ndarray], Y: np.ndarray, sigma: float, *,
+         mask: np.ndarray | None = None, eps: float | None = None, rng=0,
+         fy: np.ndarray | None = None) -> float:
+    """Monte-Carlo SURE (module docstring) of the denoiser ``f`` at ``Y``: an unbiased
+    estimate of the mean squared error per entry against the noise-free signal, over the
+    entries in ``mask`` (default all). ``fy``: f(Y) if already computed."""
+    Y = np.asarray(Y, dtype=float)
+    M = np.ones(Y.shape, bool) if mask is None else np.asarray(mask, bool)
+    N = int(M.sum())
+    if N == 0 or not (sigma > 0):
+        return float("nan")
+    g = np.random.default_rng(rng)
+    b = np.where(g.random(Y.shape) < 0.5, -1.0, 1.0) * M
+    e = 0.01 * sigma if eps is None else eps
+    f0 = f(Y) if fy is None else fy
+    div = float(np.sum(b * (f(Y + e * b) - f0))) / e
+    rss = float(np.sum(((Y - f0) ** 2)[M]))
+    return rss / N - sigma ** 2 + 2 * sigma ** 2 * div / N

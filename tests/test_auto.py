@@ -1,0 +1,194 @@
+"""GCV smoothing spline, MSSA + SURE, diagnosis and ``--method auto`` (issue #19)."""
+from __future__ import annotations
+
+import doctest
+import json
+
+import numpy as np
+import pytest
+
+from mocapkit import corrupt, io, metrics
+from mocapkit.cli import main
+from mocapkit.datasets import bundled
+from mocapkit.denoise import get
+from mocapkit.diagnose import diagnose
+from mocapkit.errors import MocapValueError
+from mocapkit.solvers import gcv_spline, mssa
+from mocapkit.solvers.gcv_spline import _penalty_bands, _solve_weighted, gcv_smooth
+from mocapkit.solvers.mssa import mssa_denoise, shrink, sure
+
+
+@pytest.fixture(scope="module")
+def clip():
+    m = io.read(bundled("16_15.amc"))
+    return m.slice(2, None)                    # frame 0 of this AMC is a 69 cm glitch
+
+
+def _noisy(m, steps, seed=0):
+    return corrupt.combine(m, steps, seed=seed)[0]
+
+
+@pytest.mark.parametrize("module", [gcv_spline, mssa])
+def test_docstring_examples_run(module):
+    assert doctest.testmod(module, raise_on_error=False).failed == 0
+
+
+@pytest.mark.parametrize("order", [1, 2, 3])
+def test_weighted_fit_equals_dense_whittaker_solution(order):
+    rng = np.random.default_rng(order)
+    T = 40
+    Y = rng.normal(size=(T, 2)).cumsum(axis=0)
+    W = (rng.random((T, 2)) > 0.3).astype(float)
+    s = np.array([3.0, 250.0])
+    D = np.diff(np.eye(T), n=order, axis=0)
+    dense = np.column_stack([np.linalg.solve(np.diag(W[:, c]) + s[c] * D.T @ D, W[:, c] * Y[:, c])
+                             for c in range(2)])
+    np.testing.assert_allclose(_solve_weighted(Y, W, s, order), dense, atol=1e-9)
+    B = _penalty_bands(T, order)
+    np.testing.assert_allclose(B[order], np.diag(D.T @ D))
+
+
+def test_gcv_recovers_noise_and_beats_fixed_smoothing():
+    rng = np.random.default_rng(0)
+    t = np.linspace(0, 6, 900)[:, None]
+    truth = np.hstack([10 * np.sin(t), 5 * np.cos(3 * t), t ** 2])
+    noisy = truth + rng.normal(0, 0.8, truth.shape)
+    fit, info = gcv_smooth(noisy)
+    err = np.sqrt(np.mean((fit - truth) ** 2))
+    assert np.allclose(info.sigma, 0.8, rtol=0.1)
+    assert err < 0.3 * 0.8
+    # the estimate (SURE at the GCV optimum) is within 30 % of the truth
+    assert abs(np.sqrt(np.mean(info.error ** 2)) / err - 1) < 0.3
+    # more or less smoothing than GCV's choice is worse
+    for factor in (1e-2, 1e2):
+        worse, _ = gcv_smooth(noisy, s=info.s * factor)
+        assert np.sqrt(np.mean((worse - truth) ** 2)) > err
+
+
+def test_robust_rejects_spikes_per_point_and_fills_them():
+    rng = np.random.default_rng(1)
+    t = np.linspace(0, 4, 400)[:, None]
+    truth = np.hstack([20 * np.sin(t + k) for k in range(6)])           # 2 points x 3
+    Y = truth.copy()
+    hit = rng.random((400, 2)) < 0.05
+    bump = rng.normal(size=(400, 2, 3))
+    bump *= 15 / np.linalg.norm(bump, axis=2, keepdims=True)
+    Y = (Y.reshape(400, 2, 3) + bump * hit[..., None]).reshape(400, 6)
+    fit, info = gcv_smooth(Y, robust=True, group=3)
+    found = info.rejected.reshape(400, 2, 3).any(axis=2)
+    assert (found == hit).mean() > 0.99
+    assert np.sqrt(np.mean((fit - truth) ** 2)) < 0.05
+    plain, _ = gcv_smooth(Y)
+    assert np.sqrt(np.mean((plain - truth) ** 2)) > 10 * np.sqrt(np.mean((fit - truth) ** 2))
+
+
+def test_gcv_bad_input_is_one_clear_error():
+    with pytest.raises(MocapValueError, match="order"):
+        gcv_smooth(np.zeros((20, 3)), order=4)
+    with pytest.raises(MocapValueError, match="at least 8 frames"):
+        gcv_smooth(np.zeros((5, 3)))
+    with pytest.raises(MocapValueError, match="no observed sample"):
+        gcv_smooth(np.zeros((20, 2)), np.array([[True, False]] * 20))
+
+
+def test_shrinker_matches_gavish_donoho_formula():
+    beta = 0.25
+    y = np.array([0.5, 1.49, 1.51, 2.0, 10.0])
+    expect = np.where(y > 1.5, np.sqrt(np.maximum((y ** 2 - beta - 1) ** 2 - 4 * beta, 0)) / y, 0)
+    np.testing.assert_allclose(shrink(y, beta), expect)
+    assert shrink(np.array([100.0]), beta)[0] == pytest.approx(100.0, rel=1e-3)
+
+
+def test_sure_is_unbiased_for_a_linear_smoother():
+    rng = np.random.default_rng(3)
+    truth = np.cumsum(rng.normal(size=(500, 4)), axis=0)
+    Y = truth + rng.normal(0, 1.0, truth.shape)
+    k = np.ones(5) / 5
+
+    def f(Z):
+        return np.column_stack([np.convolve(Z[:, c], k, mode="same") for c in range(Z.shape[1])])
+
+    true_mse = np.mean((f(Y) - truth) ** 2)
+    assert sure(f, Y, 1.0, rng=0) == pytest.approx(true_mse, rel=0.15)
+
+
+def test_mssa_long_clip_in_blocks_matches_one_block():
+    rng = np.random.default_rng(4)
+    t = np.linspace(0, 12, 1200)[:, None]
+    truth = np.hstack([np.sin(t * (1 + 0.1 * k)) * 5 for k in range(6)])
+    Y = truth + rng.normal(0, 0.5, truth.shape)
+    one = mssa_denoise(Y, 0.5, window=6, block=2000)
+    many = mssa_denoise(Y, 0.5, window=6, block=400)
+    e1 = np.sqrt(np.mean((one - truth) ** 2))
+    e2 = np.sqrt(np.mean((many - truth) ** 2))
+    assert e1 < 0.2 and e2 < 1.2 * e1
+
+
+def test_diagnose_reports_noise_spikes_and_gaps(clip):
+    m = _noisy(clip, [("gaussian", {"sigma_cm": 1.0}), ("outliers", {"ratio": 0.05, "magnitude_cm": 15.0}),
+                      ("block_gaps", {"n_markers": 1, "length": 30, "n_blocks": 3})], seed=2)
+    d = diagnose(m)
+    assert 0.8 < d.noise_cm < 1.25
+    assert 0.04 < d.spike_rate < 0.06 and d.spiky
+    assert d.n_gaps >= 1 and d.gap_bins["11-30 frames"] >= 1 and d.longest_gap == 30
+    text = "\n".join(d.lines())
+    assert "noise" in text and "spikes" in text and "gaps" in text
+    clean = diagnose(clip)
+    assert clean.noise_cm < 0.25 and not clean.spiky and clean.n_gaps == 0
+
+
+def test_auto_does_no_harm_on_a_clean_clip(clip):
+    out = get("auto").denoise(clip)
+    assert metrics.rmse(clip, out) <= 0.05
+    assert out.source["auto"]["chain"] == []
+
+
+@pytest.mark.parametrize("steps", [
+    [("gaussian", {"sigma_cm": 2.0})],
+    [("outliers", {"ratio": 0.1, "magnitude_cm": 15.0})],
+    [("gaussian", {"sigma_cm": 2.0}), ("outliers", {"ratio": 0.1, "magnitude_cm": 15.0})],
+])
+def test_auto_cleans_and_estimates_its_error(clip, steps):
+    noisy = _noisy(clip, steps, seed=5)
+    out = get("auto").denoise(noisy)
+    err = metrics.rmse(clip, out)
+    assert err < 0.45 * metrics.rmse(clip, noisy)
+    assert err < metrics.rmse(clip, get("kalman-cv", gate=5.0).denoise(noisy))
+    est = out.source["auto"]["estimated_rmse_cm"]
+    assert 1 / 2 < est / err < 2
+
+
+def test_auto_fills_long_gaps_with_fill_auto(clip):
+    noisy = _noisy(clip, [("block_gaps", {"n_markers": 1, "length": 40, "n_blocks": 4})], seed=6)
+    out = get("auto").denoise(noisy)
+    assert out.observed.all() and np.isfinite(out.positions).all()
+    assert "fill-auto" in out.source["auto"]["chain"]
+    kept = noisy.observed
+    np.testing.assert_array_equal(out.positions[kept], noisy.positions[kept])   # clean: as measured
+    assert metrics.rmse(clip, out, ~noisy.observed) < 2.0
+
+
+@pytest.mark.shared_data
+def test_auto_on_a_real_marker_file_keeps_measured_samples(shared_data):
+    m = io.read(shared_data / "markers" / "c3d_org" / "Eb015pr.c3d")
+    out = get("auto").denoise(m)
+    obs = m.observed
+    np.testing.assert_array_equal(out.positions[obs], m.positions[obs])
+    filled = out.observed & ~obs
+    assert filled.any()
+    assert not np.any(np.all(out.positions[filled] == 0, axis=-1))
+
+
+def test_cli_info_diagnose_and_default_is_auto(tmp_path, capsys, clip):
+    noisy = _noisy(clip, [("gaussian", {"sigma_cm": 1.5})], seed=7)
+    src = tmp_path / "noisy.trc"
+    io.write(noisy, src)
+    assert main(["info", "--diagnose", str(src)]) == 0
+    text = capsys.readouterr().out
+    assert "noise:" in text and "spikes:" in text
+    assert main(["info", "--diagnose", "--json", str(src)]) == 0
+    d = json.loads(capsys.readouterr().out)["diagnosis"]
+    assert 1.0 < d["noise_cm"] < 2.0
+    assert main(["denoise", str(src), str(tmp_path / "out.trc"), "--method", "auto"]) == 0
+    text = capsys.readouterr().out
+    assert "auto:" in text and "estimated error" in text
