@@ -57,7 +57,7 @@ def render(doc: dict) -> str:
                    f"{_v(d.get('ratio_oracle_worst', {}).get('value'), 2)} | "
                    f"{_v(d.get('ratio_best_median', {}).get('value'), 2)} | "
                    f"{_v(d.get('ratio_best_worst', {}).get('value'), 2)} | "
-                   f"{_v(d.get('time_ratio_gcv_median', {}).get('value'), 1)} |")
+                   f"{_v(d.get('time_ratio_picked_median', {}).get('value'), 1)} |")
     clean = [(c, d["added_worst"]["value"]) for c, d in summ.items() if "added_worst" in d]
     out += [""] + [f"- error auto adds to a clip with no noise ({c}): worst {v:.3f} cm" for c, v in clean]
     est = summ.get("corrupted", {}).get("estimate_within_1.5x")

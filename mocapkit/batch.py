@@ -195,6 +195,15 @@ def process_one(in_path: str, out_path: str, method: str, params: dict[str, Any]
                 den.set_params(**denoise.DEFAULT_PARAMS)
         else:
             den = denoise.get(method, **params)
+            if den.needs_training:                # the shipped general model, if one fits
+                from . import shipped
+
+                den = shipped.load(method, m)
+                if den is None:
+                    raise MocapError(f"method {method!r}: no shipped model fits this file's joint "
+                                     f"set; give --model")
+                if params:
+                    den.set_params(**params)
         out = den.denoise(m)
         io.write(out, out_path, overwrite=True, **opts)
         return {"status": "ok", "frames": m.n_frames, "seconds": time.perf_counter() - t0,
@@ -436,8 +445,10 @@ def run_batch(in_dir: str | os.PathLike, out_dir: str | os.PathLike, *, method: 
         cls = denoise.available().get(method)
         if cls is None:
             raise MocapValueError(f"unknown method {method!r}; available: {', '.join(denoise.available())}")
-        if cls.needs_training:
-            raise MocapValueError(f"method {method!r} needs --model")
+        from . import shipped
+
+        if cls.needs_training and method not in shipped.available():
+            raise MocapValueError(f"method {method!r} needs --model (no shipped general model)")
         params = method_params(method, params)
         denoise.get(method, **params)
     else:

@@ -281,7 +281,9 @@ def _read(path: str, skeleton: str | None = None, fmt: str | None = None):
     return io.read(path, format=fmt, **opts)
 
 
-def _method(name: str, params: dict[str, Any], model: str | None):
+def _method(name: str, params: dict[str, Any], model: str | None, motion=None, quiet: bool = True):
+    """The estimator to run: a saved model, a shipped general model (data-driven methods
+    without --model, :mod:`mocapkit.shipped`), or a fresh one."""
     from . import denoise
 
     if model:
@@ -294,9 +296,21 @@ def _method(name: str, params: dict[str, Any], model: str | None):
             m.set_params(**method_params(m.name, params, type(m)))
         return m
     m = denoise.get(name, **method_params(name, params))
+    if m.needs_training and motion is not None:
+        from . import shipped
+
+        fitted = shipped.load(name, motion)
+        if fitted is not None:
+            if params:
+                fitted.set_params(**method_params(name, params, type(fitted)))
+            if not quiet:
+                print(f"using the shipped general {name} model ({shipped.describe(name)}); "
+                      f"train one on your own clips with: mocapkit train --method {name}")
+            return fitted
     if m.needs_training:
         raise MocapError(f"method {name!r} needs a trained model: pass --model PATH "
-                         f"(train one with: mocapkit train --method {name} CLIPS... -o model.npz)")
+                         f"(train one with: mocapkit train --method {name} CLIPS... -o model.npz)"
+                         + ("" if motion is None else "; no shipped model fits this clip's joint set"))
     return m
 
 
@@ -416,7 +430,7 @@ def cmd_denoise(a: argparse.Namespace) -> int:
             params = {**denoise.DEFAULT_PARAMS, **params}
         method.set_params(**params)
     else:
-        method = _method(a.method or "auto", parse_params(a.param), a.model)
+        method = _method(a.method or "auto", parse_params(a.param), a.model, m, a.quiet)
     opts, _ = _plan_output(m, a.output, a.force, (a.input, a.model))
     with gaps.use_policy(max_gap_s=a.max_gap), \
             stage(f"denoising {m.n_frames} frames with {method.name}", enable=not a.quiet):

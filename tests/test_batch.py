@@ -93,9 +93,9 @@ def test_batch_output_inside_or_around_the_input_refused(library, capsys):
 
 def test_batch_param_type_checked_once_before_any_work(library, tmp_path, capsys):
     out = tmp_path / "out"
-    assert main(["batch", str(library), str(out), "--param", "gate=abc", "-q"]) == 2
+    assert main(["batch", str(library), str(out), "--param", "min_noise_cm=abc", "-q"]) == 2
     err = capsys.readouterr().err.strip()
-    assert err.count("\n") == 0 and "gate" in err and "number" in err and "internal error" not in err
+    assert err.count("\n") == 0 and "min_noise_cm" in err and "number" in err and "internal error" not in err
     assert not out.exists()
     assert main(["batch", str(library), str(out), "--model", str(library / "walks" / "16_15.amc"), "-q"]) == 2
     assert "model" in capsys.readouterr().err

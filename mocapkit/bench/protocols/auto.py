@@ -215,7 +215,7 @@ def summarise(rows: list[Row]) -> Iterator[Row]:
         t = [d["auto"].seconds / d[_picked(d)].seconds for d in cases
              if d["auto"].seconds and d.get(_picked(d)) and d[_picked(d)].seconds]
         if t:
-            yield Row(NAME, "summary", cond_fps, "auto", "time_ratio_gcv_median", "x", float(np.median(t)), n=len(t))
+            yield Row(NAME, "summary", cond_fps, "auto", "time_ratio_picked_median", "x", float(np.median(t)), n=len(t))
     if est_ok:
         yield Row(NAME, "summary", "corrupted", "auto", "estimate_within_1.5x", "%",
                   100.0 * float(np.mean(est_ok)), n=len(est_ok))
