@@ -536,13 +536,18 @@ def cmd_eval(a: argparse.Namespace) -> int:
 
 
 def cmd_methods(a: argparse.Namespace) -> int:
-    from . import denoise
+    from . import denoise, shipped
 
+    have = set(shipped.available())
     for name, cls in denoise.available().items():
-        flag = "train" if cls.needs_training else "     "
-        default = (f" (default, {', '.join(f'{k}={v}' for k, v in denoise.DEFAULT_PARAMS.items())})"
+        # "model": a shipped general model is used unless --model is given
+        flag = ("model" if name in have else "train") if cls.needs_training else "     "
+        settings = ", ".join(f"{k}={v}" for k, v in denoise.DEFAULT_PARAMS.items())
+        default = (f" (default for skeleton data{', ' + settings if settings else ''})"
                    if name == denoise.DEFAULT_METHOD else "")
         print(f"{name:<22} {flag}  {cls.description}{default}")
+    print("\ntrain: needs `mocapkit train` first; model: a shipped general model is used unless "
+          "--model is given (mocapkit.shipped). Marker files (C3D/TRC) default to fill-auto.")
     return 0
 
 
