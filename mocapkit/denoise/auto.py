@@ -146,14 +146,22 @@ class Auto(Denoiser):
         hole[cols] = info.hole_error if info.hole_error is not None else info.smooth_error
         return {"kept": kept, "hole": hole}
 
-    def _fill_long(self, motion: Motion, out: np.ndarray, long: np.ndarray) -> tuple[np.ndarray, float | None]:
+    def _fill_long(self, motion: Motion, out: np.ndarray, long: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Long gaps by fill-auto; returns the new matrix and the per-sample error estimate
+        (T, 3J): fill-auto's own where it filled, and its validation bound (5 cm) where it
+        found no fill validated under it -- those samples keep the spline's values, which
+        nothing supports better, and the estimate says so instead of hiding them."""
+        filler = get("fill-auto", candidates=FILL_CANDIDATES)
         work = motion.with_matrix(np.where(long, np.nan, out), observed=~long[:, ::3])
-        filled = get("fill-auto", candidates=FILL_CANDIDATES).denoise(work)
+        filled = filler.denoise(work)
         Y = filled.matrix()
         take = long & np.isfinite(Y)
         out = out.copy()
         out[take] = Y[take]
-        return out, filled.source.get("fill_auto", {}).get("estimated_rmse_cm")
+        e_fill = filled.source.get("fill_auto", {}).get("estimated_rmse_cm")
+        bound = float(filler.max_error_cm or 5.0)
+        e = np.where(take, np.nan if e_fill is None else e_fill, bound)
+        return out, np.where(long, e, np.nan)
 
 
 def _smooth(Y: np.ndarray, kept: np.ndarray, fit: np.ndarray, sigma: float,
@@ -196,13 +204,13 @@ def _how(smooth: bool, holes: bool, long: bool) -> str:
     return ", ".join(parts)
 
 
-def _combine(est: dict, holes: np.ndarray, long: np.ndarray, e_long: float | None,
+def _combine(est: dict, holes: np.ndarray, long: np.ndarray, e_long: np.ndarray | None,
              usable: np.ndarray) -> float | None:
     """Sample-weighted RMS of the per-class estimates over the fitted points (cm)."""
     cols = np.repeat(usable, 3)
     short = holes & ~long
     kept = ~holes
-    e_l = e_long if e_long is not None else np.nan
+    e_l = e_long if e_long is not None else np.full(holes.shape, np.nan)
     sq = np.where(kept, est["kept"] ** 2, np.where(short, est["hole"] ** 2, e_l ** 2))[:, cols]
     if not sq.size or not np.isfinite(sq).any():
         return None
