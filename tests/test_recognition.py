@@ -309,13 +309,13 @@ def _toy_motions(rng, n_per=8, skeleton=None):
 def test_rocket_separates_three_synthetic_classes_and_is_deterministic(rng):
     tr, ytr = _toy_motions(rng)
     te, yte = _toy_motions(rng, n_per=6)
-    a = rk.RocketClassifier(n_features=2000, seed=1).fit(tr, ytr)
-    b = rk.RocketClassifier(n_features=2000, seed=1).fit(tr, ytr)
+    a = rk.RocketClassifier(n_features=500, seed=1).fit(tr, ytr)
+    b = rk.RocketClassifier(n_features=500, seed=1).fit(tr, ytr)
     assert (a.predict_many(te) == yte).all()
     Xte = np.stack([a.series(m) for m in te])
     assert Xte.shape == (18, 15, 64)
     assert np.array_equal(a.decision_series(Xte), b.decision_series(Xte))    # same seed, same model
-    c = rk.RocketClassifier(n_features=2000, seed=2).fit(tr, ytr)
+    c = rk.RocketClassifier(n_features=500, seed=2, augment=0).fit(tr, ytr)
     assert not np.array_equal(a.rockets_[0].biases_, c.rockets_[0].biases_)  # the seed matters
     label, conf = a.predict(te[0])
     assert label == yte[0] and 1 / 3 < conf <= 1
@@ -337,7 +337,8 @@ def test_trajectories_are_body_centred_and_size_normalised(rng):
 def test_rocket_save_load_round_trip_and_joint_set_error(rng, tmp_path):
     tr, ytr = _toy_motions(rng)
     te, _ = _toy_motions(rng, n_per=3)
-    m = rk.RocketClassifier(n_features=1000, seed=0).fit(tr, ytr)
+    m = rk.RocketClassifier(n_features=300, seed=0, n_seeds=2).fit(tr, ytr)
+    assert len(m.rockets_) == 4 and m.coef_.shape[1] == 4 * m.rockets_[0].n_features_out
     path = m.save(tmp_path / "r.npz")
     back = load_model(path)
     assert isinstance(back, rk.RocketClassifier) and back.params() == m.params()
@@ -386,7 +387,7 @@ def test_train_classifier_on_hdm05_and_mismatch_with_kinect_model(shared_data, t
     for asf in root.glob("*.asf"):
         for cls in lib.iterdir():
             (cls / asf.name).symlink_to(asf)
-    res = train_classifier(lib, tmp_path / "h.npz", progress=False)
+    res = train_classifier(lib, tmp_path / "h.npz", progress=False, n_features=1000)   # default method, smaller
     assert res["method"] == "minirocket" and res["n_train"] == 15 and res["train_accuracy"] == 1.0
     test = sorted((root / "kickLFront1Reps").glob("HDM_dg_*.amc"))[0]
     assert cli.main(["classify", str(tmp_path / "h.npz"), str(test), "--json"]) == 0
@@ -396,7 +397,7 @@ def test_train_classifier_on_hdm05_and_mismatch_with_kinect_model(shared_data, t
     kin.mkdir()
     for f in sorted(msr.glob("a0[12]_s0[12]_e01_skeleton3D.txt")):
         (kin / f.name).symlink_to(f)
-    train_classifier(kin, tmp_path / "k.npz", progress=False)
+    train_classifier(kin, tmp_path / "k.npz", progress=False, n_features=300, augment=0)
     assert cli.main(["classify", str(tmp_path / "k.npz"), str(test)]) == 2
     err = capsys.readouterr().err
     assert "20-joint skeleton" in err and "31 joints" in err and len(err.strip().splitlines()) == 1
@@ -425,3 +426,77 @@ def test_cli_classify_train_each_method(method, shared_data, tmp_path, capsys):
     from mocapkit.retrieval.index import label_of
 
     assert capsys.readouterr().out.strip().split("\t")[0] == label_of(probe)
+
+
+def test_ridge_group_loo_equals_refitting_without_each_group(rng):
+    """The closed-form leave-one-group-out scores equal explicit refits (with intercept)."""
+    n, p = 41, 120
+    Z = rng.normal(size=(n, p))
+    Z -= Z.mean(0)
+    Y = np.where(rng.integers(0, 3, n)[:, None] == np.arange(3)[None], 1.0, -1.0)
+    groups = rng.integers(0, 15, n)                 # groups of unequal sizes
+    alphas = [0.5, 20.0, 1e4]
+    a, A, S = rk.ridge_group_loo(Z, Y, groups, alphas)
+    errs = {}
+    for al in alphas:
+        Sb = np.empty_like(Y)
+        for g in np.unique(groups):
+            m = groups != g
+            mu, ym = Z[m].mean(0), Y[m].mean(0)
+            W = np.linalg.solve((Z[m] - mu).T @ (Z[m] - mu) + al * np.eye(p), (Z[m] - mu).T @ (Y[m] - ym))
+            Sb[~m] = (Z[~m] - mu) @ W + ym
+        errs[al] = ((Y - Sb) ** 2).mean()
+        if al == a:
+            assert np.allclose(S, Sb, atol=1e-9)
+    assert a == min(errs, key=errs.get)
+    Wfull = np.linalg.solve(Z.T @ Z + a * np.eye(p), Z.T @ (Y - Y.mean(0)))
+    assert np.allclose(Z.T @ A, Wfull, atol=1e-9)
+
+
+def test_augment_series_rotates_about_the_vertical_and_warps_time(rng):
+    X = rng.normal(size=(3, 6, 20))                 # 2 joints x (x, y, z)
+    Xa, owner = rk.augment_series(X, 4, rng, time_warp=0.0, rot_deg=30.0)
+    assert Xa.shape == (12, 6, 20) and owner.tolist() == [0] * 4 + [1] * 4 + [2] * 4
+    J, Ja = X.reshape(3, 2, 3, 20)[owner], Xa.reshape(12, 2, 3, 20)
+    assert np.allclose(Ja[:, :, 1], J[:, :, 1])      # heights unchanged
+    assert np.allclose(np.hypot(Ja[:, :, 0], Ja[:, :, 2]), np.hypot(J[:, :, 0], J[:, :, 2]))
+    ang = np.arctan2(Ja[:, :, 2], Ja[:, :, 0]) - np.arctan2(J[:, :, 2], J[:, :, 0])
+    ang = (ang + np.pi) % (2 * np.pi) - np.pi
+    assert np.allclose(ang, ang[:, :1, :1], atol=1e-9) and np.abs(ang).max() <= np.deg2rad(30) + 1e-9
+    same, _ = rk.augment_series(X, 2, rng, time_warp=0.0, rot_deg=0.0)
+    assert np.allclose(same, X[[0, 0, 1, 1, 2, 2]])  # no warp, no turn: copies
+    ramp = np.tile(np.linspace(0.0, 1.0, 20), (1, 5, 1))   # 5 channels: no rotation layout
+    W, _ = rk.augment_series(ramp, 50, rng, time_warp=0.1, rot_deg=30.0)
+    assert np.all(np.diff(W, axis=2) >= -1e-12)      # a time warp keeps a ramp monotone
+    assert np.allclose(W, W[:, :1])                  # the same warp on every channel
+    assert 0.0 <= W[:, 0, 0].min() and W[:, 0, 0].max() <= 0.1 + 1e-12
+    assert 0.9 - 1e-12 <= W[:, 0, -1].min() and W[:, 0, -1].max() <= 1.0
+    assert np.abs(W - ramp).max() > 0.05             # ... and it does warp
+    assert rk.augment_series(X, 0, rng)[0].shape == (0, 6, 20)
+
+
+def test_version_1_rocket_model_files_still_load(rng, tmp_path):
+    """A v1 file (MiniRocket PPV, no augmentation, no n_seeds in its parameters) keeps
+    predicting; an unknown version is refused with a clear error."""
+    tr, ytr = _toy_motions(rng, n_per=5)
+    te, _ = _toy_motions(rng, n_per=2)
+    m = rk.RocketClassifier(n_features=300, pooling=("ppv",), augment=0, seed=0).fit(tr, ytr)
+    path = m.save(tmp_path / "v2.npz")
+    with np.load(path) as z:
+        st = {k: z[k] for k in z.files}
+    head = json.loads(str(st["header"]))
+    for k in ("augment", "time_warp", "rot_deg", "n_seeds"):
+        del head["params"][k]
+    X = np.stack([m.series(x) for x in te])
+    for version, ok in ((1, True), (7, False)):
+        head["version"] = version
+        st["header"] = np.array(json.dumps(head))
+        p = tmp_path / f"v{version}.npz"
+        np.savez(p, **st)
+        if ok:
+            back = load_model(p)
+            assert back.n_seeds == 1 and back.augment == 0
+            assert np.array_equal(back.decision_series(X), m.decision_series(X))
+        else:
+            with pytest.raises(MocapFormatError, match="v7 is not supported"):
+                load_model(p)

@@ -1,6 +1,7 @@
 """Action recognition (thesis seed 003 Ch. 6): NMF-based motion clustering (NMC) with a
 bag-of-words classifier (the thesis method), a skeleton-sequence classifier, and the
-MiniRocket classifier (the default of ``mocapkit classify train``).
+MiniRocket/MultiRocket classifier with an augmented training set (the default of
+``mocapkit classify train``).
 
 Entry points used by the CLI::
 

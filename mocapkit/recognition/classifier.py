@@ -21,8 +21,9 @@ probability as the confidence. A model saves to ``.npz`` (no pickle): scaler, we
 classes, parameters and (from this version on) the joint names of the training skeleton.
 
 Model files and the CLI (:func:`train_classifier`, :func:`load_model`, :func:`classify`):
-``mocapkit classify train`` trains the **MiniRocket** classifier by default
-(:class:`mocapkit.recognition.rocket.RocketClassifier`; ``method='skeleton'`` this
+``mocapkit classify train`` trains the **MiniRocket/MultiRocket** classifier by default
+(:class:`mocapkit.recognition.rocket.RocketClassifier`: MultiRocket poolings, augmented
+training set, leave-one-clip-out ridge; ``method='skeleton'`` this
 classifier, ``method='nmc'`` the thesis' NMC, :class:`mocapkit.recognition.nmc.NMCClassifier`,
 inductive). :func:`load_model` (and :meth:`SkeletonClassifier.load`, kept as the generic
 loader the CLI calls) returns whichever model a file holds. Every model remembers the joint

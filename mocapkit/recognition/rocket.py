@@ -1,4 +1,4 @@
-"""MiniRocket features + ridge classifier: the default action classifier.
+"""MultiRocket-style features + augmented ridge classifier: the default action classifier.
 
 Paper: A. Dempster, D. F. Schmidt, G. I. Webb, "MiniRocket: A Very Fast (Almost)
 Deterministic Transform for Time Series Classification", KDD 2021 (multivariate variant
@@ -37,20 +37,36 @@ convolutions summed. Output with zero padding ("same" length) for every other
 pair (Sec. 3.3). Feature = PPV, the proportion of positive values of ``C - b``. With
 ``diff=True`` a second, independent transform is applied to the first difference of the
 series (the velocity) and the features are concatenated (MultiRocket's two
-representations, PPV only). Vectorised: one (samples x time, channels) @ (channels, 84)
+representations). Poolings (``pooling``): PPV only = MiniRocket; PPV, mean of positive
+values, mean index of positive values and longest run of positive values = MultiRocket
+(Tan et al. 2022 Sec. 3.2; :func:`_pool`). Vectorised: one (samples x time, channels) @ (channels, 84)
 product per tap and dilation -- the convolution of all 84 kernels is
 ``sum_t X_t @ (M o w_t)`` with ``M`` the channel-subset masks and ``w_t`` the kernels'
 weights at tap ``t``.
 
 Classifier (:class:`RocketClassifier`)
 --------------------------------------
-Features standardised, scikit-learn ``RidgeClassifierCV`` with ``alphas =
-logspace(-3, 3, 10)`` chosen by efficient leave-one-out (the paper's classifier). The
-confidence returned by ``predict`` is a softmax of the ridge scores with one temperature
-fitted on the leave-one-out scores of the training set (minimum negative log-likelihood
-over a grid), so it is a calibrated-ish probability, not a raw ridge score. All random
-choices come from ``numpy.random.default_rng(seed)``: the same data and seed give the
-same model and predictions.
+Defaults (chosen by inner validation on training clips only, see
+``benchmarks/run_recognition.py --select`` and ``docs/results/recognition.md``): MultiRocket
+poolings, 5,000 (kernel, bias) pairs per representation (series and first difference:
+~40,000 features), and ``augment = 2`` perturbed copies of every training clip
+(:func:`augment_series`: time crop/extension up to +-10 % at each end, a smooth speed
+warp, and a turn about the vertical axis of up to +-15 deg). The transform's biases are
+taken from the original clips; the copies only add training rows. Features standardised,
+then a ridge read-out on +-1 one-hot targets (:func:`ridge_group_loo`, replacing
+scikit-learn's ``RidgeClassifierCV``: its efficient leave-one-out would let the copies of
+a clip validate each other) with ``alphas = logspace(-3, 5, 17)`` chosen by exact
+leave-one-**clip**-out (a clip and its copies form one group). ``n_seeds > 1``
+concatenates the features of several transform seeds. The confidence returned by
+``predict`` is a softmax of the ridge scores with one temperature fitted on the
+held-out scores of the original training clips (minimum negative log-likelihood over a
+grid), so it is a calibrated-ish probability, not a raw ridge score. All random choices
+come from ``numpy.random.default_rng``: the same data and seed give the same model and
+predictions.
+
+Model files: format ``mocapkit-minirocket`` version 2 (parameters, transforms ``r{i}_``,
+linear read-out). Version-1 files (MiniRocket PPV, no augmentation) still load and
+predict as before; other versions are refused with :class:`~mocapkit.errors.MocapFormatError`.
 
 A model remembers the joint names of its training skeleton; classifying a motion of
 another joint set raises :class:`~mocapkit.errors.MocapValueError` naming both. Models
@@ -70,13 +86,16 @@ from ..errors import MocapFormatError, MocapValueError, NotFittedError
 from ..motion import Motion
 
 __all__ = ["trajectories", "MiniRocket", "RocketClassifier", "fit_dilations", "golden_quantiles",
-           "KERNEL_INDICES", "MODEL_FORMAT"]
+           "augment_series", "ridge_group_loo", "KERNEL_INDICES", "MODEL_FORMAT"]
 
 KERNEL_LENGTH = 9
 KERNEL_INDICES = np.array(list(itertools.combinations(range(KERNEL_LENGTH), 3)), dtype=np.int64)  # (84, 3)
 N_KERNELS = len(KERNEL_INDICES)
 MODEL_FORMAT = "mocapkit-minirocket"
-MODEL_FORMAT_VERSION = 1
+MODEL_FORMAT_VERSION = 2
+# settings of version-1 model files (MiniRocket PPV, one transform, no augmentation), which
+# stored no ``augment`` / ``n_seeds``: they still load and predict as before
+V1_PARAMS = {"pooling": ["ppv"], "n_features": 10_000, "augment": 0, "n_seeds": 1}
 _CHUNK = 64                           # samples per block in the transform (bounds memory)
 
 
@@ -334,28 +353,129 @@ def _difference(X: np.ndarray) -> np.ndarray:
     return np.concatenate([D[:, :, :1], D], axis=2)
 
 
+# ------------------------------------------------------------------------ augmentation
+def augment_series(X: np.ndarray, copies: int, rng: np.random.Generator, *, time_warp: float = 0.1,
+                   rot_deg: float = 15.0) -> tuple[np.ndarray, np.ndarray]:
+    """``copies`` randomly perturbed versions of each series of X (n, C, L): ``(Xa, owner)``
+    with Xa (n * copies, C, L) and owner (n * copies,) the index of the source series.
+
+    * time: the clip's start and end are moved by up to ``time_warp`` of its duration each
+      (inwards = cropping, outwards = holding the first / last sample: temporal scaling of
+      up to +-20 %) and the time axis is bent by ``t + u sin(pi t)``, ``|u| <= time_warp``
+      (speed jitter), linear interpolation;
+    * rotation: when C = 3 J (joint-major x, y, z with y up, as :func:`trajectories`
+      gives), all joints and the root path are turned about the vertical axis by an angle
+      uniform in +-``rot_deg`` degrees (left out for other channel layouts, or rot_deg = 0).
+
+    Left/right mirroring was measured and is not offered: the MSR-Action3D actions are
+    one-handed and their side is part of the class (inner validation -4 points).
+    """
+    X = np.asarray(X, dtype=np.float64)
+    n, C, L = X.shape
+    copies = int(copies)
+    if copies <= 0:
+        return X[:0], np.zeros(0, dtype=np.int64)
+    owner = np.repeat(np.arange(n), copies)
+    m = len(owner)
+    t = np.linspace(0.0, 1.0, L)[None, :]
+    a0 = rng.uniform(-time_warp, time_warp, (m, 1))
+    a1 = rng.uniform(-time_warp, time_warp, (m, 1))
+    u = rng.uniform(-time_warp, time_warp, (m, 1))
+    tt = np.clip(a0 + (t + u * np.sin(np.pi * t)) * (1.0 - a0 - a1), 0.0, 1.0) * (L - 1)   # (m, L)
+    lo = np.minimum(np.floor(tt).astype(np.int64), L - 2)
+    w = (tt - lo)[:, None, :]
+    src = X[owner]                                                       # (m, C, L)
+    Xa = (np.take_along_axis(src, np.broadcast_to(lo[:, None, :], src.shape), 2) * (1.0 - w)
+          + np.take_along_axis(src, np.broadcast_to(lo[:, None, :] + 1, src.shape), 2) * w)
+    if rot_deg > 0 and C % 3 == 0:
+        ang = np.deg2rad(rng.uniform(-rot_deg, rot_deg, m))[:, None, None]
+        J3 = Xa.reshape(m, C // 3, 3, L)
+        x, z = J3[:, :, 0].copy(), J3[:, :, 2].copy()
+        J3[:, :, 0] = np.cos(ang) * x + np.sin(ang) * z
+        J3[:, :, 2] = -np.sin(ang) * x + np.cos(ang) * z
+        Xa = J3.reshape(m, C, L)
+    return Xa, owner
+
+
+# ---------------------------------------------------------------------------- ridge
+def ridge_group_loo(Z: np.ndarray, Y: np.ndarray, groups: np.ndarray, alphas: Sequence[float]):
+    """Ridge regression of targets Y (n, k) on centred features Z (n, p) with an
+    unpenalised intercept, the penalty chosen by exact **leave-one-group-out** squared error.
+
+    Dual form: with the Gram matrix ``K = Z Z^T = V diag(w) V^T`` and ``q = a / (w + a)``
+    (q = 0 on the centring direction, w = 0: the intercept), the residuals of the fit are
+    ``r = V diag(q) V^T Y`` and ``I - H = V diag(q) V^T``; leaving group g out gives the
+    residuals ``e_g = [(I - H)_gg]^-1 r_g`` exactly (the block form of the usual
+    leave-one-out identity; a group = a training clip and its augmented copies, so that
+    the copies of a clip never validate each other). Returns ``(alpha, A, S_loo)``: the
+    chosen penalty, dual coefficients A (n, k) -- weights ``Z^T A`` -- and the held-out
+    scores ``S_loo = Y - E`` (n, k) at that penalty.
+    """
+    Z = np.asarray(Z, dtype=np.float64)
+    K = Z @ Z.T
+    w, V = np.linalg.eigh(K)
+    w = np.maximum(w, 0.0)
+    null = w < 1e-9 * max(float(w.max()), 1e-300)
+    ym = Y.mean(0)
+    VtY = V.T @ (Y - ym)
+    _, inv_g = np.unique(groups, return_inverse=True)
+    order = np.argsort(inv_g, kind="stable")
+    sizes = np.bincount(inv_g)
+    starts = np.concatenate([[0], np.cumsum(sizes)[:-1]])
+    stacks = []                                            # row indices, one array per group size
+    for b in np.unique(sizes):
+        sel = starts[sizes == b]
+        stacks.append(order[sel[:, None] + np.arange(b)[None, :]])
+    best = None
+    for a in alphas:
+        q = a / (w + a)
+        q[null] = 0.0
+        R = V @ (q[:, None] * VtY)
+        E = np.empty_like(R)
+        for ix in stacks:                                   # (groups, size) blocks of one size
+            Vg = V[ix]                                      # (G, b, n)
+            M = np.einsum("gin,gjn->gij", Vg * q, Vg)
+            E[ix] = np.linalg.solve(M, R[ix])
+        err = float(np.mean(E ** 2))
+        if best is None or err < best[0] - 1e-12:
+            best = (err, float(a), E)
+    _, a, E = best
+    inv = 1.0 / (w + a)
+    inv[null] = 0.0
+    A = V @ (inv[:, None] * VtY)
+    return a, A, Y - E
+
+
 # -------------------------------------------------------------------------- classifier
 class RocketClassifier:
-    """MiniRocket (+ difference) features, standardised, RidgeClassifierCV (module doc).
+    """MultiRocket-style features of the series and its first difference, standardised,
+    ridge read-out with the penalty chosen by leave-one-clip-out on an augmented training
+    set (module doc).
 
     Parameters
     ----------
     length : samples per clip after resampling (64: MSR-Action3D clips have 13-100
         frames at 15 fps, median 39; HDM05 clips 0.5-3 s).
-    n_features : features per representation (10,000, paper).
+    n_features : (kernel, bias) pairs per representation (5,000); each gives
+        ``len(pooling)`` features.
     diff : add the transform of the first difference (velocity).
     smooth_s : Gaussian smoothing sigma in seconds before resampling (0 = none).
     heading : heading normalisation of :func:`trajectories` (``'auto'``).
-    pooling, max_channels : of :class:`MiniRocket` (PPV only and up to 9 channels per
-        kernel = MiniRocket; MultiRocket's four poolings did not pay on MSR-Action3D).
-    alphas : ridge penalties tried by leave-one-out.
-    seed : random state of the transform.
+    pooling : MultiRocket's four poolings (default) or ``('ppv',)`` (MiniRocket).
+    max_channels : largest channel subset per (dilation, kernel) (9, reference code).
+    augment : randomly perturbed copies of every training clip (:func:`augment_series`;
+        0 = none); ``time_warp`` and ``rot_deg`` their time-warp and rotation ranges.
+    n_seeds : transforms with seeds ``seed, seed + 2, ...`` whose features are concatenated
+        (1 = one transform per representation).
+    alphas : ridge penalties tried by leave-one-clip-out (:func:`ridge_group_loo`).
+    seed : random state of the transform and the augmentation.
     """
 
-    def __init__(self, *, length: int = 64, n_features: int = 10_000, max_dilations: int = 32,
-                 pooling: Sequence[str] = ("ppv",), max_channels: int = 9, diff: bool = True,
-                 smooth_s: float = 0.0, heading: str = "auto",
-                 alphas: Sequence[float] = tuple(np.logspace(-3, 3, 10)), seed: int = 0):
+    def __init__(self, *, length: int = 64, n_features: int = 5_000, max_dilations: int = 32,
+                 pooling: Sequence[str] = POOLINGS, max_channels: int = 9, diff: bool = True,
+                 smooth_s: float = 0.0, heading: str = "auto", augment: int = 2,
+                 time_warp: float = 0.1, rot_deg: float = 15.0, n_seeds: int = 1,
+                 alphas: Sequence[float] = tuple(np.logspace(-3, 5, 17)), seed: int = 0):
         self.length = length
         self.n_features = n_features
         self.max_dilations = max_dilations
@@ -364,6 +484,10 @@ class RocketClassifier:
         self.diff = diff
         self.smooth_s = smooth_s
         self.heading = heading
+        self.augment = augment
+        self.time_warp = time_warp
+        self.rot_deg = rot_deg
+        self.n_seeds = n_seeds
         self.alphas = tuple(float(a) for a in alphas)
         self.seed = seed
 
@@ -372,7 +496,8 @@ class RocketClassifier:
                 "max_dilations": int(self.max_dilations),
                 "pooling": list(self.pooling), "max_channels": int(self.max_channels), "diff": bool(self.diff),
                 "smooth_s": float(self.smooth_s), "heading": str(self.heading),
-                "alphas": list(self.alphas), "seed": int(self.seed)}
+                "augment": int(self.augment), "time_warp": float(self.time_warp), "rot_deg": float(self.rot_deg),
+                "n_seeds": int(self.n_seeds), "alphas": list(self.alphas), "seed": int(self.seed)}
 
     # -- input ---------------------------------------------------------------------
     def series(self, motion: Motion) -> np.ndarray:
@@ -400,35 +525,39 @@ class RocketClassifier:
 
     def fit_series(self, X: np.ndarray, labels: Sequence) -> "RocketClassifier":
         """Fit on series (n, C, length) already made by :meth:`series`."""
-        from sklearn.linear_model import RidgeClassifierCV
-
         y = np.asarray([str(v) for v in labels])
         X = np.asarray(X, dtype=np.float64)
         if len(X) != len(y):
             raise MocapValueError(f"{len(X)} series but {len(y)} labels")
         if len(np.unique(y)) < 2:
             raise MocapValueError("a classifier needs at least two different labels")
+        if int(self.n_seeds) < 1 or int(self.augment) < 0:
+            raise MocapValueError(f"n_seeds must be >= 1 and augment >= 0, got {self.n_seeds}, {self.augment}")
         kw = dict(n_features=self.n_features, max_dilations=self.max_dilations, pooling=self.pooling,
                   max_channels=self.max_channels)
-        self.rockets_ = [MiniRocket(seed=self.seed, **kw).fit(X)]
-        if self.diff:
-            self.rockets_.append(MiniRocket(seed=self.seed + 1, **kw).fit(_difference(X)))
-        F = self._features(X)
+        self.rockets_ = []
+        for k in range(int(self.n_seeds)):               # biases from the original clips only
+            self.rockets_.append(MiniRocket(seed=self.seed + 2 * k, **kw).fit(X))
+            if self.diff:
+                self.rockets_.append(MiniRocket(seed=self.seed + 2 * k + 1, **kw).fit(_difference(X)))
+        rng = np.random.default_rng([int(self.seed), 7])
+        Xa, owner = augment_series(X, int(self.augment), rng, time_warp=float(self.time_warp),
+                                   rot_deg=float(self.rot_deg))
+        F = self._features(np.concatenate([X, Xa]) if len(Xa) else X)
+        groups = np.concatenate([np.arange(len(X)), owner])
+        ya = y[groups]
         self.mean_ = F.mean(0)
         sd = F.std(0)
         self.scale_ = np.where(sd > 1e-12, sd, 1.0)
-        Z = (F - self.mean_) / self.scale_
-        rc = RidgeClassifierCV(alphas=np.asarray(self.alphas), store_cv_results=True).fit(Z, y)
-        self.coef_ = np.atleast_2d(rc.coef_)
-        self.intercept_ = np.atleast_1d(rc.intercept_)
-        self.classes_ = rc.classes_.astype(str)
-        self.alpha_ = float(rc.alpha_)
-        # LOO scores of the chosen alpha -> softmax temperature (min NLL over a grid)
-        cv = np.asarray(rc.cv_results_)
-        ai = int(np.argmin(np.abs(np.asarray(self.alphas) - rc.alpha_)))
-        S = cv[:, :, ai] if cv.ndim == 3 else cv[:, ai][:, None]
-        S = self._two_columns(S)
-        yi = np.searchsorted(self.classes_, y)
+        F -= self.mean_
+        F /= self.scale_
+        self.classes_ = np.unique(y)
+        Y = np.where(ya[:, None] == self.classes_[None, :], 1.0, -1.0)
+        self.alpha_, A, S = ridge_group_loo(F, Y, groups, self.alphas)
+        self.coef_ = (F.T @ A).T
+        self.intercept_ = Y.mean(0)
+        # held-out (leave-one-clip-out) scores of the original clips -> softmax temperature
+        S, yi = S[:len(X)], np.searchsorted(self.classes_, y)
         best = (np.inf, 1.0)
         for tau in np.logspace(-1, 2.5, 36):
             Q = tau * S
@@ -441,9 +570,13 @@ class RocketClassifier:
         return self
 
     def _features(self, X: np.ndarray) -> np.ndarray:
-        F = [self.rockets_[0].transform(X)]
-        if len(self.rockets_) > 1:
-            F.append(self.rockets_[1].transform(_difference(X)))
+        D = _difference(X) if self.diff else None
+        step = 2 if self.diff else 1
+        F = []
+        for k in range(0, len(self.rockets_), step):
+            F.append(self.rockets_[k].transform(X))
+            if self.diff:
+                F.append(self.rockets_[k + 1].transform(D))
         return np.concatenate(F, axis=1)
 
     def _check(self) -> None:
@@ -501,12 +634,20 @@ class RocketClassifier:
     def from_arrays(cls, header: dict, st: dict, path) -> "RocketClassifier":
         from .model_file import read_head
 
-        m = read_head(cls(**header["params"]), header, st, path, MODEL_FORMAT_VERSION)
+        version = header.get("version")
+        params = dict(header.get("params", {}))
+        if version == 1:                 # v1 files: MiniRocket PPV, one transform, no augmentation
+            params = {**V1_PARAMS, **params}
+        m = read_head(cls(**params), header, st, path, version if version in (1, MODEL_FORMAT_VERSION)
+                      else MODEL_FORMAT_VERSION)
         rp = dict(n_features=m.n_features, max_dilations=m.max_dilations, pooling=m.pooling,
                   max_channels=m.max_channels)
-        m.rockets_ = [MiniRocket.from_state(st, "r0_", dict(rp, seed=m.seed))]
-        if m.diff:
-            m.rockets_.append(MiniRocket.from_state(st, "r1_", dict(rp, seed=m.seed + 1)))
+        m.rockets_ = []
+        i = 0
+        for k in range(int(m.n_seeds)):
+            for off in ((0, 1) if m.diff else (0,)):
+                m.rockets_.append(MiniRocket.from_state(st, f"r{i}_", dict(rp, seed=m.seed + 2 * k + off)))
+                i += 1
         m.alpha_ = float(header["alpha"])
         m.temperature_ = float(header["temperature"])
         return m
