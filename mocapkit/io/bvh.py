@@ -3,8 +3,13 @@
 Reading
 -------
 ``read(path, *, units=None, end_sites=False)`` parses HIERARCHY/MOTION, runs forward
-kinematics over all frames at once (numpy, one loop over joints, none over frames) and
-returns a :class:`~mocapkit.motion.Motion` with joint positions in **cm**.
+kinematics over all frames at once (numpy, one loop over joints, none over frames, in
+chunks of :data:`_CHUNK` frames so temporaries stay small) and returns a
+:class:`~mocapkit.motion.Motion` with joint positions in **cm**. Frame lines are read in
+blocks of 4 MB by ``np.fromstring`` with each line's value count taken from the bytes
+(:func:`_parse_fast`; speed in docs/results/io_speed.md); files that are not plain ASCII
+with LF/CR-LF line ends go through the line parser (:func:`_parse`); both report every
+error identically (same message, line and precedence).
 
 * **Channels.** Any order of ``Xrotation/Yrotation/Zrotation`` per joint (CMU conversions
   mix ``Zrotation Yrotation Xrotation`` and ``Zrotation Xrotation Yrotation``); the local
@@ -50,9 +55,9 @@ kinematics, top-down and vectorised over frames:
    ``with_positions`` and ``slice``), else from identity (rest pose);
 2. its global rotation is corrected by the rotation ``Q`` that best maps the bone
    vectors to its children as predicted by ``L0`` onto the vectors to the children's
-   target positions: the minimal (shortest-arc) rotation for one child, the
-   Kabsch/SVD rotation for several (hips, chest). Children at zero offset (CMU
-   ``LHipJoint``, ``LowerBack`` ...) are looked through to their own children; rigidly
+   target positions: the minimal (shortest-arc) rotation for one child, the Kabsch
+   rotation for several (hips, chest; a Newton polar iteration, SVD for ill-conditioned
+   frames). Children at zero offset (CMU ``LHipJoint``, ``LowerBack`` ...) are looked through to their own children; rigidly
    attached children decide first and the looked-through ones only fix what those leave
    free (the twist about a single bone), since the zero-length joint in between corrects
    its own subtree; children with position channels are skipped (their translation is
@@ -61,6 +66,9 @@ kinematics, top-down and vectorised over frames:
    channel order (the branch and 360-degree turn nearest to the original value, or
    unwrapped over time without one).
 
+The IK runs in chunks of :data:`_CHUNK` frames (bounded memory, unwrapping continued
+across chunks) in the (3, 3, T) rotation layout; values are formatted by
+:func:`mocapkit.io._numfmt.fixed_rows` (vectorised ``%.9f``, trailing zeros trimmed).
 Root translation (and any joint's position channels) come from the target positions.
 If the positions are unchanged the written file re-reads to ~1e-9 cm; values are written
 with 9 decimals (trailing zeros trimmed). Motions with missing entries are refused (fill
@@ -70,21 +78,23 @@ channels, other joints ``Zrotation Xrotation Yrotation``, an End Site on each le
 """
 from __future__ import annotations
 
-import io
 import os
 import re
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ._rotations import axis_rotation
+from ._numfmt import fixed_rows
+from ._rotations import (axis_angle, euler_from_matrix_t, kabsch, min_rotation,
+                         mm_t, normalize, rotate_right_t, wrap_near)
 from ..errors import MocapFormatError, MocapValueError
 from ..motion import Motion
 from ..skeleton import Skeleton
 from ._atomic import atomic_write
-from ._text import float_rows, parse_float, parse_int, read_text
+from ._text import float_rows, parse_float, parse_int
 
 __all__ = ["read", "write", "node_positions", "UNITS"]
 
@@ -263,11 +273,11 @@ class _HierarchyParser:
 
 
 # ----------------------------------------------------------------------------------------
-# rotations
+# rotations and forward kinematics (vectorised over frames, in frame chunks)
 # ----------------------------------------------------------------------------------------
-def _axis_rot(axis: int, deg: np.ndarray) -> np.ndarray:
-    """Rotation matrices (T, 3, 3) about one coordinate axis by ``deg`` degrees (T,)."""
-    return axis_rotation(axis, np.deg2rad(deg))
+#: frames per chunk of the forward/inverse kinematics: bounds the temporary rotation
+#: stacks (72 bytes per frame and node) whatever the clip length
+_CHUNK = 8192
 
 
 def _layout(nodes: list[_Node]):
@@ -288,13 +298,14 @@ def _layout(nodes: list[_Node]):
     return rot, pos, col
 
 
-def _local_rot(axes, cols, ch: np.ndarray | None, T: int) -> np.ndarray:
-    """Local rotation (T, 3, 3) = product of the axis rotations in channel order."""
-    R = np.broadcast_to(np.eye(3), (T, 3, 3)).copy()
-    if ch is None or not axes:
-        return R
+def _local_rot_t(axes, cols, ch: np.ndarray, G: np.ndarray | None = None) -> np.ndarray | None:
+    """``G @ R_1 @ R_2 ...`` (channel order) in the (3, 3, T) layout, G = identity when None;
+    None for a joint without rotation channels and no G."""
+    if not axes:
+        return None if G is None else G
+    R = np.broadcast_to(np.eye(3)[:, :, None], (3, 3, ch.shape[0])).copy() if G is None else G.copy()
     for ax, c in zip(axes, cols):
-        R = R @ _axis_rot(ax, ch[:, c])
+        rotate_right_t(R, ax, np.deg2rad(ch[:, c]))
     return R
 
 
@@ -306,24 +317,82 @@ def _translation(node: _Node, axes, cols, ch: np.ndarray | None, T: int) -> np.n
     return t
 
 
-def forward_kinematics(nodes: list[_Node], ch: np.ndarray):
-    """Global positions (T, N, 3) and rotations (T, N, 3, 3) of every node, file units."""
+def _fk_chunk(nodes: list[_Node], layout, ch: np.ndarray, want_rot: bool):
+    """Positions (N, 3, T) and (if asked) global rotations [(3, 3, T) or None = identity].
+
+    ``G_k = G_parent R_1 R_2 R_3`` (channel order) is built by rotating the parent's
+    columns in place (:func:`rotate_right_t`); a node's rotation is dropped once its last
+    child is done unless ``want_rot``.
+    """
+    rot, pos, _ = layout
     T = ch.shape[0]
-    rot, pos, _ = _layout(nodes)
-    N = len(nodes)
-    X = np.zeros((T, N, 3))
-    G = np.zeros((T, N, 3, 3))
+    X = np.empty((len(nodes), 3, T))
+    G: list[np.ndarray | None] = [None] * len(nodes)
+    left = [len(n.children) for n in nodes]
     for k, n in enumerate(nodes):
-        t = _translation(n, *pos[k], ch, T)
-        L = _local_rot(*rot[k], ch, T)
-        if n.parent < 0:
-            X[:, k] = t
-            G[:, k] = L
+        t = np.empty((3, T))
+        t[:] = np.asarray(n.offset, float)[:, None]
+        for ax, c in zip(*pos[k]):
+            t[ax] = ch[:, c]
+        p = n.parent
+        Gp = G[p] if p >= 0 else None
+        if p < 0:
+            X[k] = t
+        elif Gp is None:
+            X[k] = X[p] + t
         else:
-            Gp = G[:, n.parent]
-            X[:, k] = X[:, n.parent] + np.einsum("tij,tj->ti", Gp, t)
-            G[:, k] = Gp @ L
+            X[k] = X[p] + Gp[:, 0] * t[0] + Gp[:, 1] * t[1] + Gp[:, 2] * t[2]
+        axes, cols = rot[k]
+        if axes and (left[k] or want_rot):
+            R = np.broadcast_to(np.eye(3)[:, :, None], (3, 3, T)).copy() if Gp is None else Gp.copy()
+            for ax, c in zip(axes, cols):
+                rotate_right_t(R, ax, np.deg2rad(ch[:, c]))
+            G[k] = R
+        else:
+            G[k] = Gp
+        if p >= 0:
+            left[p] -= 1
+            if not left[p] and not want_rot:
+                G[p] = None
+    return X, (G if want_rot else None)
+
+
+def forward_kinematics(nodes: list[_Node], ch: np.ndarray, rotations: bool = True):
+    """Global positions (T, N, 3) and rotations (T, N, 3, 3) of every node, file units.
+
+    One loop over nodes per chunk of :data:`_CHUNK` frames, none over frames. With
+    ``rotations=False`` the second value is None (saves 72 bytes per frame and node).
+    """
+    ch = np.asarray(ch, float)
+    T, N = ch.shape[0], len(nodes)
+    layout = _layout(nodes)
+    X = np.empty((T, N, 3))
+    G = np.empty((T, N, 3, 3)) if rotations else None
+    for a in range(0, T, _CHUNK):
+        Xc, Gc = _fk_chunk(nodes, layout, ch[a:a + _CHUNK], rotations)
+        X[a:a + _CHUNK] = np.transpose(Xc, (2, 0, 1))
+        if rotations:
+            for k, g in enumerate(Gc):
+                G[a:a + _CHUNK, k] = np.eye(3) if g is None else np.transpose(g, (2, 0, 1))
     return X, G
+
+
+def _fk_positions(nodes: list[_Node], ch: np.ndarray, keep: list[int], factor: float,
+                  check: bool = False) -> np.ndarray | None:
+    """Positions (T, len(keep), 3) of the nodes ``keep``, times ``factor``; chunked, so the
+    only full-length array is the result. ``check``: None if any node's position (kept
+    or not) is not finite."""
+    T = ch.shape[0]
+    layout = _layout(nodes)
+    out = np.empty((T, len(keep), 3))
+    for a in range(0, T, _CHUNK):
+        Xc, _ = _fk_chunk(nodes, layout, ch[a:a + _CHUNK], False)
+        if factor != 1.0:
+            Xc *= factor
+        if check and not np.isfinite(Xc).all():
+            return None
+        out[a:a + _CHUNK] = np.transpose(Xc[keep], (2, 0, 1))
+    return out
 
 
 # ----------------------------------------------------------------------------------------
@@ -370,24 +439,30 @@ FRAME_TIME_RANGE = (1e-4, 10.0)
 
 _FRAMES_RE = re.compile(r"^\s*frames\s*:\s*(\S*)\s*$", re.IGNORECASE)
 _FTIME_RE = re.compile(r"^\s*frame\s+time\s*:\s*(\S*)\s*$", re.IGNORECASE)
+#: bytes of frame lines parsed per numpy call by the block reader
+_BLOCK_BYTES = 1 << 22
 
 
-def _parse(path, text: str):
-    lines = text.splitlines()
-    # locate MOTION (first line whose first token is MOTION)
-    motion_line = None
+def _find_motion(lines: list[str]) -> int | None:
+    """Index of the first line whose first token is MOTION."""
     for i, s in enumerate(lines):
         st = s.lstrip()
         if st[:6].upper() == "MOTION" and (len(st) == 6 or st[6].isspace()):
-            motion_line = i
-            break
+            return i
+    return None
+
+
+def _parse_header(path, lines: list[str], n_lines: int):
+    """(nodes, frames, frame time, index of the first frame line) from the lines of a file
+    (all of them, or at least up to the ``Frame Time`` line); ``n_lines`` = lines in the file."""
+    motion_line = _find_motion(lines)
     stop = motion_line if motion_line is not None else len(lines)
     toks = _tokens(lines, 0, stop)
     if motion_line is not None:
         toks.append(("MOTION", motion_line + 1))
-    nodes = _HierarchyParser(path, toks, max(len(lines), 1)).parse()
+    nodes = _HierarchyParser(path, toks, max(n_lines, 1)).parse()
     if motion_line is None:           # parse() raises first, kept for clarity
-        raise MocapFormatError(path, "missing MOTION section", len(lines))
+        raise MocapFormatError(path, "missing MOTION section", n_lines)
     if lines[motion_line].split()[1:]:
         raise MocapFormatError(path, f"unexpected text after MOTION: {lines[motion_line].strip()!r}",
                                motion_line + 1)
@@ -399,7 +474,7 @@ def _parse(path, text: str):
 
     i = next_nonblank(motion_line + 1)
     if i >= len(lines):
-        raise MocapFormatError(path, "file ends after MOTION; expected 'Frames: N'", len(lines))
+        raise MocapFormatError(path, "file ends after MOTION; expected 'Frames: N'", n_lines)
     m = _FRAMES_RE.match(lines[i])
     if not m:
         raise MocapFormatError(path, f"expected 'Frames: N' after MOTION, found {lines[i].strip()!r}", i + 1)
@@ -409,7 +484,7 @@ def _parse(path, text: str):
                                      f"is needed)", i + 1)
     i = next_nonblank(i + 1)
     if i >= len(lines):
-        raise MocapFormatError(path, "file ends after 'Frames:'; expected 'Frame Time: seconds'", len(lines))
+        raise MocapFormatError(path, "file ends after 'Frames:'; expected 'Frame Time: seconds'", n_lines)
     m = _FTIME_RE.match(lines[i])
     if not m:
         raise MocapFormatError(path, f"expected 'Frame Time: seconds', found {lines[i].strip()!r}", i + 1)
@@ -419,24 +494,202 @@ def _parse(path, text: str):
                                      f"{FRAME_TIME_RANGE[0]:g} .. {FRAME_TIME_RANGE[1]:g} s per frame "
                                      f"({1 / FRAME_TIME_RANGE[0]:g} .. {1 / FRAME_TIME_RANGE[1]:g} frames "
                                      f"per second)", i + 1)
-    first = i + 1
+    return nodes, n_frames, frame_time, i + 1
+
+
+def _frame_count_checks(path, nodes, n_frames: int, n_rows: int, extra_line: int | None, n_lines: int) -> int:
+    """The frame-count errors, in the order the reader reports them; returns C."""
+    _, _, C = _layout(nodes)
+    if n_rows < n_frames:
+        raise MocapFormatError(path, f"truncated file: 'Frames: {n_frames}' but only {n_rows} frame "
+                                     f"line(s) follow", n_lines)
+    if n_rows > n_frames:
+        raise MocapFormatError(path, f"'Frames: {n_frames}' but more frame lines follow (extra line "
+                                     f"{extra_line})", extra_line)
+    if C == 0:
+        raise MocapFormatError(path, "the hierarchy declares no channels", nodes[0].line)
+    return C
+
+
+def _parse(path, text: str):
+    """Line parser (the reference; used for files the block parser hands over)."""
+    lines = text.splitlines()
+    nodes, n_frames, frame_time, first = _parse_header(path, lines, len(lines))
     rows, line_nos = [], []
     for k in range(first, len(lines)):
         r = lines[k].split()
         if r:
             rows.append(r)
             line_nos.append(k + 1)
-    _, _, C = _layout(nodes)
-    if len(rows) < n_frames:
-        raise MocapFormatError(path, f"truncated file: 'Frames: {n_frames}' but only {len(rows)} frame "
-                                     f"line(s) follow", len(lines))
-    if len(rows) > n_frames:
-        raise MocapFormatError(path, f"'Frames: {n_frames}' but more frame lines follow (extra line "
-                                     f"{line_nos[n_frames]})", line_nos[n_frames])
-    if C == 0:
-        raise MocapFormatError(path, "the hierarchy declares no channels", nodes[0].line)
+    extra = line_nos[n_frames] if len(rows) > n_frames else None
+    C = _frame_count_checks(path, nodes, n_frames, len(rows), extra, len(lines))
     ch = float_rows(rows, line_nos, C, path, f"channel values (the hierarchy declares {C} channels)")
     return nodes, ch, frame_time
+
+
+def _head_end(raw: bytes) -> tuple[int, int] | None:
+    """(byte offset after the ``Frame Time`` line, lines up to there) or None when the
+    MOTION line and the two lines after it are not all there."""
+    pos, n, motion, after = 0, 0, False, 0
+    while pos < len(raw):
+        nl = raw.find(b"\n", pos)
+        end = len(raw) if nl < 0 else nl + 1
+        line = raw[pos:end]
+        pos, n = end, n + 1
+        if not motion:
+            st = line.lstrip()
+            motion = st[:6].upper() == b"MOTION" and (len(st) == 6 or st[6:7].isspace())
+        elif line.strip():
+            after += 1
+            if after == 2:
+                return pos, n
+    return None
+
+
+def _parse_fast(path, raw: bytes):
+    """Block parser for plain-ASCII files with \\n or \\r\\n line ends; None = use :func:`_parse`.
+
+    The header goes through :func:`_parse_header` (any error there: None, so the line
+    parser reports it exactly as before); the frame lines are converted in blocks of
+    :data:`_BLOCK_BYTES` by ``np.fromstring`` with the token count of every line taken
+    from the bytes, and every error the line parser reports is reported the same way
+    (same message, same line number, same precedence).
+    """
+    if not raw.isascii():
+        return None
+    head = _head_end(raw)
+    if head is None:
+        return None
+    off, n_head = head
+    if not _plain_lines(raw[:off]):
+        return None
+    try:
+        nodes, n_frames, frame_time, first = _parse_header(path, raw[:off].decode("ascii").splitlines(), 0)
+    except MocapFormatError:
+        return None
+    _, _, C = _layout(nodes)
+    body = _BodyReader(path, n_frames, max(C, 1), f"channel values (the hierarchy declares {C} channels)",
+                       (len(raw) - off) // (2 * max(C, 1)) + 1)       # a frame line holds >= 2C bytes
+    try:
+        n_lines = n_head + body.run(raw, off, n_head + 1)
+    except _NotPlain:
+        return None
+    _frame_count_checks(path, nodes, n_frames, body.rows, body.extra_line, n_lines)
+    body.raise_first()
+    return nodes, body.out, frame_time
+
+
+class _NotPlain(Exception):
+    """A block holds a control character other than tab / CR-LF / LF (the line parser's case)."""
+
+
+def _plain_lines(blk: bytes) -> bool:
+    """No control bytes but tab, LF and CR-LF (so bytes lines = str.splitlines lines)."""
+    n_ctrl = blk.count(b"\t") + blk.count(b"\n") + blk.count(b"\r")
+    return (blk.count(b"\r") == blk.count(b"\r\n")
+            and int(np.count_nonzero(np.frombuffer(blk, np.uint8) < 32)) == n_ctrl)
+
+
+class _BodyReader:
+    """Frame lines -> (frames, C) array, block by block (see :func:`_parse_fast`).
+
+    Errors are kept, first of each kind, and raised by :meth:`raise_first` in the line
+    parser's order (a wrong value count anywhere, then a token that is not a number, then
+    a non-finite number), after the frame-count checks; a line beyond ``Frames:`` stops
+    the reading (that error comes first).
+    """
+
+    def __init__(self, path, n_frames: int, C: int, what: str, max_lines: int):
+        self.path, self.n_frames, self.C, self.what = path, n_frames, C, what
+        self.out = np.empty((min(n_frames, max_lines), C))    # a lying 'Frames:' allocates no more
+        self.rows = 0
+        self.extra_line: int | None = None
+        self.errors: dict[str, MocapFormatError] = {}
+
+    def run(self, raw: bytes, pos: int, line_no: int) -> int:
+        """Read the frame lines from byte ``pos`` (file line ``line_no``); returns how many
+        lines there are from ``pos`` to the end (the file's line count minus the header's)."""
+        n, start = 0, pos
+        while pos < len(raw):
+            target = pos + _BLOCK_BYTES
+            nl = raw.find(b"\n", target) if target < len(raw) else -1
+            end = len(raw) if nl < 0 else nl + 1
+            blk = raw[pos:end]
+            if not _plain_lines(blk):
+                raise _NotPlain
+            if self.extra_line is None:
+                self._block(blk, line_no + n)
+            n += blk.count(b"\n")
+            pos = end
+        return n + (1 if pos > start and not raw.endswith(b"\n") else 0)
+
+    def raise_first(self) -> None:
+        for kind in ("count", "garbage", "nonfinite"):
+            if kind in self.errors:
+                raise self.errors[kind]
+
+    def _token_counts(self, blk: bytes) -> tuple[np.ndarray, int]:
+        """Tokens per line of the block (bytes.split semantics) and the token count."""
+        a = np.frombuffer(blk, np.uint8)
+        ws = a <= 32
+        st = np.flatnonzero(ws[:-1] & ~ws[1:]) + 1
+        if not ws[0]:
+            st = np.concatenate([[0], st])
+        ends = np.searchsorted(st, np.flatnonzero(a == 10))
+        if not blk.endswith(b"\n"):
+            ends = np.concatenate([ends, [len(st)]])
+        return np.diff(np.concatenate([[0], ends])), len(st)
+
+    def _block(self, blk: bytes, line_no: int) -> None:
+        counts, n_tok = self._token_counts(blk)
+        full = counts > 0
+        k = int(np.count_nonzero(full))
+        line_nos = line_no + np.flatnonzero(full)
+        if self.rows + k > self.n_frames:
+            self.extra_line = int(line_nos[self.n_frames - self.rows])
+            self.rows += k
+            return
+        bad = np.flatnonzero(counts[full] != self.C)
+        if len(bad) and "count" not in self.errors:
+            i = int(bad[0])
+            self.errors["count"] = MocapFormatError(
+                self.path, f"expected {self.C} {self.what}, found {int(counts[full][i])}", int(line_nos[i]))
+        if "count" not in self.errors and "garbage" not in self.errors:
+            v = None
+            try:
+                with warnings.catch_warnings():
+                    warnings.simplefilter("error")
+                    v = np.fromstring(blk, dtype=np.float64, sep=" ")
+            except (ValueError, DeprecationWarning):
+                pass
+            if v is not None and v.size == n_tok and np.isfinite(v).all():
+                self.out[self.rows:self.rows + k] = v.reshape(k, self.C)
+            else:
+                self._slow(blk, line_no)
+                return
+        self.rows += k
+
+    def _slow(self, blk: bytes, line_no: int) -> None:
+        """The line parser's conversion of one block (error path, or tokens numpy refuses
+        and Python's float accepts, e.g. ``1_000``)."""
+        lines = blk.decode("latin-1").splitlines()
+        rows, nos = [], []
+        for i, s in enumerate(lines):
+            r = s.split()
+            if r:
+                rows.append(r)
+                nos.append(line_no + i)
+        if self.rows + len(rows) > self.n_frames:
+            self.extra_line = nos[self.n_frames - self.rows]
+            self.rows += len(rows)
+            return
+        if "count" not in self.errors and "garbage" not in self.errors:
+            try:
+                self.out[self.rows:self.rows + len(rows)] = float_rows(rows, nos, self.C, self.path, self.what)
+            except MocapFormatError as e:
+                kind = "nonfinite" if "only finite numbers" in e.message else "garbage"
+                self.errors.setdefault(kind, e)
+        self.rows += len(rows)
 
 
 def _joint_table(nodes: list[_Node], end_sites: bool):
@@ -488,27 +741,51 @@ def read(path: str | os.PathLike, *, units: str | float | None = None, end_sites
     MocapFormatError : malformed file (names the line and what was expected).
     """
     path = Path(path)
-    text = read_text(path)
+    raw = _read_bytes(path)
     try:
-        nodes, ch, frame_time = _parse(path, text)
+        parsed = _parse_fast(path, raw)
+        if parsed is None:
+            parsed = _parse(path, _decode(raw))
     except RecursionError:          # the hierarchy parser recurses once per nesting level
         raise MocapFormatError(path, "the joint hierarchy is nested too deeply (more than several "
                                      "hundred levels)") from None
+    del raw
+    nodes, ch, frame_time = parsed
     unit = _resolve_units(units, nodes, path)
     f = unit["factor_to_cm"]
-    with np.errstate(over="ignore", invalid="ignore"):
-        X, _ = forward_kinematics(nodes, ch)
-        X = X * f
-    if not np.isfinite(X).all():
-        raise MocapFormatError(path, "offsets or channel values so large that joint positions overflow")
     keep, names, parents = _joint_table(nodes, end_sites)
+    with np.errstate(over="ignore", invalid="ignore"):
+        X = _fk_positions(nodes, ch, keep, f, check=True)
+    if X is None:
+        raise MocapFormatError(path, "offsets or channel values so large that joint positions overflow")
     offsets = np.array([nodes[k].offset for k in keep]) * f
     skeleton = Skeleton(tuple(names), np.array(parents, dtype=int), offsets)
     meta = {"nodes": _nodes_to_meta(nodes), "joint_nodes": tuple(keep), "frame_time": frame_time,
             "end_sites_as_joints": bool(end_sites)}
     source = {"path": str(path), "format": "bvh", "units": unit, "bvh": meta,
               "per_frame": {"channels": ch}}
-    return Motion(X[:, keep], skeleton, 1.0 / frame_time, None, source)
+    return Motion(X, skeleton, 1.0 / frame_time, None, source)
+
+
+def _read_bytes(path) -> bytes:
+    """The file's bytes; unreadable or binary (NUL bytes) files are a MocapFormatError."""
+    try:
+        with open(path, "rb") as fh:
+            raw = fh.read()
+    except OSError as e:
+        raise MocapFormatError(path, f"cannot read file ({e.strerror})") from None
+    if b"\x00" in raw[:65536]:
+        raise MocapFormatError(path, "binary content (NUL bytes) where a text file was expected")
+    return raw
+
+
+def _decode(raw: bytes) -> str:
+    """As :func:`mocapkit.io._text.read_text`: UTF-8, else latin-1; BOM removed."""
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError:
+        text = raw.decode("latin-1")
+    return text.lstrip("\ufeff")
 
 
 def node_positions(motion: Motion) -> tuple[tuple[str, ...], np.ndarray]:
@@ -522,66 +799,18 @@ def node_positions(motion: Motion) -> tuple[tuple[str, ...], np.ndarray]:
     if meta is None or ch is None:
         raise MocapValueError("node_positions needs a motion read from BVH with its per-frame channels")
     nodes = _meta_to_nodes(meta["nodes"])
-    X, _ = forward_kinematics(nodes, np.asarray(ch, float))
-    return tuple(n.name for n in nodes), X * float(motion.source["units"]["factor_to_cm"])
+    X = _fk_positions(nodes, np.asarray(ch, float), list(range(len(nodes))),
+                      float(motion.source["units"]["factor_to_cm"]))
+    return tuple(n.name for n in nodes), X
 
 
 # ----------------------------------------------------------------------------------------
 # inverse kinematics
 # ----------------------------------------------------------------------------------------
-def _min_rotation(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Shortest-arc rotations (T, 3, 3) taking directions a (T, 3) to b (T, 3)."""
-    an = a / np.maximum(np.linalg.norm(a, axis=1, keepdims=True), 1e-300)
-    bn = b / np.maximum(np.linalg.norm(b, axis=1, keepdims=True), 1e-300)
-    v = np.cross(an, bn)
-    c = np.einsum("ti,ti->t", an, bn)
-    K = np.zeros(a.shape[:1] + (3, 3))
-    K[:, 0, 1], K[:, 0, 2] = -v[:, 2], v[:, 1]
-    K[:, 1, 0], K[:, 1, 2] = v[:, 2], -v[:, 0]
-    K[:, 2, 0], K[:, 2, 1] = -v[:, 1], v[:, 0]
-    anti = c < -1.0 + 1e-12
-    denom = np.where(anti, 1.0, 1.0 + c)
-    R = np.eye(3) + K + (K @ K) / denom[:, None, None]
-    if anti.any():                       # 180 degrees about any axis perpendicular to a
-        ai = an[anti]
-        ref = np.where(np.abs(ai[:, :1]) < 0.9, [[1.0, 0, 0]], [[0, 1.0, 0]])
-        u = np.cross(ai, ref)
-        u /= np.linalg.norm(u, axis=1, keepdims=True)
-        R[anti] = 2 * u[:, :, None] * u[:, None, :] - np.eye(3)
-    # zero-length input: no information, identity
-    zero = (np.linalg.norm(a, axis=1) < 1e-300) | (np.linalg.norm(b, axis=1) < 1e-300)
-    R[zero] = np.eye(3)
-    return R
-
-
-def _kabsch(A: np.ndarray, B: np.ndarray):
-    """Kabsch rotations (T, 3, 3) minimising sum_k |Q a_k - b_k|^2 and a (T,) mask of frames
-    where the vectors are (nearly) collinear, i.e. the rotation is not determined."""
-    H = np.einsum("tki,tkj->tij", A, B)
-    U, S, Vt = np.linalg.svd(H)
-    V = np.swapaxes(Vt, 1, 2)
-    Ut = np.swapaxes(U, 1, 2)
-    d = np.sign(np.linalg.det(V @ Ut))
-    d[d == 0] = 1.0
-    Q = (V * np.stack([np.ones_like(d), np.ones_like(d), d], axis=1)[:, None, :]) @ Ut
-    deg = S[:, 1] <= 1e-9 * np.maximum(S[:, 0], 1e-300)
-    return Q, deg
-
-
-def _axis_angle(axis: np.ndarray, theta: np.ndarray) -> np.ndarray:
-    """Rotations (T, 3, 3) by theta (T,) radians about unit axes (T, 3) (Rodrigues)."""
-    K = np.zeros(axis.shape[:1] + (3, 3))
-    K[:, 0, 1], K[:, 0, 2] = -axis[:, 2], axis[:, 1]
-    K[:, 1, 0], K[:, 1, 2] = axis[:, 2], -axis[:, 0]
-    K[:, 2, 0], K[:, 2, 1] = -axis[:, 1], axis[:, 0]
-    s, c = np.sin(theta)[:, None, None], np.cos(theta)[:, None, None]
-    return np.eye(3) + s * K + (1 - c) * (K @ K)
-
-
 def _twist(Q1: np.ndarray, b_axis: np.ndarray, A: np.ndarray, B: np.ndarray) -> np.ndarray:
     """Rotate Q1 about the (already matched) direction b_axis by the angle that best
     aligns the other vectors (Q1 a_k with b_k, projected on the plane normal to the axis)."""
-    n = b_axis / np.maximum(np.linalg.norm(b_axis, axis=1, keepdims=True), 1e-300)
+    n, _ = normalize(b_axis, 1e-300)
     U = np.einsum("tij,tkj->tki", Q1, A)
     U = U - np.einsum("tki,ti->tk", U, n)[..., None] * n[:, None, :]
     W = B - np.einsum("tki,ti->tk", B, n)[..., None] * n[:, None, :]
@@ -591,7 +820,7 @@ def _twist(Q1: np.ndarray, b_axis: np.ndarray, A: np.ndarray, B: np.ndarray) -> 
     # (products of) off-axis components at round-off level: no twist information, keep Q1
     weak = np.hypot(num, den) <= 1e-12 * scale + 1e-300
     theta = np.where(weak, 0.0, np.arctan2(num, den))
-    return _axis_angle(n, theta) @ Q1
+    return axis_angle(n, theta) @ Q1
 
 
 def _solve_rotation(A: np.ndarray, B: np.ndarray, direct: np.ndarray) -> np.ndarray:
@@ -609,67 +838,49 @@ def _solve_rotation(A: np.ndarray, B: np.ndarray, direct: np.ndarray) -> np.ndar
     P = np.flatnonzero(direct) if direct.any() else np.arange(K)
     Ap, Bp = A[:, P], B[:, P]
     if len(P) == 1:
-        Q = _min_rotation(Ap[:, 0], Bp[:, 0])
+        Q = min_rotation(Ap[:, 0], Bp[:, 0])
         deg = np.ones(T, bool)
         anchor = Bp[:, 0]
     else:
-        Q, deg = _kabsch(Ap, Bp)
+        Q, deg = kabsch(Ap, Bp, degenerate_q=False)
+        k = np.argmax(np.linalg.norm(Ap, axis=2), axis=1)
+        t = np.arange(T)
         if deg.any():
-            k = np.argmax(np.linalg.norm(Ap, axis=2), axis=1)
-            t = np.arange(T)
-            Q[deg] = _min_rotation(Ap[t, k][deg], Bp[t, k][deg])
-        anchor = Bp[np.arange(T), np.argmax(np.linalg.norm(Ap, axis=2), axis=1)]
+            Q[deg] = min_rotation(Ap[t, k][deg], Bp[t, k][deg])
+        anchor = Bp[t, k]
     if K > 1 and deg.any():
         Q[deg] = _twist(Q[deg], anchor[deg], A[deg], B[deg])
     return Q
 
 
-def _is_cyclic(i, j, k):
-    return (i, j, k) in ((0, 1, 2), (1, 2, 0), (2, 0, 1))
-
-
-def _euler_from_matrix(R: np.ndarray, axes: list[int]) -> list[np.ndarray]:
-    """Angles (degrees) of R = R_a1(alpha) R_a2(beta) R_a3(gamma), three distinct axes.
-
-    beta from the well-conditioned atan2 form, alpha from the last column, then gamma
-    from the residual rotation (R_a1 R_a2)^T R, so the three angles reproduce R to
-    round-off even next to gimbal lock (where alpha alone is ill-determined and set to 0
-    at exact lock).
-    """
-    i, j, k = axes
-    s = 1.0 if _is_cyclic(i, j, k) else -1.0
-    cb = np.hypot(R[:, i, i], R[:, i, j])
-    beta = np.arctan2(s * R[:, i, k], cb)
-    alpha = np.arctan2(-s * R[:, j, k], R[:, k, k])
-    alpha = np.where(cb < 1e-12, 0.0, alpha)
-    a_deg, b_deg = np.rad2deg(alpha), np.rad2deg(beta)
-    M = np.swapaxes(_axis_rot(i, a_deg) @ _axis_rot(j, b_deg), 1, 2) @ R
-    k1, k2 = (k + 1) % 3, (k + 2) % 3
-    gamma = np.arctan2(M[:, k2, k1], M[:, k1, k1])
-    return [a_deg, b_deg, np.rad2deg(gamma)]
-
-
 def _wrap_near(angle: np.ndarray, ref: np.ndarray) -> np.ndarray:
-    return angle + 360.0 * np.round((ref - angle) / 360.0)
+    return wrap_near(angle, ref, 360.0)
 
 
-def _angles_for(R: np.ndarray, axes: list[int], ref: np.ndarray | None) -> np.ndarray:
-    """Channel angles (T, n) in degrees reproducing R as closely as the channels allow."""
+def _angles_for(R: np.ndarray, axes: list[int], ref: np.ndarray | None,
+                prev: np.ndarray | None = None) -> np.ndarray:
+    """Channel angles (T, n) in degrees reproducing R (T, 3, 3) as closely as the channels
+    allow. With ``ref`` (T, n): the branch and 360-degree turn nearest to it; without,
+    unwrapped over time, continuing from ``prev`` (n,) (the frame before, for chunked calls)."""
+    return _angles_for_t(np.transpose(R, (1, 2, 0)), axes, ref, prev)
+
+
+def _angles_for_t(R: np.ndarray, axes: list[int], ref: np.ndarray | None,
+                  prev: np.ndarray | None = None) -> np.ndarray:
+    """:func:`_angles_for` for R in the (3, 3, T) layout."""
     n = len(axes)
-    T = R.shape[0]
+    T = R.shape[2]
     if n == 0:
         return np.zeros((T, 0))
     if n == 1:
         a = axes[0]
         p, q = (a + 1) % 3, (a + 2) % 3
-        ang = np.rad2deg(np.arctan2(R[:, q, p] - R[:, p, q], R[:, p, p] + R[:, q, q]))[:, None]
+        ang = np.rad2deg(np.arctan2(R[q, p] - R[p, q], R[p, p] + R[q, q]))[:, None]
     elif n == 2:
         third = ({0, 1, 2} - set(axes)).pop()
-        ang = np.stack(_euler_from_matrix(R, list(axes) + [third])[:2], axis=1)
+        ang = np.rad2deg(euler_from_matrix_t(R, list(axes) + [third])[0][:, :2])
     else:
-        e1 = np.stack(_euler_from_matrix(R, list(axes)), axis=1)
-        # the other branch: (a + 180, 180 - b, c + 180)
-        e2 = np.stack([e1[:, 0] + 180.0, 180.0 - e1[:, 1], e1[:, 2] + 180.0], axis=1)
+        e1, e2 = (np.rad2deg(e) for e in euler_from_matrix_t(R, list(axes)))
         if ref is not None:
             e1 = _wrap_near(e1, ref)
             e2 = _wrap_near(e2, ref)
@@ -678,10 +889,10 @@ def _angles_for(R: np.ndarray, axes: list[int], ref: np.ndarray | None) -> np.nd
         else:
             ang = e1
     if ref is not None:
-        ang = _wrap_near(ang, ref)
-    else:
-        ang = np.rad2deg(np.unwrap(np.deg2rad(ang), axis=0))
-    return ang
+        return _wrap_near(ang, ref)
+    if prev is None:
+        return np.rad2deg(np.unwrap(np.deg2rad(ang), axis=0))
+    return np.rad2deg(np.unwrap(np.deg2rad(np.concatenate([prev[None], ang])), axis=0))[1:]
 
 
 def _effective_children(nodes, k, have, has_pos):
@@ -704,68 +915,123 @@ def _effective_children(nodes, k, have, has_pos):
     return out
 
 
-def _inverse_kinematics(nodes: list[_Node], targets: np.ndarray, have: np.ndarray,
-                        ch0: np.ndarray | None) -> np.ndarray:
-    """Channel values (T, C) placing the nodes at ``targets`` (T, N, 3), file units.
+def _mv_t(G: np.ndarray | None, v: np.ndarray) -> np.ndarray:
+    """G v for G (3, 3, T) (None = identity) and v (3, T) or (3,)."""
+    v = v if v.ndim == 2 else v[:, None]
+    if G is None:
+        return v
+    return G[:, 0] * v[0] + G[:, 1] * v[1] + G[:, 2] * v[2]
 
-    ``have[k]`` says whether node k has a target; ``ch0`` are the original channels
-    (starting rotations/translations) or None (identity rotations, OFFSET translations).
-    """
-    T = targets.shape[0]
-    rot, pos, C = _layout(nodes)
-    N = len(nodes)
-    out = np.zeros((T, C))
-    L0 = [_local_rot(*rot[k], ch0, T) for k in range(N)]
-    t0 = [_translation(nodes[k], *pos[k], ch0, T) for k in range(N)]
-    has_pos = np.array([len(pos[k][0]) > 0 for k in range(N)])
-    G = np.zeros((T, N, 3, 3))
-    X = np.zeros((T, N, 3))
-    eye = np.broadcast_to(np.eye(3), (T, 3, 3))
-    for k, n in enumerate(nodes):
-        p = n.parent
-        Gp = G[:, p] if p >= 0 else eye
-        Xp = X[:, p] if p >= 0 else np.zeros((T, 3))
-        # translation / position
-        t = t0[k].copy()
-        if has_pos[k] and have[k]:
-            t_solved = np.einsum("tji,tj->ti", Gp, targets[:, k] - Xp)   # Gp^T (x - xp)
-            pa, pc = pos[k]
-            for ax, c in zip(pa, pc):
-                t[:, ax] = t_solved[:, ax]
-        for ax, c in zip(*pos[k]):
-            out[:, c] = t[:, ax]
-        X[:, k] = Xp + np.einsum("tij,tj->ti", Gp, t)
-        if n.end_site:
-            G[:, k] = Gp
-            continue
-        # rotation
-        GL0 = Gp @ L0[k]
-        eff = _effective_children(nodes, k, have, has_pos)
-        if eff and rot[k][0]:
-            A = np.empty((T, len(eff), 3))
-            B = np.empty((T, len(eff), 3))
-            direct = np.array([len(path) == 1 for _, path in eff])
-            for e, (d, path) in enumerate(eff):
-                r = np.broadcast_to(nodes[path[-1]].offset, (T, 3)).copy()
-                for c in reversed(path[:-1]):          # zero-length joints in between
-                    r = t0[c] + np.einsum("tij,tj->ti", L0[c], r)
-                A[:, e] = np.einsum("tij,tj->ti", GL0, r)
-                B[:, e] = targets[:, d] - X[:, k]
-            Q = _solve_rotation(A, B, direct)
-            L = np.swapaxes(Gp, 1, 2) @ Q @ GL0
-        else:
-            L = L0[k]
-        ra, rc = rot[k]
-        if ra:
+
+def _mtv_t(G: np.ndarray | None, v: np.ndarray) -> np.ndarray:
+    """G^T v for G (3, 3, T) (None = identity) and v (3, T)."""
+    if G is None:
+        return v
+    return G[0] * v[0] + G[1] * v[1] + G[2] * v[2]
+
+
+class _LazyLocal:
+    """``L0[k]``: node k's start rotation (3, 3, T) from the channels ``ch0`` (None =
+    identity), computed on first use (only look-through joints and leaves need it)."""
+
+    def __init__(self, rot, ch0: np.ndarray | None):
+        self.rot, self.ch0, self.cache = rot, ch0, {}
+
+    def __getitem__(self, k: int) -> np.ndarray | None:
+        if self.ch0 is None:
+            return None
+        if k not in self.cache:
+            self.cache[k] = _local_rot_t(*self.rot[k], self.ch0)
+        return self.cache[k]
+
+
+class _IKPlan:
+    """What the IK needs per node, independent of the frames: channel layout, the
+    children that constrain each rotation (:func:`_effective_children`) and whether
+    they are direct."""
+
+    def __init__(self, nodes: list[_Node], have: np.ndarray):
+        self.rot, self.pos, self.C = _layout(nodes)
+        self.has_pos = np.array([len(p[0]) > 0 for p in self.pos])
+        self.eff = [_effective_children(nodes, k, have, self.has_pos) for k in range(len(nodes))]
+        self.direct = [np.array([len(path) == 1 for _, path in e], bool) for e in self.eff]
+        for k, n in enumerate(nodes):
+            ra = self.rot[k][0]
             if len(ra) == 3 and len(set(ra)) != 3:
                 raise MocapValueError(f"joint {n.name!r}: repeated rotation axes "
                                       f"({' '.join(n.channels)}) are not supported by the BVH writer")
-            ref = ch0[:, rc] if ch0 is not None else None
-            ang = _angles_for(L, ra, ref)
-            out[:, rc] = ang
-            L = _local_rot(ra, list(range(len(ra))), ang, T)   # what the file will hold
-        G[:, k] = Gp @ L
+
+
+def _correction(nodes, plan: _IKPlan, k: int, GL0, L0, t0, Xk, Xt, T: int) -> np.ndarray:
+    """Q (T, 3, 3) best mapping node k's predicted child vectors onto the targets."""
+    eff = plan.eff[k]
+    A = np.empty((T, len(eff), 3))
+    B = np.empty((T, len(eff), 3))
+    for e, (d, path) in enumerate(eff):
+        r = np.asarray(nodes[path[-1]].offset, float)[:, None]
+        for c in reversed(path[:-1]):                  # zero-length joints in between
+            r = t0[c] + _mv_t(L0[c], r)
+        A[:, e] = _mv_t(GL0, r).T
+        B[:, e] = (Xt[d] - Xk).T
+    return _solve_rotation(A, B, plan.direct[k])
+
+
+def _inverse_kinematics(nodes: list[_Node], targets: np.ndarray, have: np.ndarray,
+                        ch0: np.ndarray | None, plan: _IKPlan | None = None,
+                        prev: np.ndarray | None = None) -> np.ndarray:
+    """Channel values (T, C) placing the nodes at ``targets`` (T, N, 3), file units.
+
+    ``have[k]`` says whether node k has a target; ``ch0`` are the original channels
+    (starting rotations/translations) or None (identity rotations, OFFSET translations);
+    ``prev`` (C,): the channels of the frame before (continuity of chunked calls).
+    One loop over nodes, none over frames; rotations in the (3, 3, T) layout.
+    """
+    T = targets.shape[0]
+    plan = plan or _IKPlan(nodes, have)
+    rot, pos = plan.rot, plan.pos
+    out = np.zeros((T, plan.C))
+    Xt = np.transpose(targets, (1, 2, 0))                        # (N, 3, T)
+    L0 = _LazyLocal(rot, ch0)
+    t0 = [_translation(nodes[k], *pos[k], ch0, T).T for k in range(len(nodes))]
+    G: list[np.ndarray | None] = [None] * len(nodes)
+    X = np.zeros((len(nodes), 3, T))
+    for k, n in enumerate(nodes):
+        Gp = G[n.parent] if n.parent >= 0 else None
+        Xp = X[n.parent] if n.parent >= 0 else 0.0
+        t = t0[k].copy()
+        if plan.has_pos[k] and have[k]:
+            t_solved = _mtv_t(Gp, Xt[k] - Xp)                    # Gp^T (x - xp)
+            for ax in pos[k][0]:
+                t[ax] = t_solved[ax]
+        for ax, c in zip(*pos[k]):
+            out[:, c] = t[ax]
+        X[k] = Xp + _mv_t(Gp, t)
+        if n.end_site:
+            G[k] = Gp
+            continue
+        G[k] = _solve_node(nodes, plan, k, Gp, L0, t0, X[k], Xt, ch0, prev, out, T)
     return out
+
+
+def _solve_node(nodes, plan: _IKPlan, k: int, Gp, L0, t0, Xk, Xt, ch0, prev, out, T: int):
+    """Node k's rotation channels (written to ``out``); returns its global rotation (3, 3, T)."""
+    ra, rc = plan.rot[k]
+    if not ra:
+        return Gp
+    GL0 = Gp if ch0 is None else _local_rot_t(ra, rc, ch0, Gp)          # Gp L0
+    if plan.eff[k]:
+        Q = np.ascontiguousarray(np.transpose(_correction(nodes, plan, k, GL0, L0, t0, Xk, Xt, T), (1, 2, 0)))
+        QG = Q if GL0 is None else mm_t(Q, GL0)
+        L = QG if Gp is None else mm_t(np.transpose(Gp, (1, 0, 2)), QG)        # Gp^T Q Gp L0
+    else:
+        L = L0[k] if L0[k] is not None else np.broadcast_to(np.eye(3)[:, :, None], (3, 3, T))
+    ref = ch0[:, rc] if ch0 is not None else None
+    ang = _angles_for_t(L, ra, ref, None if prev is None else prev[rc])
+    out[:, rc] = ang
+    R = np.broadcast_to(np.eye(3)[:, :, None], (3, 3, T)).copy() if Gp is None else Gp.copy()
+    for i, ax in enumerate(ra):                                   # what the file will hold
+        rotate_right_t(R, ax, np.deg2rad(ang[:, i]))
+    return R
 
 
 # ----------------------------------------------------------------------------------------
@@ -832,13 +1098,29 @@ def _write_text(f, nodes: list[_Node], ch: np.ndarray, frame_time: float) -> Non
             emit(k, 0)
     out += ["MOTION", f"Frames: {ch.shape[0]}", f"Frame Time: {frame_time!r}"]
     f.write("\n".join(out) + "\n")
-    buf = io.StringIO()
-    np.savetxt(buf, ch, fmt="%.9f", delimiter=" ")
-    body = buf.getvalue()
-    body = re.sub(r"(\.\d*?)0+(?=[ \n]|$)", r"\1", body)
-    body = re.sub(r"\.(?=[ \n]|$)", "", body)
-    body = re.sub(r"(?<![\d.])-0(?=[ \n]|$)", "0", body)
-    f.write(body)
+    if ch.shape[1] == 0:
+        f.write("\n" * ch.shape[0])
+        return
+    for a in range(0, ch.shape[0], 65536):            # 9 decimals, trailing zeros trimmed
+        f.write(fixed_rows(ch[a:a + 65536], 9).decode("ascii"))
+
+
+def _ik_chunked(nodes: list[_Node], joint_nodes: list[int], positions: np.ndarray, factor: float,
+                ch0: np.ndarray | None) -> np.ndarray:
+    """:func:`_inverse_kinematics` over chunks of :data:`_CHUNK` frames (bounded memory;
+    the chunks join seamlessly, angles without a reference are unwrapped across them)."""
+    T, N = positions.shape[0], len(nodes)
+    have = np.zeros(N, bool)
+    have[joint_nodes] = True
+    plan = _IKPlan(nodes, have)
+    ch = np.empty((T, plan.C))
+    for a in range(0, T, _CHUNK):
+        b = min(a + _CHUNK, T)
+        targets = np.full((b - a, N, 3), np.nan)
+        targets[:, joint_nodes] = positions[a:b] / factor
+        ch[a:b] = _inverse_kinematics(nodes, targets, have, None if ch0 is None else ch0[a:b], plan,
+                                      ch[a - 1] if a else None)
+    return ch
 
 
 def write(motion: Motion, path: str | os.PathLike, *, hierarchy: str = "auto",
@@ -917,11 +1199,7 @@ def write(motion: Motion, path: str | os.PathLike, *, hierarchy: str = "auto",
                               f"is outside {FRAME_TIME_RANGE[0]:g} .. {FRAME_TIME_RANGE[1]:g} s (the "
                               f"range the reader accepts); resample the motion first")
     N = len(nodes)
-    targets = np.full((T, N, 3), np.nan)
-    have = np.zeros(N, bool)
-    targets[:, joint_nodes] = motion.positions / factor
-    have[joint_nodes] = True
-    ch = _inverse_kinematics(nodes, targets, have, ch0)
+    ch = _ik_chunked(nodes, joint_nodes, motion.positions, factor, ch0)
     if not np.isfinite(ch).all():
         raise MocapValueError("inverse kinematics produced non-finite channel values")
     atomic_write(path, lambda f: _write_text(f, nodes, ch, frame_time))

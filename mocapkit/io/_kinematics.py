@@ -1,0 +1,809 @@
+"""Acclaim kinematics: the compiled skeleton, forward kinematics and the write-back IK.
+
+Split out of :mod:`mocapkit.io.asfamc` (which re-exports every name and documents the
+conventions). Rotation helpers are shared with the BVH module
+(:mod:`mocapkit.io._rotations`).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import MocapValueError
+from ..skeleton import Skeleton
+from . import _rotations as rot
+from ._rotations import axis_rotation
+
+__all__ = ["forward_kinematics", "inverse_kinematics"]
+
+_CHILD_W = 0.3          # sqrt of the weight of predicted child vectors in the partial-dof fit
+
+
+# ======================================================================================
+# compiled skeleton: joint order, matrices, dof layout
+# ======================================================================================
+def _axis_rot(axis: int, ang: np.ndarray) -> np.ndarray:
+    """Rotation matrices (..., 3, 3) about axis 0/1/2 by ``ang`` radians (column vectors)."""
+    return axis_rotation(axis, ang)
+
+
+def _euler_matrix(order: str, angles_xyz: np.ndarray) -> np.ndarray:
+    """R for angles given per axis (…, 3) as (x, y, z) radians, applied in ``order`` (first letter first)."""
+    axes = ["XYZ".index(c) for c in reversed(order)]
+    return rot.euler_to_matrix(axes, np.asarray(angles_xyz, float)[..., axes])
+
+
+class _Compiled:
+    """Everything FK/IK needs, derived once from an ASF description."""
+
+    def __init__(self, asf: dict):
+        self.asf = asf
+        bones = asf["bones"]
+        parent = {}
+        for par, children in asf["hierarchy"]:
+            for c in children:
+                parent[c] = par
+        # stable topological order of the bonedata order (parents first)
+        placed = {"root"}
+        order: list[str] = []
+        pending = [b["name"] for b in bones]
+        while pending:
+            nxt = [n for n in pending if parent[n] in placed]
+            if not nxt:                      # read_asf guarantees this cannot happen
+                raise MocapValueError("ASF hierarchy is cyclic")
+            for n in pending:
+                if parent[n] in placed:
+                    placed.add(n)
+                    order.append(n)
+            pending = [n for n in pending if n not in placed]
+        self.bone_order = order
+        self.names = ("root",) + tuple(order)
+        jidx = {n: i for i, n in enumerate(self.names)}
+        self.parent_joint = np.array([-1] + [jidx[parent[n]] for n in order])
+        self.angle_rad = asf["units"]["angle"] == "rad"
+        # root
+        r = asf["root"]
+        self.root_order = list(r["order"])
+        self.root_axis = r["axis"]
+        ang = np.asarray(r["orientation"], float)
+        ang_xyz = self._to_xyz(ang, self.root_axis)
+        self.C_root = _euler_matrix(self.root_axis, self._rad(ang_xyz))
+        # dof layout (columns of per_frame['dofs']): root channels, then bones in ASF order
+        names: list[str] = [f"root.{c}" for c in self.root_order]
+        self.dof_cols: dict[str, list[int]] = {"root": list(range(len(self.root_order)))}
+        for b in bones:
+            k0 = len(names)
+            names += [f"{b['name']}.{d}" for d in b["dof"]]
+            self.dof_cols[b["name"]] = list(range(k0, len(names)))
+        self.dof_names = names
+        self.n_dofs = len(names)
+        # per bone: rest vector (file units), C, Cinv, order, dof axis indices
+        self.vec = {}
+        self.C = {}
+        self.order = {}
+        self.dof_axes = {}
+        for b in bones:
+            n = b["name"]
+            self.vec[n] = np.asarray(b["direction"], float) * float(b["length"])
+            ax = self._to_xyz(np.asarray(b["axis"], float), b["axis_order"])
+            self.C[n] = _euler_matrix(b["axis_order"], self._rad(ax))
+            self.order[n] = b["axis_order"]
+            self.dof_axes[n] = ["xyz".index(d[1]) for d in b["dof"]]
+        self.bone_dofs = {b["name"]: list(b["dof"]) for b in bones}
+        self.C_is_identity = {n: bool(np.array_equal(C, np.eye(3))) for n, C in self.C.items()}
+        self.C_root_is_identity = bool(np.array_equal(self.C_root, np.eye(3)))
+        self.children = {n: [] for n in self.names}
+        for n in order:
+            self.children[parent[n]].append(n)
+        self.parent = parent
+        self.joint_index = jidx
+        # IK tables: dof-less bones rigid with each node, first dof-carrying bones below it
+        # (with the dof-less path to them), joints moved by each node, twist regulariser
+        self.dofless_desc: dict[str, list[str]] = {}
+        self.dof_children: dict[str, list[tuple[str, list[str]]]] = {}
+        self.subtree: dict[str, np.ndarray] = {}
+        for n in self.names:
+            rigid, firsts, stack = [], [], [(c, []) for c in self.children[n]]
+            while stack:
+                c, path = stack.pop(0)
+                if self.dof_axes[c]:
+                    firsts.append((c, path))
+                else:
+                    rigid.append(c)
+                    stack.extend((g, path + [c]) for g in self.children[c])
+            self.dofless_desc[n] = rigid
+            self.dof_children[n] = firsts
+            sub, stack = [jidx[n]], list(self.children[n])
+            while stack:
+                c = stack.pop()
+                sub.append(jidx[c])
+                stack.extend(self.children[c])
+            self.subtree[n] = np.array(sorted(sub))
+        self.axis_aligned = {}
+        for n in order:
+            u = self.C[n].T @ self.vec[n]
+            nu = np.linalg.norm(u)
+            self.axis_aligned[n] = bool(nu > 0 and any(np.linalg.norm(np.cross(np.eye(3)[a], u)) < 0.3 * nu
+                                                       for a in self.dof_axes[n]))
+        self.twist_reg = {n: 0.05 * sum(float(self.vec[c] @ self.vec[c]) for c, _ in self.dof_children[n])
+                          for n in order}
+
+    @staticmethod
+    def _to_xyz(vals: np.ndarray, order: str) -> np.ndarray:
+        """Angles listed in ``order`` (value i about letter order[i]) -> (x, y, z)."""
+        out = np.zeros(np.shape(vals)[:-1] + (3,))
+        for i, letter in enumerate(order):
+            out[..., "XYZ".index(letter)] = vals[..., i]
+        return out
+
+    def _rad(self, a):
+        return np.asarray(a, float) if self.angle_rad else np.deg2rad(a)
+
+    def skeleton(self, f: float) -> Skeleton:
+        off = [np.asarray(self.asf["root"]["position"], float) * f]
+        off += [self.vec[n] * f for n in self.bone_order]
+        return Skeleton(self.names, self.parent_joint, np.array(off))
+
+    # -- root channels ----------------------------------------------------------------
+    def root_split(self, dofs: np.ndarray, angle_rad: bool):
+        """(translation (T,3) file units, rotation angles (T,3) xyz radians) from root columns."""
+        T = dofs.shape[0]
+        tr = np.zeros((T, 3))
+        rot = np.zeros((T, 3))
+        for k, ch in enumerate(self.root_order):
+            a = "XYZ".index(ch[1])
+            if ch[0] == "T":
+                tr[:, a] = dofs[:, k]
+            else:
+                rot[:, a] = dofs[:, k] if angle_rad else np.deg2rad(dofs[:, k])
+        return tr, rot
+
+
+def _rot_t(axis: int, ang: np.ndarray) -> np.ndarray:
+    """Rotation about axis 0/1/2 by ``ang`` (T,) radians, in the (3, 3, T) layout."""
+    return rot.rot_t(axis, ang)
+
+
+def _mm_t(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """Product of stacks of 3x3 matrices in the (3, 3, T) layout (either may be a plain 3x3)."""
+    return rot.mm_t(A, B)
+
+
+def forward_kinematics(comp: _Compiled, dofs: np.ndarray, angle_rad: bool, f: float,
+                       return_rotations: bool = False):
+    """Joint positions (T, J, 3) in cm from dof values (T, D) (file units, file angles).
+
+    One loop over bones, none over frames: rotations are kept as (3, 3, T) stacks and
+    multiplied component-wise. With ``return_rotations`` also the global rotation of every
+    node as a dict of (T, 3, 3) arrays.
+    """
+    dofs = np.asarray(dofs, float)
+    T = dofs.shape[0]
+    J = len(comp.names)
+    P = np.zeros((3, J, T))
+    conv = (lambda d: d) if angle_rad else np.deg2rad
+    # root: L = C_root · M_root · C_root^T, M from the root rotation channels (axis order)
+    M = None
+    tr = np.zeros((3, T))
+    rot = {}
+    for k, ch in enumerate(comp.root_order):
+        a = "XYZ".index(ch[1])
+        if ch[0] == "T":
+            tr[a] = dofs[:, k]
+        else:
+            rot[a] = conv(dofs[:, k])
+    for letter in comp.root_axis:
+        a = "XYZ".index(letter)
+        if a in rot:
+            Ra = _rot_t(a, rot[a])
+            M = Ra if M is None else _mm_t(Ra, M)
+    if M is None:
+        M = np.broadcast_to(np.eye(3)[:, :, None], (3, 3, T))
+    Cr = comp.C_root
+    L = {"root": M if comp.C_root_is_identity else _mm_t(_mm_t(Cr, M), Cr.T)}
+    P[:, 0] = tr
+    for j, n in enumerate(comp.bone_order, start=1):
+        Lp = L[comp.parent[n]]
+        axes = comp.dof_axes[n]
+        if axes:
+            d = conv(dofs[:, comp.dof_cols[n]])
+            # only the axes with a dof rotate (absent dofs are zero), in the 'axis' order
+            M = None
+            for letter in comp.order[n]:
+                a = "XYZ".index(letter)
+                if a in axes:
+                    Ra = _rot_t(a, d[:, axes.index(a)])
+                    M = Ra if M is None else _mm_t(Ra, M)
+            C = comp.C[n]
+            Lb = _mm_t(Lp, M if comp.C_is_identity[n] else _mm_t(_mm_t(C, M), C.T))
+        else:
+            Lb = Lp
+        L[n] = Lb
+        v = comp.vec[n]
+        P[:, j] = P[:, comp.parent_joint[j]] + Lb[:, 0] * v[0] + Lb[:, 1] * v[1] + Lb[:, 2] * v[2]
+    P = np.ascontiguousarray(np.transpose(P, (2, 1, 0))) * f
+    if return_rotations:
+        return P, {n: np.transpose(v, (2, 0, 1)) for n, v in L.items()}
+    return P
+
+
+# ======================================================================================
+# inverse kinematics: helpers (the rotation maths is shared: mocapkit.io._rotations)
+# ======================================================================================
+def _min_rotation(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Shortest-arc rotations (T, 3, 3) taking directions a (T, 3) onto b (T, 3)."""
+    return rot.min_rotation(a, b)
+
+
+def _kabsch(U: np.ndarray, W: np.ndarray) -> np.ndarray:
+    """Rotations R (T, 3, 3) minimising sum_i |R u_i - w_i|^2 for U, W (T, n, 3)."""
+    return rot.kabsch(U, W)[0]
+
+
+def _axis_angle_fit(axis: np.ndarray, U: np.ndarray, W: np.ndarray, reg: float | np.ndarray = 0.0) -> np.ndarray:
+    """Angle about unit ``axis`` (T, 3) best rotating vectors U onto W (T, n, 3), least squares
+    (:func:`mocapkit.io._rotations.twist_angle`)."""
+    return rot.twist_angle(axis, U, W, reg)
+
+
+def _euler_from(M: np.ndarray, order: str) -> list[np.ndarray]:
+    """Both Euler solutions, as (x, y, z) angles in radians, of M = R(angles) for ``order``
+    (Acclaim order: first letter applied first, i.e. the axis sequence reversed)."""
+    axes = ["XYZ".index(c) for c in reversed(order)]
+    out = []
+    for e in rot.euler_from_matrix(M, axes):
+        xyz = np.zeros_like(e)
+        xyz[:, axes] = e
+        out.append(xyz)
+    return out
+
+
+def _wrap_near(ang: np.ndarray, ref: np.ndarray) -> np.ndarray:
+    return rot.wrap_near(ang, ref)
+
+
+def _angles_near(cands: list[np.ndarray], ref: np.ndarray) -> np.ndarray:
+    """Of the candidate (T, 3) angle sets, each wrapped by 2π turns nearest ``ref``, the closest."""
+    best, best_d = None, None
+    for c in cands:
+        w = _wrap_near(c, ref)
+        d = np.sum((w - ref) ** 2, axis=1)
+        if best is None:
+            best, best_d = w, d
+        else:
+            take = d < best_d
+            best = np.where(take[:, None], w, best)
+            best_d = np.minimum(d, best_d)
+    return best
+
+
+def _after_rot(order: str, ang: np.ndarray, a: int) -> np.ndarray:
+    """Product of the rotations applied after axis ``a`` in ``order`` (T, 3, 3)."""
+    R = np.broadcast_to(np.eye(3), ang.shape[:-1] + (3, 3)).copy()
+    k = order.index("XYZ"[a])
+    for letter in order[k + 1:]:
+        b = "XYZ".index(letter)
+        R = _axis_rot(b, ang[..., b]) @ R
+    return R
+
+
+def _fit_partial(order: str, axes: list[int], U: np.ndarray, W: np.ndarray, ang: np.ndarray,
+                 ang0: np.ndarray, iters: int = 40, scan: int = 36) -> np.ndarray:
+    """Angles of the present ``axes`` minimising Σ_i |M(ang) u_i - w_i|² (other angles zero).
+
+    U (n, 3) or (T, n, 3) rest vectors and W (T, n, 3) targets, both in the bone's local
+    (C) frame (scale a pair by sqrt(weight) to weight it). One dof: the exact single-axis optimum (:func:`_axis_angle_fit`). Two dofs
+    (``M = R_q(β) R_p(α)``, p applied first): for every α the best β is exact, so the
+    cost is scanned over ``scan`` values of α, then refined by ``iters`` golden-section
+    steps within one scan step of the best value (global to the scan resolution, then
+    precise to ~1e-8 rad); the same refinement runs around the start ``ang`` and wins
+    when it fits as well, so equally good solutions do not flip branches between frames.
+    Angles are returned on the 2π turn nearest ``ang0``.
+    """
+    present = [("XYZ".index(c)) for c in order if "XYZ".index(c) in axes]
+    T = ang.shape[0]
+    e = np.eye(3)
+    out = np.zeros_like(ang)
+    U = np.broadcast_to(U, W.shape)
+    if len(present) == 1:
+        a = present[0]
+        th = _axis_angle_fit(np.broadcast_to(e[a], (T, 3)), U, W)
+        out[:, a] = _wrap_near(th, ang0[:, a])
+        return out
+    p, q = present
+    # scan α (axis p) with the best β (axis q) in closed form for each, then a golden-section
+    # search on α around the best scan point
+    def best_beta(alpha):                                  # alpha (..., T) -> beta, cost
+        sh = alpha.shape
+        Ua = np.einsum("...tij,tnj->...tni", _axis_rot(p, alpha), U)          # (..., T, n, 3)
+        Wb = np.broadcast_to(W, sh + W.shape[1:])
+        m = int(np.prod(sh))
+        beta = _axis_angle_fit(np.broadcast_to(e[q], (m, 3)), Ua.reshape(m, -1, 3),
+                               Wb.reshape(m, -1, 3)).reshape(sh)
+        fit = np.einsum("...ij,...nj->...ni", _axis_rot(q, beta), Ua)
+        return beta, np.sum((fit - Wb) ** 2, axis=(-2, -1))
+
+    step = 2 * np.pi / scan
+    alphas = np.linspace(-np.pi, np.pi, scan, endpoint=False)[:, None] + np.zeros((1, T))
+    _, cost = best_beta(alphas)
+    center = np.stack([alphas[np.argmin(cost, axis=0), np.arange(T)], ang[:, p]])   # (2, T)
+    lo, hi = center - step, center + step
+    g = (np.sqrt(5) - 1) / 2
+    x1, x2 = hi - g * (hi - lo), lo + g * (hi - lo)
+    f1, f2 = best_beta(x1)[1], best_beta(x2)[1]
+    for _ in range(iters):
+        left = f1 < f2                       # minimum in [lo, x2]
+        hi = np.where(left, x2, hi)
+        lo = np.where(left, lo, x1)
+        nx1 = np.where(left, hi - g * (hi - lo), x2)
+        nx2 = np.where(left, x1, lo + g * (hi - lo))
+        fn = best_beta(np.where(left, nx1, nx2))[1]
+        f1, f2 = np.where(left, fn, f2), np.where(left, f1, fn)
+        x1, x2 = nx1, nx2
+    al = 0.5 * (lo + hi)                                   # (2, T): scan branch, start branch
+    be, c = best_beta(al)
+    # prefer the branch of the start angles when it fits as well (no flips between frames)
+    k = np.where(c[1] <= c[0] + 1e-9 * (1.0 + c[0]), 1, 0)
+    cur = np.zeros((T, 3))
+    cur[:, p] = al[k, np.arange(T)]
+    cur[:, q] = be[k, np.arange(T)]
+    out[:, p] = _wrap_near(cur[:, p], ang0[:, p])
+    out[:, q] = _wrap_near(cur[:, q], ang0[:, q])
+    return out
+
+
+def _start_angles(S: np.ndarray, comp: _Compiled, n: str, to_rad) -> np.ndarray:
+    ang = np.zeros((S.shape[0], 3))
+    if n == "root":
+        for k, ch in enumerate(comp.root_order):
+            if ch[0] == "R":
+                ang[:, "XYZ".index(ch[1])] = to_rad(S[:, k])
+    elif comp.dof_axes[n]:
+        ang[:, comp.dof_axes[n]] = to_rad(S[:, comp.dof_cols[n]])
+    return ang
+
+
+def _mv(R: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """R v for R (T, 3, 3) and v (3,) or (T, 3) -> (T, 3) (matmul, no einsum)."""
+    return R @ v if v.ndim == 1 else (R @ v[..., None])[..., 0]
+
+
+def _local(Lp: np.ndarray, C: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """C^T Lp^T v for v (T, 3): a world vector in a bone's C frame."""
+    return (v[:, None, :] @ Lp)[:, 0] @ C
+
+
+class _IKState:
+    """Targets, start dofs, results and the achieved pose of a top-down IK pass."""
+
+    def __init__(self, comp: _Compiled, target_cm: np.ndarray, f: float, angle_rad: bool,
+                 start: np.ndarray | None):
+        self.comp = comp
+        self.X = np.asarray(target_cm, float) / f                     # file units
+        self.T = self.X.shape[0]
+        self.have_start = start is not None
+        self.S = np.zeros((self.T, comp.n_dofs)) if start is None else np.array(start, float)
+        self.out = self.S.copy()
+        self.angle_rad = angle_rad
+        self.to_rad = (lambda a: a) if angle_rad else np.deg2rad
+        self.from_rad = (lambda a: a) if angle_rad else np.rad2deg
+        self.done = np.zeros((self.T, len(comp.names), 3))            # achieved (FK) end points
+        self.L: dict[str, np.ndarray] = {}
+        self.ok = np.isfinite(self.X).all(axis=2)                      # (T, J) usable targets
+
+    def tgt(self, k: int, base: np.ndarray, fallback: np.ndarray) -> np.ndarray:
+        """Target vector of joint k from ``base``; ``fallback`` where the target is missing."""
+        return np.where(self.ok[:, k, None], self.X[:, k] - base, fallback)
+
+    def start_local(self, n: str) -> np.ndarray:
+        """Local rotation C E(start) C^T of bone n (T, 3, 3)."""
+        c = self.comp
+        return c.C[n] @ _euler_matrix(c.order[n], _start_angles(self.S, c, n, self.to_rad)) @ c.C[n].T
+
+    def rigid_vectors(self, node: str, Ln: np.ndarray, end: np.ndarray):
+        """Predicted/target vectors of the dof-less bones moving rigidly with ``node``."""
+        c = self.comp
+        U, W, pos = [], [], {node: end}
+        for d in c.dofless_desc[node]:
+            u = _mv(Ln, c.vec[d])
+            base = pos[c.parent[d]]
+            U.append(u)
+            W.append(self.tgt(c.joint_index[d], base, u))
+            pos[d] = base + u
+        return U, W
+
+
+def _fit_vectors(U: list, W: list, T: int) -> np.ndarray:
+    """Kabsch for two or more vector pairs, the shortest arc for one, identity for none."""
+    if len(U) >= 2:
+        return rot.kabsch(np.stack(U, 1), np.stack(W, 1))[0]
+    if len(U) == 1:
+        return rot.min_rotation(U[0], W[0])
+    return np.broadcast_to(np.eye(3), (T, 3, 3))
+
+
+def _ik_root(st: _IKState) -> None:
+    """Root translation from its target; rotation from the rigid bones on it (+ the first
+    dof bones, predicted with their start rotations, when fewer than two)."""
+    c, T = st.comp, st.T
+    for k, ch in enumerate(c.root_order):
+        if ch[0] == "T":
+            v = st.X[:, 0, "XYZ".index(ch[1])]
+            st.out[:, k] = np.where(np.isfinite(v), v, st.S[:, k])
+    tr, _ = c.root_split(st.out, st.angle_rad)
+    st.done[:, 0] = tr
+    Cr = c.C_root
+    ang0 = _start_angles(st.S, c, "root", st.to_rad)
+    L0 = Cr @ _euler_matrix(c.root_axis, ang0) @ Cr.T
+    U, W = st.rigid_vectors("root", L0, tr)
+    if len(U) < 2:
+        for ch_, path in c.dof_children["root"]:
+            base = tr + sum((_mv(L0, c.vec[d]) for d in path), np.zeros(3))
+            u = _mv(L0 @ st.start_local(ch_), c.vec[ch_])
+            U.append(u)
+            W.append(st.tgt(c.joint_index[ch_], base, u))
+    Q = _fit_vectors(U, W, T)
+    rot_cols = [k for k, ch in enumerate(c.root_order) if ch[0] == "R"]
+    if rot_cols:
+        ang = _angles_near(_euler_from(Cr.T @ (Q @ L0) @ Cr, c.root_axis), ang0)
+        if not st.have_start:
+            ang = np.unwrap(ang, axis=0)
+        for k in rot_cols:
+            st.out[:, k] = st.from_rad(ang[:, "XYZ".index(c.root_order[k][1])])
+    st.L["root"] = Cr @ _euler_matrix(c.root_axis, _start_angles(st.out, c, "root", st.to_rad)) @ Cr.T
+
+
+def _ik_bone(st: _IKState, j: int, n: str) -> None:
+    """One bone, given its parent's achieved rotation and end point (steps 1-3 of the
+    module docstring of :mod:`mocapkit.io.asfamc`)."""
+    c = st.comp
+    Lp, pj, axes = st.L[c.parent[n]], c.parent_joint[j], c.dof_axes[n]
+    if not axes:
+        st.L[n] = Lp
+        st.done[:, j] = st.done[:, pj] + _mv(Lp, c.vec[n])
+        return
+    C, order, cols = c.C[n], c.order[n], c.dof_cols[n]
+    ang0 = _start_angles(st.S, c, n, st.to_rad)
+    Ls = Lp @ st.start_local(n)
+    u = _mv(Ls, c.vec[n])
+    w = st.tgt(j, st.done[:, pj], u)
+    Ur, Wr = st.rigid_vectors(n, Ls, st.done[:, pj] + u)
+    Lb = _fit_vectors([u] + Ur, [w] + Wr, st.T) @ Ls
+    if len(axes) == 3 and c.dof_children[n]:
+        Lb = _twist_from_children(st, n, j, Lb)
+    M = C.T @ np.swapaxes(Lp, 1, 2) @ Lb @ C
+    ang = _angles_near(_euler_from(M, order), ang0)
+    if len(axes) < 3:
+        ang = _partial_angles(st, n, Lp, w, Wr, ang, ang0)
+    for i, a in enumerate(axes):
+        st.out[:, cols[i]] = st.from_rad(ang[:, a])
+    if not st.have_start:
+        st.out[:, cols] = st.from_rad(np.unwrap(st.to_rad(st.out[:, cols]), axis=0))
+    st.L[n] = Lp @ C @ _euler_matrix(order, _start_angles(st.out, c, n, st.to_rad)) @ C.T
+    st.done[:, j] = st.done[:, pj] + _mv(st.L[n], c.vec[n])
+
+
+def _twist_from_children(st: _IKState, n: str, j: int, Lb: np.ndarray) -> np.ndarray:
+    """The free twist of a 3-dof bone about its own axis, from its dof children predicted
+    with their start rotations (least squares, regularised); a hinge child (one dof)
+    fixes it in closed form instead where it can (:func:`_hinge_twist`)."""
+    c = st.comp
+    ax, ln = rot.normalize(_mv(Lb, c.vec[n]))
+    end_b = st.done[:, c.parent_joint[j]] + _mv(Lb, c.vec[n])
+    Uc, Wc = [], []
+    for ch_, path in c.dof_children[n]:
+        base = end_b + sum((_mv(Lb, c.vec[d]) for d in path), np.zeros(3))
+        uc = _mv(Lb @ st.start_local(ch_), c.vec[ch_])
+        Uc.append(uc)
+        Wc.append(st.tgt(c.joint_index[ch_], base, uc))
+    tw = rot.twist_angle(ax, np.stack(Uc, 1), np.stack(Wc, 1), reg=c.twist_reg[n])
+    tw = _hinge_twist(st, n, Lb, ax, end_b, tw)
+    return rot.axis_angle(ax, np.where(ln > 1e-12, tw, 0.0)) @ Lb
+
+
+def _hinge_twist(st: _IKState, n: str, Lb, ax, end_b, tw) -> np.ndarray:
+    """Twist angles that put the target of a direct one-dof child (knee, elbow) on the
+    cone its hinge allows: ``h(theta) . w = cos(gamma)``, solved as
+    ``A + B cos(theta) + C sin(theta) = cos(gamma)``; of the two roots the one whose
+    hinge angle lies inside the dof limits, then the one nearer ``tw`` (the estimate from
+    the start rotations; 0 without start dofs). Frames where the child is (nearly) in line
+    with the bone keep ``tw``."""
+    c = st.comp
+    hinges = [ch_ for ch_, path in c.dof_children[n] if not path and len(c.dof_axes[ch_]) == 1]
+    if not hinges:
+        return tw
+    ch_ = hinges[0]
+    e_h = np.eye(3)[c.dof_axes[ch_][0]]
+    uc = c.C[ch_].T @ c.vec[ch_]
+    cos_g = float(e_h @ uc) / max(float(np.linalg.norm(uc)), 1e-300)
+    wh, wn = rot.normalize(st.X[:, c.joint_index[ch_]] - end_b)
+    h0 = _mv(Lb, c.C[ch_] @ e_h)
+    hpar = np.sum(h0 * ax, axis=1)
+    hperp = h0 - hpar[:, None] * ax
+    A = hpar * np.sum(ax * wh, axis=1)
+    B = np.sum(hperp * wh, axis=1)
+    Cc = np.sum(np.cross(ax, hperp) * wh, axis=1)
+    rho = np.hypot(B, Cc)
+    d = np.arccos(np.clip((cos_g - A) / np.maximum(rho, 1e-300), -1.0, 1.0))
+    phi0 = np.arctan2(Cc, B)
+    ref = tw if st.have_start else np.zeros_like(tw)
+    cands = [rot.wrap_near(phi0 + d, ref), rot.wrap_near(phi0 - d, ref)]
+    score = [np.abs(t - ref) + 10.0 * ~_hinge_in_limits(st, ch_, Lb, ax, t, wh) for t in cands]
+    best = np.where(score[0] <= score[1], cands[0], cands[1])
+    usable = (rho > 0.1) & np.isfinite(best) & (wn > 1e-12)
+    return np.where(usable, best, tw)
+
+
+def _hinge_in_limits(st: _IKState, ch_: str, Lb, ax, theta, wh) -> np.ndarray:
+    """Whether the hinge angle child ``ch_`` needs after a twist ``theta`` is inside its
+    ASF limits (True where no limits are given)."""
+    c = st.comp
+    lim = next((b.get("limits") for b in c.asf["bones"] if b["name"] == ch_), None)
+    if not lim:
+        return np.ones(len(theta), bool)
+    a = c.dof_axes[ch_][0]
+    L2 = rot.axis_angle(ax, theta) @ Lb
+    t_loc = _local(L2, c.C[ch_], wh)
+    u = c.C[ch_].T @ c.vec[ch_]
+    p, q = (a + 1) % 3, (a + 2) % 3
+    phi = np.arctan2(t_loc[:, q], t_loc[:, p]) - np.arctan2(u[q], u[p])
+    deg = st.from_rad(rot.wrap_near(phi, 0.0))
+    lo, hi = lim[0]
+    return (deg >= lo - 1e-9) & (deg <= hi + 1e-9)
+
+
+def _partial_angles(st: _IKState, n: str, Lp, w, Wr, ang, ang0) -> np.ndarray:
+    """Closest representable rotation of a bone with 1 or 2 dofs (step 3): the bone
+    vector, its rigid descendants and (for a bone along one of its dof axes) its
+    children predicted with their start rotations at weight ``_CHILD_W**2``."""
+    c = st.comp
+    C, axes = c.C[n], c.dof_axes[n]
+    keep = np.zeros(3, bool)
+    keep[axes] = True
+    ang = np.where(keep, ang, 0.0)
+    Ul = [np.broadcast_to(C.T @ c.vec[n], (st.T, 3)), ]
+    Wl = [_local(Lp, C, w)]
+    for d, wd in zip(c.dofless_desc[n], Wr):
+        Ul.append(np.broadcast_to(C.T @ c.vec[d], (st.T, 3)))
+        Wl.append(_local(Lp, C, wd))
+    for ch_, path in (c.dof_children[n] if c.axis_aligned[n] else []):
+        uc = _mv(c.C[ch_] @ _euler_matrix(c.order[ch_], _start_angles(st.S, c, ch_, st.to_rad))
+                 @ c.C[ch_].T, c.vec[ch_]) @ C
+        wc = st.X[:, c.joint_index[ch_]] - st.X[:, c.joint_index[c.parent[ch_]]]
+        wc = np.where(np.isfinite(wc).all(axis=1)[:, None], _local(Lp, C, np.nan_to_num(wc)), uc)
+        Ul.append(_CHILD_W * uc)
+        Wl.append(_CHILD_W * wc)
+    return _fit_partial_fast(c.order[n], axes, np.stack(Ul, 1), np.stack(Wl, 1), ang, ang0)
+
+
+def _fit_partial_fast(order: str, axes: list[int], U: np.ndarray, W: np.ndarray, ang: np.ndarray,
+                      ang0: np.ndarray, iters: int = 4) -> np.ndarray:
+    """Angles of the present ``axes`` minimising sum_i |M(ang) u_i - w_i|^2 (other angles 0),
+    in closed form: U, W (T, n, 3) in the bone's C frame, the first pair the bone's own.
+
+    One dof: the exact single-axis optimum. Two dofs (``M = R_q(b) R_p(a)``, p applied
+    first): the two exact solutions for the own vector (:func:`_two_dof_candidates`) and
+    the start branch ``ang``; with more vectors than the own one, the better exact
+    solution and the start branch are polished by ``iters`` damped Gauss-Newton steps on
+    the whole cost (2x2 normal equations per frame). The lowest cost wins; on a tie
+    (1e-9 relative) the angles nearest the start branch. Angles are returned on the 2 pi turn nearest ``ang0``. (The dense-scan
+    reference is :func:`_fit_partial`.)
+    """
+    present = [("XYZ".index(c)) for c in order if "XYZ".index(c) in axes]
+    T = ang.shape[0]
+    out = np.zeros_like(ang)
+    if len(present) == 1:
+        a = present[0]
+        th = rot.twist_angle(np.broadcast_to(np.eye(3)[a], (T, 3)), U, W)
+        out[:, a] = rot.wrap_near(th, ang0[:, a])
+        return out
+    p, q = present
+    cands = _two_dof_candidates(p, q, U[:, 0], W[:, 0]) + [np.stack([ang[:, p], ang[:, q]], axis=1)]
+    costs = [_two_dof_cost(p, q, U, W, x) for x in cands]
+    if U.shape[1] > 1:                   # more than the own vector: polish the best exact
+        k = np.where(costs[0] <= costs[1], 0, 1)   # solution and the start branch
+        x0 = np.where(k[:, None] == 0, cands[0], cands[1])
+        cands = [_gauss_newton_two(p, q, U, W, x, iters) for x in (x0, cands[2])]
+        cands, costs = [c[0] for c in cands], [c[1] for c in cands]
+    best, best_c = cands[0], costs[0]
+    for x, cost in zip(cands[1:], costs[1:]):
+        dist = lambda y: np.sum(np.abs(rot.wrap_near(y - cands[-1], 0.0)), axis=1)
+        tie = np.abs(cost - best_c) <= 1e-9 * (1.0 + best_c)
+        take = (cost < best_c) & ~tie | tie & (dist(x) < dist(best))
+        best = np.where(take[:, None], x, best)
+        best_c = np.where(take, cost, best_c)
+    out[:, p] = rot.wrap_near(best[:, 0], ang0[:, p])
+    out[:, q] = rot.wrap_near(best[:, 1], ang0[:, q])
+    return out
+
+
+def _two_dof_cost(p: int, q: int, U: np.ndarray, W: np.ndarray, x: np.ndarray) -> np.ndarray:
+    Z = U @ np.swapaxes(axis_rotation(p, x[:, 0]), 1, 2) @ np.swapaxes(axis_rotation(q, x[:, 1]), 1, 2)
+    return np.sum((Z - W) ** 2, axis=(1, 2))
+
+
+def _plane_angle(a: int, x: np.ndarray) -> np.ndarray:
+    """Angle of x (T, 3) about axis a (measured from axis a+1 towards a+2)."""
+    return np.arctan2(x[:, (a + 2) % 3], x[:, (a + 1) % 3])
+
+
+def _two_dof_candidates(p: int, q: int, u: np.ndarray, w: np.ndarray) -> list[np.ndarray]:
+    """Both (a, b) (T, 2) with ``R_q(b) R_p(a) u`` along w: ``v = R_p(a) u`` keeps u's p
+    component and must share w's q component (w scaled to |u|), which fixes v up to the
+    sign of its third component; a and b are then plane angles."""
+    nu = np.linalg.norm(u, axis=1)
+    wn = w * (nu / np.maximum(np.linalg.norm(w, axis=1), 1e-300))[:, None]
+    r = 3 - p - q
+    s = np.sqrt(np.maximum(nu ** 2 - u[:, p] ** 2 - wn[:, q] ** 2, 0.0))
+    out = []
+    for sign in (1.0, -1.0):
+        v = np.empty_like(u)
+        v[:, p], v[:, q], v[:, r] = u[:, p], wn[:, q], sign * s
+        out.append(np.stack([_plane_angle(p, v) - _plane_angle(p, u),
+                             _plane_angle(q, wn) - _plane_angle(q, v)], axis=1))
+    return out
+
+
+def _cross_axis(a: int, Y: np.ndarray) -> np.ndarray:
+    """e_a x y for every vector of Y (..., 3)."""
+    out = np.zeros_like(Y)
+    i, j = (a + 1) % 3, (a + 2) % 3
+    out[..., i] = -Y[..., j]
+    out[..., j] = Y[..., i]
+    return out
+
+
+def _gauss_newton_two(p: int, q: int, U: np.ndarray, W: np.ndarray, x: np.ndarray, iters: int):
+    """Damped Gauss-Newton on (a, b) for sum_i |R_q(b) R_p(a) u_i - w_i|^2; returns (x, cost)."""
+    def pose(x):
+        Y = U @ np.swapaxes(axis_rotation(p, x[:, 0]), 1, 2)
+        Rq_t = np.swapaxes(axis_rotation(q, x[:, 1]), 1, 2)
+        Z = Y @ Rq_t
+        return Y, Z, Rq_t, np.sum((Z - W) ** 2, axis=(1, 2))
+
+    x = np.array(x, float)
+    Y, Z, Rq_t, cost = pose(x)
+    lam = np.full(len(x), 1e-6)
+    for _ in range(iters):
+        r = Z - W
+        dA = _cross_axis(p, Y) @ Rq_t
+        dB = _cross_axis(q, Z)
+        a11, a12, a22 = (np.sum(dA * dA, axis=(1, 2)), np.sum(dA * dB, axis=(1, 2)),
+                         np.sum(dB * dB, axis=(1, 2)))
+        g1, g2 = np.sum(dA * r, axis=(1, 2)), np.sum(dB * r, axis=(1, 2))
+        a11, a22 = a11 * (1 + lam) + 1e-12, a22 * (1 + lam) + 1e-12
+        det = a11 * a22 - a12 * a12
+        step = np.stack([-(a22 * g1 - a12 * g2) / det, -(a11 * g2 - a12 * g1) / det], axis=1)
+        xn = x + step
+        Yn, Zn, Rn, cn = pose(xn)
+        ok = cn < cost
+        x = np.where(ok[:, None], xn, x)
+        Y, Z, Rq_t = (np.where(ok[:, None, None], Yn, Y), np.where(ok[:, None, None], Zn, Z),
+                      np.where(ok[:, None, None], Rn, Rq_t))
+        cost = np.where(ok, cn, cost)
+        lam = np.where(ok, lam * 0.1, lam * 10.0)
+    return x, cost
+
+
+def _ik_pass(comp: _Compiled, target_cm: np.ndarray, f: float, angle_rad: bool,
+             start: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """One top-down pass (steps 1-3): dofs (T, D) and each frame's worst joint error (cm)."""
+    st = _IKState(comp, target_cm, f, angle_rad, start)
+    _ik_root(st)
+    for j, n in enumerate(comp.bone_order, start=1):
+        _ik_bone(st, j, n)
+    err = np.where(st.ok, np.linalg.norm(st.done - np.nan_to_num(st.X), axis=2), 0.0) * f
+    return st.out, err.max(axis=1)
+
+
+def _length_mismatch(comp: _Compiled, X: np.ndarray, f: float) -> np.ndarray:
+    """Per frame, the largest difference (cm) between a target bone length and the skeleton's."""
+    par = comp.parent_joint[1:]
+    lengths = np.array([np.linalg.norm(comp.vec[n]) for n in comp.bone_order]) * f
+    d = np.abs(np.linalg.norm(X[:, 1:] - X[:, par], axis=2) - lengths)
+    return np.max(np.where(np.isfinite(d), d, 0.0), axis=1)
+
+
+def inverse_kinematics(comp: _Compiled, target_cm: np.ndarray, f: float, angle_rad: bool,
+                       start: np.ndarray | None = None, *, refine: int = 12,
+                       refine_above_cm: float = 0.001, refine_cap_cm: float = 0.5,
+                       mismatch_factor: float = 3.0) -> np.ndarray:
+    """Dof values (T, D) (file units and angle unit) whose FK follows ``target_cm`` (T, J, 3).
+
+    Stage 1: per-bone IK in closed form, top-down, vectorised over frames (module
+    docstring of :mod:`mocapkit.io.asfamc`, steps 1-3). Stage 2 (``refine`` > 0): up to
+    ``refine`` Levenberg-Marquardt iterations on all dofs of a frame at once (analytic
+    Jacobian), only on the frames stage 1 leaves more than
+    ``min(refine_above_cm + mismatch_factor * m, refine_cap_cm)`` off, ``m`` the frame's
+    largest ``| |x_j - x_parent| - length_j |`` (the part of the error no pose can
+    remove is not chased); it only accepts steps that lower the frame's squared position
+    error. ``start`` (T, D): dofs to start from; default rest pose, with the recovered
+    angles unwrapped over time. Missing (NaN) targets are ignored (their bones keep the
+    start rotation).
+    """
+    X = np.asarray(target_cm, float)
+    out, err = _ik_pass(comp, X, f, angle_rad, start)
+    gate = np.minimum(refine_above_cm + mismatch_factor * _length_mismatch(comp, X, f), refine_cap_cm)
+    idx = np.flatnonzero(err > gate) if refine else []
+    if len(idx):
+        out[idx] = _ik_refine(comp, X[idx] / f, out[idx], angle_rad, int(refine))
+    return out
+
+
+def _ik_jacobian(comp: _Compiled, dofs: np.ndarray, P: np.ndarray, L: dict, angle_rad: bool) -> np.ndarray:
+    """d positions / d dofs, (T, 3J, D), file units per file unit (degrees when the file uses them)."""
+    T, J = P.shape[0], P.shape[1]
+    Jm = np.zeros((T, J, 3, comp.n_dofs))
+    scale = 1.0 if angle_rad else np.pi / 180.0
+    to_rad = (lambda a: a) if angle_rad else np.deg2rad
+    eye = np.eye(3)
+    for k, ch in enumerate(comp.root_order):
+        if ch[0] == "T":
+            Jm[:, :, "XYZ".index(ch[1]), k] = 1.0
+    nodes = [("root", np.broadcast_to(eye, (T, 3, 3)), P[:, 0], comp.C_root, comp.root_axis,
+              [(k, "XYZ".index(ch[1])) for k, ch in enumerate(comp.root_order) if ch[0] == "R"])]
+    for j, n in enumerate(comp.bone_order, start=1):
+        if comp.dof_axes[n]:
+            nodes.append((n, L[comp.parent[n]], P[:, comp.parent_joint[j]], comp.C[n], comp.order[n],
+                          list(zip(comp.dof_cols[n], comp.dof_axes[n]))))
+    for n, Lp, pivot, C, order, colaxes in nodes:
+        if not colaxes:
+            continue
+        ang = _start_angles(dofs, comp, n, to_rad)
+        sub = comp.subtree[n]
+        arm = P[:, sub] - pivot[:, None, :]
+        LpC = Lp @ C
+        for col, a in colaxes:
+            w = (LpC @ _after_rot(order, ang, a))[:, :, a]            # world axis (T, 3)
+            Jc = Jm[..., col]                                             # view (T, J, 3)
+            Jc[:, sub] = np.cross(w[:, None, :], arm) * scale
+    return Jm.reshape(T, 3 * J, comp.n_dofs)
+
+
+def _ik_refine(comp: _Compiled, X: np.ndarray, dofs: np.ndarray, angle_rad: bool, iters: int,
+               chunk: int = 512, tol_cm: float = 1e-6, rel_tol: float = 1e-3) -> np.ndarray:
+    """Levenberg-Marquardt polish of ``dofs`` towards targets X (file units), per frame.
+
+    Each frame has its own damping; a step is kept only if it lowers that frame's sum of
+    squared position errors; a frame leaves the active set once its error is below
+    ``tol_cm`` or a step gains less than ``rel_tol`` of it.
+    """
+    dofs = dofs.copy()
+    Wm = np.isfinite(X).all(axis=2)                                 # (T, J) usable targets
+    Xf = np.where(Wm[..., None], X, 0.0)
+    tol = (tol_cm / 5.0) ** 2
+    eye = np.eye(comp.n_dofs)
+
+    def cost_of(D, idx):
+        P, Lr = forward_kinematics(comp, D, angle_rad, 1.0, return_rotations=True)
+        r = (P - Xf[idx]) * Wm[idx][..., None]
+        return np.sum(r ** 2, axis=(1, 2)), r, P, Lr
+
+    for s in range(0, X.shape[0], chunk):
+        idx = np.arange(s, min(s + chunk, X.shape[0]))
+        D = dofs[idx]
+        cost, r, P, Lr = cost_of(D, idx)
+        lam = np.full(len(idx), 1e-3)
+        live = cost > tol
+        for _ in range(iters):
+            if not live.any():
+                break
+            k = np.flatnonzero(live)
+            Lk = {n: v[k] for n, v in Lr.items()}
+            Jm = _ik_jacobian(comp, D[k], P[k], Lk, angle_rad) * np.repeat(Wm[idx[k]], 3, axis=1)[..., None]
+            Jt = np.swapaxes(Jm, 1, 2)
+            A = Jt @ Jm                                              # batched BLAS
+            g = (Jt @ r[k].reshape(len(k), -1, 1))[..., 0]
+            diag = np.einsum("tii->ti", A)
+            step = -np.linalg.solve(A + (lam[k, None] * (diag + 1e-9))[:, :, None] * eye, g[..., None])[..., 0]
+            newc, newr, newP, newL = cost_of(D[k] + step, idx[k])
+            ok = newc < cost[k]
+            gain = np.where(ok, (cost[k] - newc) / np.maximum(cost[k], 1e-300), 0.0)
+            acc = k[ok]
+            D[acc] += step[ok]
+            cost[acc], r[acc], P[acc] = newc[ok], newr[ok], newP[ok]
+            for n in Lr:
+                Lr[n][acc] = newL[n][ok]
+            lam[k] = np.where(ok, np.maximum(lam[k] / 5, 1e-9), lam[k] * 8)
+            live[k] = np.where(ok, (newc > tol) & (gain > rel_tol), lam[k] < 1e6)
+        dofs[idx] = D
+    return dofs
