@@ -5,8 +5,9 @@ Usage: ``python benchmarks/lowrank_speed.py [--data DIR] [--frames 5000] [--repe
 The clip is CMU 135_02 (5202 frames, 31 joints = 93 coordinates, 120 fps), cut to the
 first 5000 frames and corrupted with the SLRA noise of eq. 7 in CMU units (1/3 of the
 frames); without the shared data set a bundled clip is tiled to 5000 frames.  Each method
-runs ``repeats`` times under a one-thread BLAS limit and the fastest run is reported
-(denoise() only, Motion handling included).
+runs ``repeats`` times under a one-thread BLAS limit and the median CPU time (process time,
+so other processes on a shared machine do not count) is reported (denoise() only, Motion
+handling included).
 """
 from __future__ import annotations
 
@@ -57,7 +58,7 @@ def load_clip(frames: int = 5000, data_dir: str | None = None):
 
 
 def measure(frames: int = 5000, repeats: int = 3, data_dir: str | None = None) -> tuple[str, list[dict]]:
-    """Best-of-``repeats`` frames/s per method (one BLAS thread)."""
+    """Median-of-``repeats`` CPU frames/s per method (one BLAS thread)."""
     from threadpoolctl import threadpool_limits
 
     from mocapkit import metrics
@@ -67,11 +68,12 @@ def measure(frames: int = 5000, repeats: int = 3, data_dir: str | None = None) -
     with threadpool_limits(1):
         for label, method, params in METHODS:
             d = denoise.get(method, **params)
-            best = np.inf
+            ts = []
             for _ in range(repeats):
-                t0 = time.perf_counter()
+                t0 = time.process_time()
                 est = d.denoise(noisy)
-                best = min(best, time.perf_counter() - t0)
+                ts.append(time.process_time() - t0)
+            best = float(np.median(ts))
             out.append({"method": label, "seconds": best, "frames_per_s": frames / best,
                         "fd": float(metrics.frobenius_distance(clean, est))})
     return name, out
@@ -82,9 +84,10 @@ def to_markdown(name: str, rows: list[dict], frames: int) -> str:
 
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     lines = [f"Clip {name}, first {frames} frames x 93 coordinates, eq.-7 noise on 1/3 of the "
-             f"frames (CMU units); one BLAS thread; best of 3 runs; {os.cpu_count()} CPUs, "
+             f"frames (CMU units); one BLAS thread; CPU seconds, median of 3 runs; {os.cpu_count()} CPUs, "
              f"1-min load average {load:.1f} when the table was written (the machine is "
-             f"shared: a load above the CPU count slows every number here).", "",
+             f"shared: a load above the CPU count still slows these CPU times through the "
+             f"shared caches).", "",
              "| method | seconds | frames/s | FD (CMU units) |", "|---|---:|---:|---:|"]
     for r in rows:
         lines.append(f"| {r['method']} | {r['seconds']:.3f} | {r['frames_per_s']:,.0f} | {r['fd']:.4f} |")

@@ -841,13 +841,13 @@ def rts_smoother(Y, mask=None, /, *, F, Q, R, H=None, b=None, x0=None, P0=None,
     x = np.zeros((B, n)) if x0 is None else np.broadcast_to(np.asarray(x0, float), (B, n)).copy()
     P = 1e8 * np.broadcast_to(np.eye(n), (B, n, n)).copy() if P0 is None else \
         np.broadcast_to(np.asarray(P0, float), (B, n, n)).copy()
-    Y0 = np.where(Mk, Yo, 0.0)
-    used = Mk.copy()
     if (p == 1 and n <= 2 and F.ndim == 2 and bb is None and _is_e0(H[0])
             and not return_cov):
         gt = None if gate is None else _Gate(gate, gate_groups, B, 1, gate_max_run)
-        xs, u = _rts_scalar(Y0[:, :, 0], used[:, :, 0], F, Qb, Rb[:, 0], x, P, gt)
+        xs, u = _rts_scalar(Yo[:, :, 0], Mk[:, :, 0], F, Qb, Rb[:, 0], x, P, gt)
         return xs, (u if squeeze_p else u[:, :, None])
+    Y0 = np.where(Mk, Yo, 0.0)
+    used = Mk.copy()
 
     gt = None if gate is None else _Gate(gate, gate_groups, B, p, gate_max_run)
 
@@ -1025,8 +1025,14 @@ def _rts_multi(Y0, used, F, Q, H, R, b, x, P, return_cov, tol=1e-8):
     return xs, used
 
 
-_RTS_BLOCK = 4096
-"""Frames per block of the vectorised RTS gain computation in :func:`_rts_scalar`."""
+_RTS_STORE_BYTES = 64 << 20
+"""Up to this size (48 bytes per frame and channel) :func:`_rts_scalar` keeps the filtered and
+predicted covariances of every frame; above it (e.g. 100,000 frames x 93 channels: 446 MB)
+they are recomputed block by block in the backward pass (~20 % more time, same numbers)."""
+
+_RTS_BLOCK = 1024
+"""Frames per block of the vectorised RTS gain computation in :func:`_rts_scalar` (the
+block's covariances are recomputed from a checkpoint, :func:`_rts2_backward`)."""
 
 
 def _rts_scalar(Y, M, F, Q, R, x0, P0, gt):
@@ -1049,7 +1055,7 @@ def _rts_scalar(Y, M, F, Q, R, x0, P0, gt):
             Pp[t] = P
             m = used[t]
             S = P + R
-            nu = Y[t] - x
+            nu = np.where(m, Y[t], 0.0) - x
             if gt is not None:
                 m = m & ~gt.reject(np.where(m, nu * nu / S, 0.0), m)
                 used[t] = m
@@ -1064,49 +1070,89 @@ def _rts_scalar(Y, M, F, Q, R, x0, P0, gt):
             xs[t] = xf[t] + G[t] * (xs[t + 1] - f * xf[t])
         return xs[:, :, None], used
     f00, f01, f10, f11 = (float(v) for v in F.ravel())
-    q00, q01, q11 = (np.ascontiguousarray(Q[:, i, j]) for i, j in ((0, 0), (0, 1), (1, 1)))
+    fq = (f00, f01, f10, f11) + tuple(np.ascontiguousarray(Q[:, i, j]) for i, j in ((0, 0), (0, 1), (1, 1)))
     x0_, x1_ = x0[:, 0].copy(), x0[:, 1].copy()
-    p00, p01, p11 = P0[:, 0, 0].copy(), P0[:, 0, 1].copy(), P0[:, 1, 1].copy()
-    XF = np.empty((T, 2, B)); PF = np.empty((T, 3, B)); PP = np.empty((T, 3, B))
+    pc = (P0[:, 0, 0].copy(), P0[:, 0, 1].copy(), P0[:, 1, 1].copy())
+    XF = np.empty((T, 2, B))
+    marks = {}                                   # predicted covariance at every block start
+    store = 48 * T * B <= _RTS_STORE_BYTES       # short clips: keep covariances, no recompute
+    PF, PN = (np.empty((T, 3, B)), np.empty((T, 3, B))) if store else (None, None)
     for t in range(T):
         if t > 0:
             x0_, x1_ = f00 * x0_ + f01 * x1_, f10 * x0_ + f11 * x1_
-            a = f00 * p00 + f01 * p01
-            b = f00 * p01 + f01 * p11
-            c = f10 * p00 + f11 * p01
-            e = f10 * p01 + f11 * p11
-            p00 = a * f00 + b * f01 + q00
-            p01 = a * f10 + b * f11 + q01
-            p11 = c * f10 + e * f11 + q11
-        PP[t, 0] = p00; PP[t, 1] = p01; PP[t, 2] = p11
+            pc = _cv2_predict(pc, fq)
+            if store:
+                PN[t - 1] = pc
+        if t % _RTS_BLOCK == 0:
+            marks[t] = pc
         m = used[t]
-        S = p00 + R
-        nu = Y[t] - x0_
+        S = pc[0] + R
+        nu = np.where(m, Y[t], 0.0) - x0_
         if gt is not None:
             m = m & ~gt.reject(np.where(m, nu * nu / S, 0.0), m)
             used[t] = m
         inv_s = np.where(m, 1.0 / S, 0.0)
-        k0 = p00 * inv_s
-        k1 = p01 * inv_s
-        x0_ = x0_ + k0 * nu
-        x1_ = x1_ + k1 * nu
-        p11 = p11 - k1 * p01
-        p01 = p01 - k0 * p01
-        p00 = p00 - k0 * p00
+        x0_ = x0_ + pc[0] * inv_s * nu
+        x1_ = x1_ + pc[1] * inv_s * nu
+        pc = _cv2_update(pc, inv_s)
         XF[t, 0] = x0_; XF[t, 1] = x1_
-        PF[t, 0] = p00; PF[t, 1] = p01; PF[t, 2] = p11
-    # RTS gains G = Pf Fᵀ Pp[t+1]⁻¹ vectorised over blocks of frames (no per-frame algebra);
-    # blocks of _RTS_BLOCK frames keep the ~20 temporaries at O(block x B) instead of
-    # O(T x B) (100,000 frames x 93 channels: 1.9 GB -> ~0.6 GB peak), same arithmetic.
+        if store:
+            PF[t] = pc
+    _rts2_backward(XF, used, R, fq, marks, None if PF is None else (PF, PN))
+    return np.moveaxis(XF, 1, 2), used
+
+
+def _cv2_predict(pc: tuple, fq: tuple) -> tuple:
+    """Predicted 2 x 2 covariance F P F^T + Q on (B,) components (p00, p01, p11)."""
+    p00, p01, p11 = pc
+    f00, f01, f10, f11, q00, q01, q11 = fq
+    a = f00 * p00 + f01 * p01
+    b = f00 * p01 + f01 * p11
+    c = f10 * p00 + f11 * p01
+    e = f10 * p01 + f11 * p11
+    return a * f00 + b * f01 + q00, a * f10 + b * f11 + q01, c * f10 + e * f11 + q11
+
+
+def _cv2_update(pc: tuple, inv_s: np.ndarray) -> tuple:
+    """Filtered covariance after observing the first state (gain k = P e0 / S)."""
+    p00, p01, p11 = pc
+    k0 = p00 * inv_s
+    k1 = p01 * inv_s
+    return p00 - k0 * p00, p01 - k0 * p01, p11 - k1 * p01
+
+
+def _rts2_backward(XF: np.ndarray, used: np.ndarray, R: np.ndarray, fq: tuple,
+                   marks: dict, stored: tuple | None = None) -> None:
+    """RTS backward pass of :func:`_rts_scalar`, overwriting the filtered means XF (T, 2, B)
+    with the smoothed ones.
+
+    Covariances are not stored for all frames: each block of _RTS_BLOCK frames recomputes
+    its filtered / predicted covariances from the predicted covariance saved at its start
+    (``marks``) with the same operations as the forward pass (:func:`_cv2_predict`,
+    :func:`_cv2_update`; bit-identical), then the gains G = Pf Fᵀ Pp[t+1]⁻¹ of the block
+    are formed in one vectorised step.  Memory: O(block x B) besides XF.  ``stored``
+    (PF, PN) (T, 3, B): the forward pass kept them (short clips), nothing is recomputed.
+    """
+    T, _, B = XF.shape
+    f00, f01, f10, f11 = fq[:4]
     s0, s1 = XF[-1, 0].copy(), XF[-1, 1].copy()
-    XS = np.empty((T, 2, B))
-    XS[-1, 0] = s0; XS[-1, 1] = s1
     for lo in range(((T - 2) // _RTS_BLOCK) * _RTS_BLOCK, -1, -_RTS_BLOCK):
         hi = min(lo + _RTS_BLOCK, T - 1)                 # gains for t in [lo, hi)
-        a00, a01, a11 = PF[lo:hi, 0], PF[lo:hi, 1], PF[lo:hi, 2]
+        if stored is not None:
+            PF, PN = stored[0][lo:hi], stored[1][lo:hi]
+        else:
+            PF, PN = np.empty((hi - lo, 3, B)), np.empty((hi - lo, 3, B))
+            pc = marks[lo]
+            for t in range(lo, hi):
+                S = pc[0] + R
+                pc = _cv2_update(pc, np.where(used[t], 1.0 / S, 0.0))
+                PF[t - lo] = pc
+                pc = _cv2_predict(pc, fq)
+                PN[t - lo] = pc
+        a00, a01, a11 = PF[:, 0], PF[:, 1], PF[:, 2]
         c00 = a00 * f00 + a01 * f01; c01 = a00 * f10 + a01 * f11      # Pf Fᵀ (2x2, not symmetric)
         c10 = a01 * f00 + a11 * f01; c11 = a01 * f10 + a11 * f11
-        b00, b01, b11 = PP[lo + 1:hi + 1, 0], PP[lo + 1:hi + 1, 1], PP[lo + 1:hi + 1, 2]
+        b00, b01, b11 = PN[:, 0], PN[:, 1], PN[:, 2]
         det = b00 * b11 - b01 * b01
         i00, i01, i11 = b11 / det, -b01 / det, b00 / det
         g00 = c00 * i00 + c01 * i01; g01 = c00 * i01 + c01 * i11
@@ -1120,8 +1166,7 @@ def _rts_scalar(Y, M, F, Q, R, x0, P0, gt):
             d1 = s1 - xp1[k]
             s0 = XF[t, 0] + g00[k] * d0 + g01[k] * d1
             s1 = XF[t, 1] + g10[k] * d0 + g11[k] * d1
-            XS[t, 0] = s0; XS[t, 1] = s1
-    return np.moveaxis(XS, 1, 2), used
+            XF[t, 0] = s0; XF[t, 1] = s1
 
 
 def _dense_posterior(Y, mask, *, F, Q, R, H, x0, P0, b=None):

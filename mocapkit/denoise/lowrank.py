@@ -285,11 +285,12 @@ class RPCA(Denoiser):
         D, Dmask = (lin, None) if mode == "linear" else (X, mask)
         c = _centre(D, Dmask, self.center)
         A, _, info = _lr.rpca_ialm(D - c, self.lam, Dmask, float(self.tol), int(self.max_iter),
-                                   rho=float(self.rho), return_info=True)
+                                   rho=float(self.rho), return_info=True, want_E=False)
         report_convergence(self, iterations=info["iterations"], converged=info["converged"],
                            residual=info["residual"], tol=float(self.tol),
                            max_iter=int(self.max_iter), criterion="relative residual ||D-A-E||/||D||")
-        return _finish(motion, A + c, lin, mask, bool(self.keep_observed), den=self)
+        A += c
+        return _finish(motion, A, lin, mask, bool(self.keep_observed), den=self)
 
 
 @register

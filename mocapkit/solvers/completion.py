@@ -298,76 +298,26 @@ def tsmc(X: Any, mask: Any = None, *, rank: int | str | None = None, alpha: floa
     """
     X, m = _prepare(X, mask)
     T, C = X.shape
-    if isinstance(rank, str):
-        if rank != "lsj":
-            raise MocapValueError(f"rank must be an int, None or 'lsj', got {rank!r}")
-        r = estimate_rank(X, m, rank_threshold)
-        k = int(min(np.ceil(1.1 * r), C, T))
-    elif rank is None:
-        k = min(C, T)
-    else:
-        k = int(rank)
-        if k < 1:
-            raise MocapValueError(f"rank must be >= 1, got {rank}")
-        k = min(k, C, T)
-    for nm, v in (("alpha", alpha), ("beta", beta)):
-        if v < 0:
-            raise MocapValueError(f"{nm} must be >= 0, got {v}")
+    k = _tsmc_rank(X, m, rank, rank_threshold)
+    if alpha < 0 or beta < 0:
+        raise MocapValueError(f"alpha and beta must be >= 0, got {alpha}, {beta}")
     if lam1 <= 0 or lam2 <= 0 or gamma < 1:
         raise MocapValueError("lam1, lam2 must be > 0 and gamma >= 1")
     rng = np.random.default_rng(seed)
     V = rng.random((C, k))
     V /= np.linalg.norm(V)
-    U = np.zeros((T, k))
-    E = np.zeros((T, C))
-    M = np.zeros((T, C))
     nx = np.linalg.norm(X)
     if nx == 0:
         Y = np.zeros((T, C))
-        info = {"iterations": 0, "converged": True, "criterion": 0.0, "rank": k, "E": E}
+        info = {"iterations": 0, "converged": True, "criterion": 0.0, "rank": k,
+                "E": np.zeros((T, C))}
         return (Y, info) if return_info else Y
     spec = _singular_values(X)[0]
     Y1 = X / max(spec, np.abs(X).max() / max(alpha, 1e-12))
     Y2 = Y1.copy()
-    Ik = np.eye(k)
-    miss = ~m
-    l1, l2 = float(lam1), float(lam2)
-    UV_prev = np.zeros((T, C))
-    crit = np.inf
-    it = 0
-    converged = False
-    Z = np.empty((T, C))
-    Ze = np.empty((T, C))
-    for it in range(1, int(max_iter) + 1):
-        # Z = Y1 + Y2 + l1 M + l2 (X - E)   (in place: one (T, C) buffer)
-        np.subtract(X, E, out=Z)
-        Z *= l2
-        Z += Y1
-        Z += Y2
-        Z += l1 * M
-        U = (Z @ V) @ np.linalg.inv(Ik + (l1 + l2) * (V.T @ V))             # eq. 4.9
-        V = (Z.T @ U) @ np.linalg.inv(Ik + (l1 + l2) * (U.T @ U))           # eq. 4.10
-        UV = U @ V.T
-        # E: element-wise shrinkage of Ze = X - UV + Y2 / l2 on Omega, Ze itself off Omega
-        np.subtract(X, UV, out=Ze)
-        Ze += Y2 / l2
-        E = _shrink_observed(Ze, alpha / l2, miss)                           # eq. 4.11
-        M = smooth_solve(l1 * UV - Y1, l1, beta, mstep)                      # eq. 4.13
-        R1 = M - UV
-        R2 = X - UV
-        R2 -= E
-        Y1 += l1 * R1                                                        # eq. 4.14
-        Y2 += l2 * R2
-        nuv = np.linalg.norm(UV)
-        UV_prev -= UV
-        crit = max(_rel(np.linalg.norm(R2), nx), _rel(np.linalg.norm(R1), nx),
-                   _rel(np.linalg.norm(UV_prev), nuv))
-        UV_prev = UV
-        l1 = min(gamma * l1, lam_max)
-        l2 = min(gamma * l2, lam_max)
-        if crit < tol:
-            converged = True
-            break
+    U, V, E, it, converged, crit = _tsmc_loop(
+        X, ~m, V, (Y1, Y2), (float(alpha), float(beta)),
+        (float(lam1), float(lam2), float(gamma), float(lam_max)), float(tol), int(max_iter), mstep)
     if not converged:
         _not_converged("tsmc", it, crit, tol)
     Y = U @ V.T
@@ -377,9 +327,206 @@ def tsmc(X: Any, mask: Any = None, *, rank: int | str | None = None, alpha: floa
     return Y
 
 
+def _tsmc_rank(X: np.ndarray, m: np.ndarray, rank, rank_threshold: float) -> int:
+    """Factor width k of :func:`tsmc` from its ``rank`` argument."""
+    T, C = X.shape
+    if isinstance(rank, str):
+        if rank != "lsj":
+            raise MocapValueError(f"rank must be an int, None or 'lsj', got {rank!r}")
+        r = estimate_rank(X, m, rank_threshold)
+        return int(min(np.ceil(1.1 * r), C, T))
+    if rank is None:
+        return min(C, T)
+    k = int(rank)
+    if k < 1:
+        raise MocapValueError(f"rank must be >= 1, got {rank}")
+    return min(k, C, T)
+
+
+def _tsmc_loop(X: np.ndarray, miss: np.ndarray, V: np.ndarray, mults: tuple, weights: tuple,
+               lams: tuple, tol: float, max_iter: int, mstep: str):
+    """Algorithm 2 iterations of :func:`tsmc`, in place on six (T, C) arrays.
+
+    X, E, M, Y1, Y2 and one scratch W (Z, then U V^T, then R1); as in :func:`_trnn_loop`
+    the change of U V^T comes from k x k Gram matrices and ``Y2 += l2 (X - UV - E)`` is
+    folded into the E-step (``Y2_new = l2 clip(Ze, +-alpha/l2)`` on Omega, 0 off it).
+    """
+    Y1, Y2 = mults
+    alpha, beta = weights
+    l1, l2, gamma, lam_max = lams
+    T, C = X.shape
+    k = V.shape[1]
+    Ik = np.eye(k)
+    nx = float(np.linalg.norm(X))
+    E, M, W = np.zeros((T, C)), np.zeros((T, C)), np.empty((T, C))
+    U = U_prev = np.zeros((T, k))
+    V_prev, UtU_prev = np.zeros_like(V), np.zeros((k, k))
+    crit, it, converged = np.inf, 0, False
+    for it in range(1, max_iter + 1):
+        np.subtract(X, E, out=W)                           # Z = Y1 + Y2 + l1 M + l2 (X - E)
+        W *= l2
+        W += Y1
+        W += Y2
+        M *= l1
+        W += M
+        U = (W @ V) @ np.linalg.inv(Ik + (l1 + l2) * (V.T @ V))             # eq. 4.9
+        UtU = U.T @ U
+        V = (W.T @ U) @ np.linalg.inv(Ik + (l1 + l2) * UtU)                 # eq. 4.10
+        np.matmul(U, V.T, out=W)                           # W = UV
+        np.multiply(Y2, 1.0 / l2, out=M)                   # M = Y2 / l2 (scratch)
+        np.subtract(X, W, out=E)
+        E += M                                             # E = Ze
+        thr = alpha / l2
+        np.clip(E, -thr, thr, out=Y2)
+        np.copyto(Y2, 0.0, where=miss)
+        E -= Y2                                            # eq. 4.11
+        np.subtract(Y2, M, out=M)                          # R2 = X - UV - E
+        nr2 = float(np.linalg.norm(M))
+        Y2 *= l2                                           # eq. 4.14 (Y2)
+        np.multiply(W, l1, out=M)
+        M -= Y1
+        M = _smooth_solve_inplace(M, l1, beta, mstep)                        # eq. 4.13
+        np.subtract(M, W, out=W)                           # R1 = M - UV
+        nr1 = float(np.linalg.norm(W))
+        W *= l1
+        Y1 += W                                            # eq. 4.14 (Y1)
+        duv, nuv = _factor_change(U, V, UtU, U_prev, V_prev, UtU_prev)
+        crit = max(_rel(nr2, nx), _rel(nr1, nx), _rel(duv, nuv))
+        U_prev, V_prev, UtU_prev = U, V, UtU
+        l1 = min(gamma * l1, lam_max)
+        l2 = min(gamma * l2, lam_max)
+        if crit < tol:
+            converged = True
+            break
+    return U, V, E, it, converged, crit
+
+
 # --------------------------------------------------------------------------------------
 # truncated nuclear norm (thesis Sec. 4.2)
 # --------------------------------------------------------------------------------------
+def _smooth_solve_inplace(rhs: np.ndarray, eta: float, mu: float, method: str) -> np.ndarray:
+    """:func:`smooth_solve` that may overwrite ``rhs`` (no extra (T, C) array kept)."""
+    n = rhs.shape[0]
+    if method == "banded" and n > 3:
+        from scipy.linalg import solveh_banded
+
+        d0 = np.full(n, 6.0)
+        d0[[0, -1]] = 2.0
+        d1 = np.full(n - 1, -4.0)
+        d1[[0, -1]] = -3.0
+        ab = np.zeros((3, n))
+        ab[2] = eta + mu * d0
+        ab[1, 1:] = mu * d1
+        ab[0, 2:] = mu
+        return solveh_banded(ab, rhs, overwrite_b=True, check_finite=False)
+    if method not in ("dct", "banded"):
+        raise MocapValueError(f"method must be 'dct' or 'banded', got {method!r}")
+    gamma = 1.0 / (eta + mu * dct_eigenvalues(n) ** 2)
+    y = _fft.dct(rhs, type=2, axis=0, norm="ortho", overwrite_x=True)
+    y *= gamma.reshape((n,) + (1,) * (rhs.ndim - 1))
+    return _fft.idct(y, type=2, axis=0, norm="ortho", overwrite_x=True)
+
+
+def _factor_change(A: np.ndarray, B: np.ndarray, AtA: np.ndarray, Ap: np.ndarray,
+                   Bp: np.ndarray, ApAp: np.ndarray) -> tuple[float, float]:
+    """(||A B^T - Ap Bp^T||_F, ||A B^T||_F) from k x k Gram matrices (no (T, C) array).
+
+    ``||A B^T||^2 = <A^T A, B^T B>``; the squared difference loses ~1e-16 of ``||A B^T||^2``
+    to cancellation, i.e. a relative change below ~1e-7 is not resolved (the solvers' tol
+    is 1e-4)."""
+    BtB = B.T @ B
+    n2 = float(np.sum(AtA * BtB))
+    p2 = float(np.sum(ApAp * (Bp.T @ Bp)))
+    cross = float(np.sum((A.T @ Ap) * (B.T @ Bp)))
+    return float(np.sqrt(max(n2 + p2 - 2.0 * cross, 0.0))), float(np.sqrt(max(n2, 0.0)))
+
+
+def _trnn_loop(D: np.ndarray, miss: np.ndarray, factors: tuple, mults: tuple, lam: float,
+               mu: float, eta_s: tuple, tol: float, max_iter: int, mstep: str):
+    """Algorithm 3 iterations of :func:`trnn`, in place on six (T, C) arrays.
+
+    D, S, M, Y1, Y2 (the ALM state) and one scratch; the product A B^T lives in the
+    scratch, the change of A B^T is computed from k x k Gram matrices
+    (:func:`_factor_change`), and ``Y2 += eta (D - AB - S)`` is folded into the
+    S-step (``Y2_new = eta clip(Ts, +-lam/eta)`` on Omega, 0 off it).
+    """
+    A, B, P, Q = factors
+    Y1, Y2 = mults
+    eta, rho, eta_max = eta_s
+    T, C = D.shape
+    d = B.shape[1]
+    Id = np.eye(d)
+    nd = float(np.linalg.norm(D))
+    S, M, W = np.zeros((T, C)), np.zeros((T, C)), np.empty((T, C))
+    A_prev, AtA_prev = np.zeros((T, d)), np.zeros((d, d))
+    B_prev = np.zeros_like(B)
+    crit, it, converged = np.inf, 0, False
+    for it in range(1, max_iter + 1):
+        np.add(M, D, out=W)                                # T1 - P^T Q = Y1 + Y2 + eta(M + D - S)
+        W -= S
+        W *= eta
+        W += Y1
+        W += Y2
+        A = (W @ B + P.T @ (Q @ B)) @ np.linalg.inv(Id + 2 * eta * (B.T @ B))      # (4.24)
+        AtA = A.T @ A
+        B = (W.T @ A + Q.T @ (P @ A)) @ np.linalg.inv(Id + 2 * eta * AtA)
+        np.matmul(A, B.T, out=W)                           # W = AB
+        np.multiply(Y2, 1.0 / eta, out=M)                  # M = Y2 / eta (scratch)
+        np.subtract(D, W, out=S)
+        S += M                                             # S = Ts
+        thr = lam / eta
+        np.clip(S, -thr, thr, out=Y2)
+        np.copyto(Y2, 0.0, where=miss)
+        S -= Y2                                            # soft threshold on Omega, Ts off
+        np.subtract(Y2, M, out=M)                          # R2 = D - AB - S
+        nr2 = float(np.linalg.norm(M))
+        Y2 *= eta                                          # Y2 += eta R2
+        np.multiply(W, eta, out=M)
+        M -= Y1
+        M = _smooth_solve_inplace(M, eta, mu, mstep)                                # (4.25)
+        if P.shape[0] > 0:
+            P = _orth_max(A @ (Q @ B).T)                   # (4.26)
+            Q = _orth_max(B @ (P @ A).T)
+        np.subtract(M, W, out=W)                           # R1 = M - AB
+        nr1 = float(np.linalg.norm(W))
+        W *= eta
+        Y1 += W
+        dab, nab = _factor_change(A, B, AtA, A_prev, B_prev, AtA_prev)
+        crit = max(_rel(nr2, nd), _rel(nr1, nd), _rel(dab, nab))
+        A_prev, B_prev, AtA_prev = A, B, AtA
+        eta = min(rho * eta, eta_max)
+        if crit < tol:
+            converged = True
+            break
+    return A, B, S, it, converged, crit
+
+
+def _trnn_width(Xlin: np.ndarray, d, r: int, rank_threshold: float) -> int:
+    """Factor width d of :func:`trnn` from its ``d`` argument (Sec. 4.2.3)."""
+    T, C = Xlin.shape
+    n_small = min(T, C)
+    if isinstance(d, str):
+        if d != "lsj":
+            raise MocapValueError(f"d must be an int, None or 'lsj', got {d!r}")
+        rk = estimate_rank(Xlin, None, rank_threshold)
+        d = max(int(min(round(1.2 * rk), C, T)), min(r + 1, n_small))
+    elif d is None:
+        d = n_small
+    return int(min(max(int(d), 1), n_small))
+
+
+def _trnn_pq(Xlin: np.ndarray, r: int) -> tuple[np.ndarray, np.ndarray]:
+    """P (r, T), Q (r, C) of :func:`trnn`: top-r singular vectors of the interpolated data."""
+    T, C = Xlin.shape
+    if r == 0:
+        return np.zeros((0, T)), np.zeros((0, C))
+    _, Vg = _linalg.eigh(Xlin.T @ Xlin, what="trnn")
+    Vr = Vg[:, ::-1][:, :r]                               # (C, r)
+    Ur = Xlin @ Vr
+    Ur /= np.maximum(np.linalg.norm(Ur, axis=0, keepdims=True), 1e-300)
+    return Ur.T, Vr.T
+
+
 def _orth_max(N: np.ndarray) -> np.ndarray:
     """argmax_W tr(W N) s.t. W W^T = I (thesis Appendix Lemma 1): W = Q P^T, N = P S Q^T."""
     P, _, Qt = _linalg.svd(N, full_matrices=False, what="trnn")
@@ -433,18 +580,9 @@ def trnn(X: Any, mask: Any = None, *, r: int = 15, d: int | str | None = None, l
     """
     X, m = _prepare(X, mask)
     T, C = X.shape
-    n_small = min(T, C)
-    r = int(min(max(int(r), 0), n_small))
+    r = int(min(max(int(r), 0), T, C))
     Xlin = X if m.all() else _linear_fill(np.where(m, X, np.nan), m)
-    if isinstance(d, str):
-        if d != "lsj":
-            raise MocapValueError(f"d must be an int, None or 'lsj', got {d!r}")
-        rk = estimate_rank(Xlin, None, rank_threshold)
-        d = int(min(round(1.2 * rk), C, T))
-        d = max(d, min(r + 1, n_small))
-    elif d is None:
-        d = n_small
-    d = int(min(max(int(d), 1), n_small))
+    d = _trnn_width(Xlin, d, r, rank_threshold)
     r = min(r, d)
     if lam is None:
         lam = 100.0 / np.sqrt(max(T, C))
@@ -458,63 +596,17 @@ def trnn(X: Any, mask: Any = None, *, r: int = 15, d: int | str | None = None, l
                 "S": np.zeros((T, C))}
         return (Z, info) if return_info else Z
     rng = np.random.default_rng(seed)
-    A = np.zeros((T, d))
+    A = np.zeros((0, d))                                 # replaced in the first iteration
     B = rng.standard_normal((C, d))
     B /= np.linalg.norm(B)
-    S = np.zeros((T, C))
-    M = np.zeros((T, C))
     spec = _singular_values(D)[0]
     Y1 = D / max(spec, np.abs(D).max() / max(lam, 1e-12))
     Y2 = Y1.copy()
-    # P, Q from the top-r singular vectors of the interpolated data
-    if r > 0:
-        G = Xlin.T @ Xlin
-        w, Vg = _linalg.eigh(G, what="trnn")
-        Vr = Vg[:, ::-1][:, :r]                               # (C, r)
-        Ur = Xlin @ Vr
-        Ur /= np.maximum(np.linalg.norm(Ur, axis=0, keepdims=True), 1e-300)
-        P, Q = Ur.T, Vr.T                                     # (r, T), (r, C)
-    else:
-        P, Q = np.zeros((0, T)), np.zeros((0, C))
-    Id = np.eye(d)
-    miss = ~m
-    AB_prev = np.zeros((T, C))
-    crit = np.inf
-    it = 0
-    converged = False
-    Trest = np.empty((T, C))
-    Ts = np.empty((T, C))
-    for it in range(1, int(max_iter) + 1):
-        # Trest = Y1 + Y2 + eta (M + D - S); T1 = P^T Q + Trest is never formed
-        np.add(M, D, out=Trest)
-        Trest -= S
-        Trest *= eta
-        Trest += Y1
-        Trest += Y2
-        A = (Trest @ B + P.T @ (Q @ B)) @ np.linalg.inv(Id + 2 * eta * (B.T @ B))    # (4.24)
-        B = (Trest.T @ A + Q.T @ (P @ A)) @ np.linalg.inv(Id + 2 * eta * (A.T @ A))
-        AB = A @ B.T
-        np.subtract(D, AB, out=Ts)
-        Ts += Y2 / eta
-        S = _shrink_observed(Ts, lam / eta, miss)
-        M = smooth_solve(eta * AB - Y1, eta, mu, mstep)                               # (4.25)
-        if r > 0:
-            P = _orth_max(A @ (Q @ B).T)                      # (T, r) -> P (r, T)  (4.26)
-            Q = _orth_max(B @ (P @ A).T)                      # (C, r) -> Q (r, C)
-        R1 = M - AB
-        R2 = D - AB
-        R2 -= S
-        Y1 += eta * R1
-        Y2 += eta * R2
-        nab = np.linalg.norm(AB)
-        AB_prev -= AB
-        crit = max(_rel(np.linalg.norm(R2), nd), _rel(np.linalg.norm(R1), nd),
-                   _rel(np.linalg.norm(AB_prev), nab))
-        AB_prev = AB
-        eta = min(rho * eta, eta_max)
-        if crit < tol:
-            converged = True
-            break
+    P, Q = _trnn_pq(Xlin, r)
+    del Xlin
+    A, B, S, it, converged, crit = _trnn_loop(D, ~m, (A, B, P, Q), (Y1, Y2), float(lam),
+                                              float(mu), (float(eta), float(rho), float(eta_max)),
+                                              float(tol), int(max_iter), mstep)
     if not converged:
         _not_converged("trnn", it, crit, tol)
     Xhat = A @ B.T

@@ -312,11 +312,9 @@ def svt(X: Any, mask: Any = None, tau: float | None = None, delta: float | None 
     its name, fit_ratio = ``||P_Omega(A - X)||_F / eps`` for eps > 0 (must end <= 1.001), else 0).
     Initial "kicking" ``Y_0 = k_0 delta P_Omega(X)`` with ``k_0 = ceil(tau / (delta
     ||P_Omega X||_2))`` (Sec. 5.1.1) skips the first iterations that return 0.
-    Divergence guard (ours): Cai et al.'s default step exceeds their convergence bound
-    delta < 2 once 40 % of the entries are missing; when the residual ``||P_Omega(X -
-    A)||`` leaves ``(2 + 2 delta) ||P_Omega X||`` (or is not finite) the step is halved and
-    the iteration restarts (``restarts`` and the final ``delta`` in the info dict), so
-    a heavily masked matrix never overflows.
+    Divergence guard (ours): when ``||P_Omega(X - A)||`` leaves ``(2 + 2 delta) ||P_Omega
+    X||`` the step is halved and the iteration restarts (``restarts``, final ``delta`` in
+    the info dict).  Cost with missing entries: max_iter iterations of :func:`_svt_loop`.
     """
     X, mask = _prepare(X, mask)
     m, n = X.shape
@@ -338,32 +336,50 @@ def svt(X: Any, mask: Any = None, tau: float | None = None, delta: float | None 
 
     if mask is None and method == "auto":
         A = _svt_full(X, tau, eps)
-        if return_info:
-            return A, {"iterations": 0, "converged": True,
-                       "rank": _rank(A), "restarts": 0, "delta": delta,
-                       "residual": 0.0, "criterion": "closed form"}
-        return A
+        return (A, {"iterations": 0, "converged": True, "rank": _rank(A), "restarts": 0,
+                    "delta": delta, "residual": 0.0, "criterion": "closed form"}
+                ) if return_info else A
     if method not in ("auto", "iterative"):
         raise MocapValueError(f"method must be 'auto' or 'iterative', got {method!r}")
 
-    def P(Z: np.ndarray) -> np.ndarray:
-        return Z if mask is None else np.where(mask, Z, 0.0)
+    A, it, converged, rank, crit, fit, restarts, delta = _svt_loop(
+        X, None if mask is None else ~mask, tau, delta, eps, tol, max_iter, _use_gram(m, n, svd),
+        normX)
+    if return_info:
+        return A, {"iterations": it, "converged": converged, "rank": int(rank),
+                   "residual": float(crit), "fit_ratio": float(fit), "restarts": restarts,
+                   "delta": float(delta),
+                   "criterion": ("relative residual ||P(X - A)|| / ||P X||" if eps == 0.0
+                                 else "relative change of A")}
+    return A
 
+
+def _svt_loop(X: np.ndarray, miss: np.ndarray | None, tau: float, delta: float, eps: float,
+              tol: float, max_iter: int, gram: bool, normX: float) -> tuple:
+    """The SVT iteration of :func:`svt` (Cai et al. 2010, eqs. 1.5 / 3.13), in place.
+
+    Four (m, n) arrays besides X (Y, A, A_new, R).  Y stays zero off Omega by
+    construction (Y_0 = k_0 delta P(X), and every update adds P(.) or scales), so the
+    projection P(Y) of eq. 3.13 is not applied again.  Returns (A, iterations, converged,
+    rank, criterion, fit ratio, restarts, final delta).
+    """
     spec = float(_spectral_norm(X))
+    Y, A, An, R = np.empty_like(X), np.zeros_like(X), np.empty_like(X), np.empty_like(X)
 
-    def start(step: float) -> tuple[np.ndarray, float]:
+    def start(step: float) -> float:
         k0 = int(np.ceil(tau / (step * spec))) if tau > 0 and spec > 0 else 1
-        Y0 = k0 * step * X
-        return Y0, (float(np.linalg.norm(Y0)) if eps > 0 else 0.0)
+        np.multiply(X, k0 * step, out=Y)
+        return float(np.linalg.norm(Y)) if eps > 0 else 0.0
 
-    Y, s = start(delta)
-    A = np.zeros_like(X)
-    converged, it, rank, crit, fit = False, 0, 0, float("inf"), 0.0
-    restarts = 0
+    s = start(delta)
+    converged, it, rank, crit, fit, restarts = False, 0, 0, float("inf"), 0.0, 0
+    taus = np.array([tau])
     for it in range(1, max_iter + 1):
-        A_new, rank = shrink_singular_values(Y, tau, svd)
-        R = P(X - A_new)
-        res = float(np.linalg.norm(R))
+        rank = int(_shrink_into(Y[None], taus, An[None], gram)[0])
+        np.subtract(X, An, out=R)
+        if miss is not None:
+            np.copyto(R, 0.0, where=miss)
+        res = float(np.sqrt(np.vdot(R, R)))
         if not (np.isfinite(res) and res <= (2.0 + 2.0 * delta) * normX):
             # diverging: Cai et al. prove convergence for 0 < delta < 2 only, and their
             # 1.2 m n / |Omega| exceeds that once 40 % of the entries are missing (24 at
@@ -372,34 +388,37 @@ def svt(X: Any, mask: Any = None, tau: float | None = None, delta: float | None 
                 raise MocapValueError(f"svt diverged (step delta reduced to {delta:.3g})")
             restarts += 1
             delta *= 0.5
-            Y, s = start(delta)
-            A = np.zeros_like(X)
+            s = start(delta)
+            A[...] = 0.0
             crit = float("inf")
             continue
         if eps == 0.0:
-            A = A_new
+            A, An = An, A
             crit = res / normX
             if crit < tol:
                 converged = True
                 break
-            Y = Y + delta * R
-        else:
-            change = float(np.linalg.norm(A_new - A)) / max(float(np.linalg.norm(A_new)), 1e-300)
-            A = A_new
-            crit = change if it > 1 else float("inf")
-            fit = res / eps
-            if it > 1 and change < tol and res <= eps * (1 + 1e-3):
-                converged = True
-                break
-            Y, s = _proj_soc(Y + delta * R, s - delta * eps)
-            Y = P(Y)
-    if return_info:
-        return A, {"iterations": it, "converged": converged, "rank": int(rank),
-                   "residual": float(crit), "fit_ratio": float(fit), "restarts": restarts,
-                   "delta": float(delta),
-                   "criterion": ("relative residual ||P(X - A)|| / ||P X||" if eps == 0.0
-                                 else "relative change of A")}
-    return A
+            R *= delta
+            Y += R
+            continue
+        nA = float(np.sqrt(np.vdot(An, An)))
+        A -= An
+        change = float(np.sqrt(np.vdot(A, A))) / max(nA, 1e-300)
+        A, An = An, A
+        crit = change if it > 1 else float("inf")
+        fit = res / eps
+        if it > 1 and change < tol and res <= eps * (1 + 1e-3):
+            converged = True
+            break
+        R *= delta
+        Y += R                                             # Y + delta P(X - A)
+        s -= delta * eps
+        ny = float(np.sqrt(np.vdot(Y, Y)))                 # projection on the cone (Sec. 3.3)
+        if ny > s:
+            c = 0.0 if ny <= -s else (ny + s) / (2 * ny)
+            Y *= c
+            s = c * ny
+    return A, it, converged, rank, crit, fit, restarts, delta
 
 
 def _rank(A: np.ndarray) -> int:
@@ -434,9 +453,148 @@ def _svt_full(X: np.ndarray, tau: float, eps: float) -> np.ndarray:
 # --------------------------------------------------------------------------------------
 # robust PCA by inexact ALM (Lin, Chen & Ma 2010)
 # --------------------------------------------------------------------------------------
+CHUNK_ELEMENTS = 1 << 17
+"""Matrices of a stack solved together per IALM chunk: as many as fit in ~131k entries
+(1 MB per working array, so the five arrays of a chunk stay in the L2/L3 cache; a stack of
+500 segments at once ran 1.8x slower per frame and needed 20x the input in memory)."""
+
+
+def _shrink_into(M: np.ndarray, tau: np.ndarray, out: np.ndarray, gram: bool) -> np.ndarray:
+    """``out = D_tau(M)`` for a stack (c, m, n), writing into ``out`` (no other big array).
+
+    Returns the rank (number of singular values above tau) per matrix.
+    Gram route: eigh of the small Gram matrix, then the cheaper of ``M (V_k f V_k^T)`` and
+    ``(M V_k) (f V_k^T)`` with only the k columns whose singular value exceeds tau (k =
+    the largest rank in the chunk) -- the same product as :func:`shrink_singular_values`.
+    """
+    if not gram:
+        out[...], rank = shrink_singular_values(M, tau, "lapack")
+        return rank
+    c, m, n = M.shape
+    right = m >= n
+    Mt = np.swapaxes(M, -1, -2)
+    if c == 1:                                          # 2-D product: numpy uses syrk
+        G = (Mt[0] @ M[0] if right else M[0] @ Mt[0])[None]
+    else:
+        G = Mt @ M if right else M @ Mt
+    w, V = _linalg.eigh(G, what="singular value shrinkage")
+    s = np.sqrt(np.clip(w, 0.0, None))
+    t = tau[:, None]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        f = np.where(s > t, 1.0 - t / np.where(s > 0, s, 1.0), 0.0)
+    rank = (f > 0).sum(axis=-1)
+    k = int(rank.max())
+    if k == 0:
+        out[...] = 0.0
+        return rank
+    Vk, fk = V[..., -k:], f[:, None, -k:]
+    Vkt = np.swapaxes(Vk, -1, -2)
+    q, r = (n, m) if right else (m, n)                 # q = side of V, r = the other side
+    if 4 * r * q * k < 2 * r * q * q + 2 * q * q * k:   # low-rank product is cheaper
+        if right:
+            np.matmul(M @ Vk * fk, Vkt, out=out)
+        else:
+            np.matmul(Vk * fk, Vkt @ M, out=out)
+    else:
+        K = (Vk * fk) @ Vkt
+        np.matmul(M, K, out=out) if right else np.matmul(K, M, out=out)
+    return rank
+
+
+def _ialm_start(D: np.ndarray, lam: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Lin et al.'s start per matrix: ||D||_F, Y_0, mu_0, mu_bar (Alg. 5, step 1)."""
+    normF = np.sqrt(np.einsum("ijk,ijk->i", D, D))
+    norm2 = _spectral_norm(D)
+    safe2 = np.where(norm2 > 0, norm2, 1.0)
+    lam_s = lam if lam.ndim == 1 else lam.min(axis=(1, 2))      # per-entry weights allowed
+    norm_inf = np.maximum(D.max(axis=(1, 2)), -D.min(axis=(1, 2))) / lam_s   # no |D| copy
+    Y = D / np.maximum(safe2, norm_inf)[:, None, None]
+    mu = 1.25 / safe2
+    return normF, Y, mu, mu * 1e7
+
+
+def _ialm_chunk(D: np.ndarray, mask: np.ndarray | None, lam: np.ndarray, tol: float,
+                max_iter: int, rho: float, gram: bool, A_out: np.ndarray,
+                E_out: np.ndarray | None, iters: np.ndarray, conv: np.ndarray,
+                crit: np.ndarray) -> None:
+    """IALM on one chunk (c, m, n); results into A_out / E_out / iters / conv / crit (c,).
+
+    Five working arrays of the chunk's size (D, E, Y, M, A_new), all updated in place; a
+    matrix leaves the working set (and is written out) in the iteration where it meets
+    ``tol`` -- each matrix stops at its own tolerance, exactly as if solved alone.
+    """
+    normF, Y, mu, bar = _ialm_start(D, lam)
+    run = np.flatnonzero(normF > 0)
+    A_out[normF == 0] = 0.0
+    if E_out is not None:
+        E_out[normF == 0] = 0.0
+    conv[:] = normF == 0
+    crit[:] = np.where(conv, 0.0, np.inf)
+    iters[:] = 0
+    if run.size == D.shape[0]:                             # no copies of D and Y
+        Dw, Yw, Mw = D, Y, None if mask is None else ~mask
+    else:
+        Dw, Yw, Mw = D[run], Y[run], None if mask is None else ~mask[run]
+    mu, bar, nF, lam_w = mu[run], bar[run], normF[run], lam[run]
+    one = D.shape[0] == 1 == run.size and A_out.flags.c_contiguous   # whole-clip rpca:
+    Abuf = A_out if one else np.empty_like(Dw)                       # work in the outputs
+    if one and E_out is not None and E_out.flags.c_contiguous:
+        E = E_out
+        E[...] = 0.0
+    else:
+        E = np.zeros_like(Dw)
+    Mbuf = np.empty_like(Dw)
+    for it in range(1, max_iter + 1):
+        if run.size == 0:
+            break
+        c = run.size
+        M, An = Mbuf[:c], Abuf[:c]
+        inv_mu = 1.0 / mu
+        np.multiply(Yw, inv_mu[:, None, None], out=M)      # M = D - E + Y / mu
+        M += Dw
+        M -= E
+        _shrink_into(M, inv_mu, An, gram)                  # eq. 4
+        M += E                                             # R = D - A + Y / mu
+        M -= An
+        thr = (lam_w[:, None, None] if lam_w.ndim == 1 else lam_w) * inv_mu[:, None, None]
+        np.clip(M, -thr, thr, out=E)                       # soft threshold, eqs. 5-6
+        np.subtract(M, E, out=E)
+        if Mw is not None:
+            np.copyto(E, M, where=Mw)                      # unobserved: E absorbs all
+        np.subtract(Dw, An, out=M)                         # Z = D - A - E
+        M -= E
+        cr = np.sqrt(np.einsum("ijk,ijk->i", M, M)) / nF
+        M *= mu[:, None, None]
+        Yw += M
+        mu = np.minimum(mu * rho, bar)
+        iters[run] += 1
+        crit[run] = cr
+        done = cr < tol
+        conv[run[done]] = True
+        if it == max_iter:
+            done[:] = True
+        if done.any():
+            if not one:                                    # else An already is A_out
+                A_out[run[done]] = An[done]
+            if E_out is not None and E is not E_out:
+                E_out[run[done]] = E[done]
+            keep = ~done
+            run, Dw, Yw, E, mu, bar, nF, lam_w = (run[keep], Dw[keep], Yw[keep], E[keep],
+                                                   mu[keep], bar[keep], nF[keep], lam_w[keep])
+            Mw = None if Mw is None else Mw[keep]
+    if max_iter < 1:
+        A_out[run] = 0.0
+        if E_out is not None:
+            E_out[run] = 0.0
+
+
+def _chunk_size(m: int, n: int) -> int:
+    return max(1, CHUNK_ELEMENTS // max(m * n, 1))
+
+
 def _ialm_batch(D: np.ndarray, mask: np.ndarray | None, lam: np.ndarray, tol: float,
-                max_iter: int, rho: float, svd: str, crit_out: np.ndarray | None = None
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+                max_iter: int, rho: float, svd: str, crit_out: np.ndarray | None = None,
+                want_E: bool = True) -> tuple[np.ndarray, np.ndarray | None, np.ndarray, np.ndarray]:
     """Inexact ALM (Lin et al. 2010, Alg. 5) on a stack D (p, m, n); unobserved D entries are 0.
 
     ``lam`` is one weight per matrix (p,) or one per entry (p, m, n) (weighted l1 norm).
@@ -444,79 +602,32 @@ def _ialm_batch(D: np.ndarray, mask: np.ndarray | None, lam: np.ndarray, tol: fl
     Per matrix: Y_0 = D / max(||D||_2, ||D||_inf / lambda), mu_0 = 1.25 / ||D||_2,
     mu_bar = 1e7 mu_0, mu_{k+1} = min(rho mu_k, mu_bar).  With a mask, E is unconstrained
     (not penalised) on unobserved entries, i.e. the constraint is P_Omega(A + E) = P_Omega(D)
-    and Y stays 0 there.  A matrix stops updating once ``||D - A - E||_F / ||D||_F < tol``;
-    the batch is compacted when fewer than half of its matrices are still running.
+    and Y stays 0 there.  A matrix stops updating once ``||D - A - E||_F / ||D||_F < tol``.
+    The stack is solved in chunks of :data:`CHUNK_ELEMENTS` entries (:func:`_ialm_chunk`),
+    so the working memory is five chunk-sized arrays whatever p is.
     ``crit_out`` (optional, shape (p,)) receives each matrix's last relative residual
     ``||D - A - E||_F / ||D||_F`` (0 for an all-zero matrix, inf if never iterated).
+    ``want_E=False`` returns None for E (saves one array of D's size).
     """
-    p = D.shape[0]
-    normF = np.linalg.norm(D, axis=(1, 2))
-    norm2 = _spectral_norm(D)
-    safe2 = np.where(norm2 > 0, norm2, 1.0)
-    lam_s = lam if lam.ndim == 1 else lam.min(axis=(1, 2))      # per-entry weights allowed
-    norm_inf = np.abs(D).max(axis=(1, 2)) / lam_s
-    Y = D / np.maximum(safe2, norm_inf)[:, None, None]
-    mu = 1.25 / safe2
-    mu_bar = mu * 1e7
-    A = np.zeros_like(D)
-    E = np.zeros_like(D)
+    p, m, n = D.shape
+    gram = _use_gram(m, n, svd)
+    A = np.empty_like(D)
+    E = np.empty_like(D) if want_E else None
     iters = np.zeros(p, dtype=int)
-    converged = normF == 0
-    if crit_out is not None:
-        crit_out[...] = np.where(converged, 0.0, np.inf)
-    run = ~converged                       # still iterating (within the current working set)
-    idx = np.arange(p)                     # working set: indices into the full batch
-    Dw, Mw, Aw, Ew, Yw = D, mask, A, E, Y
-    lam_w, mu_w, bar_w, nF_w = lam, mu, mu_bar, np.where(normF > 0, normF, 1.0)
-    for _ in range(max_iter):
-        if not run.any():
-            break
-        if run.sum() * 2 < len(idx):       # compact: write back, keep the running ones
-            A[idx], E[idx], Y[idx], mu[idx] = Aw, Ew, Yw, mu_w
-            keep = np.flatnonzero(run)
-            idx = idx[keep]
-            Dw, Aw, Ew, Yw = D[idx], Aw[keep], Ew[keep], Yw[keep]
-            Mw = None if mask is None else mask[idx]
-            lam_w, mu_w, bar_w, nF_w = lam[idx], mu_w[keep], mu_bar[idx], nF_w[keep]
-            run = np.ones(len(idx), dtype=bool)
-        inv_mu = (1.0 / mu_w)[:, None, None]
-        Ym = Yw * inv_mu                                   # Y / mu
-        M = Dw - Ew
-        M += Ym
-        A_new, _ = shrink_singular_values(M, inv_mu[:, 0, 0], svd)     # eq. 4
-        R = Dw - A_new
-        R += Ym
-        thr = (lam_w[:, None, None] if lam_w.ndim == 1 else lam_w) * inv_mu
-        E_new = R - np.clip(R, -thr, thr)                  # soft threshold, eqs. 5-6
-        if Mw is not None:
-            np.copyto(E_new, R, where=~Mw)                 # unobserved: E absorbs all
-        Z = R                                              # D - A - E = R - E - Y/mu
-        Z -= E_new
-        Z -= Ym
-        crit = np.sqrt(np.einsum("ijk,ijk->i", Z, Z)) / nF_w
-        Z *= mu_w[:, None, None]
-        if run.all():
-            Aw, Ew = A_new, E_new
-            Yw += Z
-        else:
-            r = run
-            Aw[r], Ew[r] = A_new[r], E_new[r]
-            Yw[r] += Z[r]
-        mu_w = np.where(run, np.minimum(mu_w * rho, bar_w), mu_w)
-        iters[idx[run]] += 1
-        if crit_out is not None:
-            crit_out[idx[run]] = crit[run]
-        done = run & (crit < tol)
-        converged[idx[done]] = True
-        run &= ~done
-    A[idx], E[idx], Y[idx] = Aw, Ew, Yw
-    return A, E, iters, converged
+    conv = np.zeros(p, dtype=bool)
+    crit = np.empty(p) if crit_out is None else crit_out
+    cs = _chunk_size(m, n)
+    for a in range(0, p, cs):
+        sl = slice(a, min(a + cs, p))
+        _ialm_chunk(D[sl], None if mask is None else mask[sl], lam[sl], tol, max_iter, rho,
+                    gram, A[sl], None if E is None else E[sl], iters[sl], conv[sl], crit[sl])
+    return A, E, iters, conv
 
 
 @_single_thread
 def rpca_ialm(D: Any, lam: float | None = None, mask: Any = None, tol: float = 1e-7,
               max_iter: int = 500, *, rho: float = 1.5, svd: str = "auto",
-              return_info: bool = False):
+              return_info: bool = False, want_E: bool = True):
     """Robust PCA ``min ||A||_* + lam ||E||_1  s.t.  A + E = D`` by inexact ALM.
 
     Candes et al. (2011) principal component pursuit, solved with Lin, Chen & Ma (2010)
@@ -537,7 +648,8 @@ def rpca_ialm(D: Any, lam: float | None = None, mask: Any = None, tol: float = 1
     A, E : low-rank and sparse parts (same shape as D; on unobserved entries E = -A is
     meaningless and A is the completion).  With ``return_info`` also a dict with
     ``iterations``, ``converged`` and ``residual`` (the final ``||D - A - E||_F / ||D||_F``
-    compared with ``tol``; arrays of length p for a stack, else scalars).
+    compared with ``tol``; arrays of length p for a stack, else scalars).  ``want_E=False``
+    returns None for E (one array of D's size less).
     """
     D, mask = _prepare(D, mask, "D", batch=True)
     single = D.ndim == 2
@@ -554,9 +666,10 @@ def rpca_ialm(D: Any, lam: float | None = None, mask: Any = None, tol: float = 1
         raise MocapValueError(f"rho must be > 1, got {rho}")
     crit = np.empty(D.shape[0])
     A, E, iters, conv = _ialm_batch(D, mask, np.full(D.shape[0], lam), float(tol), int(max_iter),
-                                    float(rho), svd, crit_out=crit)
+                                    float(rho), svd, crit_out=crit, want_E=bool(want_E))
     if single:
-        A, E, iters, conv, crit = A[0], E[0], int(iters[0]), bool(conv[0]), float(crit[0])
+        A, iters, conv, crit = A[0], int(iters[0]), bool(conv[0]), float(crit[0])
+        E = None if E is None else E[0]
     if return_info:
         return A, E, {"iterations": iters, "converged": conv, "residual": crit}
     return A, E
@@ -658,41 +771,71 @@ def slra(D: Any, segment: int = 200, overlap: int = 0, *, n_segments: int | None
     if not (rho > 1):
         raise MocapValueError(f"rho must be > 1, got {rho}")
     starts, stops = segment_layout(m, segment, overlap, n_segments)
-    lengths = stops - starts
+    p = len(starts)
     weights = _blend_weights(starts, stops)
     A = np.zeros_like(D)
-    wsum = np.zeros(m)
-    iters = np.zeros(len(starts), dtype=int)
-    conv = np.zeros(len(starts), dtype=bool)
-    resid = np.zeros(len(starts))
-    for L in np.unique(lengths):
-        seg = np.flatnonzero(lengths == L)
-        rows = starts[seg][:, None] + np.arange(L)            # (g, L)
-        Db = D[rows]                                          # (g, L, n)
-        Mb = None if mask is None else mask[rows]
-        if center != "none":
-            c = _segment_centre(Db, Mb, center)               # (g, 1, n)
-            Db = Db - c
-            if Mb is not None:
-                Db = np.where(Mb, Db, 0.0)
-        seg_lam = np.full(len(seg), 1.0 / np.sqrt(max(L, n)) if lam is None else float(lam))
-        crit = np.empty(len(seg))
-        Ab, _, it, cv = _ialm_batch(Db, Mb, seg_lam, float(tol), int(max_iter), float(rho), svd,
-                                    crit_out=crit)
-        if center != "none":
-            Ab = Ab + c
-        w = np.stack([weights[i] for i in seg])               # (g, L)
-        np.add.at(A, rows.ravel(), (Ab * w[..., None]).reshape(-1, n))
-        np.add.at(wsum, rows.ravel(), w.ravel())
-        iters[seg], conv[seg], resid[seg] = it, cv, crit
+    iters, conv, resid = np.zeros(p, dtype=int), np.zeros(p, dtype=bool), np.zeros(p)
+    for seg in _segment_chunks(starts, stops, D.shape[1]):
+        _slra_chunk(D, mask, seg, starts, stops, weights, A, lam, center,
+                    (float(tol), int(max_iter), float(rho), svd), (iters, conv, resid))
+    lengths = stops - starts
+    all_rows = np.repeat(starts - np.cumsum(lengths) + lengths, lengths) + np.arange(lengths.sum())
+    wsum = np.bincount(all_rows, weights=np.concatenate(weights), minlength=m)
     A /= wsum[:, None]
-    E = D - A
+    E = D                                                 # D is our copy: E = D - A in place
+    E -= A
     if mask is not None:
         E[~mask] = 0.0
     if return_info:
         return A, E, {"starts": starts, "stops": stops, "iterations": iters, "converged": conv,
                       "residual": resid}
     return A, E
+
+
+def _segment_chunks(starts: np.ndarray, stops: np.ndarray, n: int) -> list[np.ndarray]:
+    """Segment indices grouped by length, then cut into IALM chunks (:func:`_chunk_size`).
+
+    Within a chunk no two segments share a frame (with overlap a chunk takes every q-th
+    segment), so the blended results can be added with one fancy-indexed ``+=``.
+    """
+    lengths = stops - starts
+    out = []
+    for L in np.unique(lengths):
+        seg = np.flatnonzero(lengths == L)
+        cs = _chunk_size(int(L), n)
+        q = 1                                 # classes i mod q share no frame
+        while q < len(seg) and bool((stops[seg[:-q]] > starts[seg[q:]]).any()):
+            q += 1
+        for r in range(q):
+            g = seg[r::q]
+            out.extend(g[i:i + cs] for i in range(0, len(g), cs))
+    return out
+
+
+def _slra_chunk(D: np.ndarray, mask: np.ndarray | None, seg: np.ndarray, starts: np.ndarray,
+                stops: np.ndarray, weights: list[np.ndarray], A: np.ndarray, lam: float | None,
+                center: str, settings: tuple, info: tuple) -> None:
+    """IALM of the segments ``seg`` (equal length, no shared frame); A[rows] += w A_i."""
+    L, n = int(stops[seg[0]] - starts[seg[0]]), D.shape[1]
+    rows = (starts[seg][:, None] + np.arange(L)).ravel()
+    Db = D[rows].reshape(len(seg), L, n)                   # gathered copy (chunk only)
+    Mb = None if mask is None else mask[rows].reshape(len(seg), L, n)
+    if center != "none":
+        c = _segment_centre(Db, Mb, center)                # (g, 1, n)
+        Db -= c
+        if Mb is not None:
+            Db[~Mb] = 0.0
+    seg_lam = np.full(len(seg), 1.0 / np.sqrt(max(L, n)) if lam is None else float(lam))
+    crit = np.empty(len(seg))
+    tol, max_iter, rho, svd = settings
+    Ab, _, it, cv = _ialm_batch(Db, Mb, seg_lam, tol, max_iter, rho, svd, crit_out=crit,
+                                want_E=False)
+    if center != "none":
+        Ab += c
+    Ab *= np.stack([weights[i] for i in seg])[..., None]
+    A[rows] += Ab.reshape(-1, n)
+    iters, conv, resid = info
+    iters[seg], conv[seg], resid[seg] = it, cv, crit
 
 
 def _segment_centre(Db: np.ndarray, Mb: np.ndarray | None, how: str) -> np.ndarray:

@@ -1,0 +1,332 @@
+"""Scaling benchmark (issue 21, item 5): frames/s and peak memory of every registered method
+at 1k, 10k, 100k (and 1M where it fits) frames, one thread, each run in its own process.
+
+Usage::
+
+    OMP_NUM_THREADS=1 .venv/bin/python benchmarks/scaling.py [--frames 1000 10000 100000 1000000]
+        [--methods slra trnn ...] [--budget 40] [--out docs/results/scaling]
+
+Input: CMU 135_02 (31 joints = 93 coordinates, 120 fps; bundled 16_15 without the shared
+data) tiled in time to N frames, 0.5 cm Gaussian noise on every coordinate (cm).  Matrix
+size = N x 93 x 8 bytes (7.4 MB at 10k frames).  Methods that need training are fitted on
+1,000 frames of a different clip (CMU 16_15) with their ``quick_params`` before the timed
+call (fit time not counted).  Each (method, N) runs in a fresh subprocess with
+OMP/OpenBLAS/MKL at 1 thread; the timed call is ``denoise()`` (CPU seconds, median of 3
+below 2 s per run, else one run).  Memory: the kernel's resident high-water mark is reset
+(/proc/self/clear_refs) after the input is built, so "peak" is the peak RSS during
+``denoise()``; "growth / input" = (peak - RSS before the call) / matrix bytes.
+A size is skipped when the previous size predicts more than ``--budget`` seconds per run
+or more than 4 GB.  Low-rank methods report the FLOP model of docs/results/scaling.md
+(``flops`` from :func:`flop_model`) and ideal frames/s at the measured dgemm rate.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+ENV1 = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+VARIANTS = {"slra(seg=24,ov=12)": ("slra", {"segment": 24, "overlap": 12, "tol": 1e-5})}
+SKIP_HEAVY = {"bra", "bra-p"}          # neural nets (torch): training beyond a quick fit
+C3D = "markers/kineticstoolkit/kinematics_basket_sprint.c3d"
+"""Real 26-marker C3D with gaps (38.8 % of the entries missing, 3,678 frames) for the rows
+``<method>@c3d`` (frames = the file's own)."""
+
+
+def _rss_now() -> int:
+    with open("/proc/self/status") as f:
+        for line in f:
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) * 1024
+    return 0
+
+
+def _rss_peak() -> int:
+    with open("/proc/self/status") as f:
+        for line in f:
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) * 1024
+    return 0
+
+
+def _reset_peak() -> bool:
+    try:
+        with open("/proc/self/clear_refs", "w") as f:
+            f.write("5")
+        return True
+    except OSError:
+        return False
+
+
+def make_clip(frames: int, seed: int = 0):
+    """(motion in cm, N frames) -- CMU 135_02 tiled, 0.5 cm Gaussian noise."""
+    from mocapkit import io
+    from mocapkit.datasets import bundled, cmu_amc, shared_data_dir
+    from mocapkit.motion import Motion
+
+    path = cmu_amc("135_02", shared_data_dir()) or bundled("16_15.amc")
+    m = io.read(path)
+    reps = -(-frames // m.n_frames)
+    P = np.tile(m.positions, (reps, 1, 1))[:frames]
+    P += np.random.default_rng(seed).normal(0.0, 0.5, P.shape)
+    return Motion(P, m.skeleton, m.fps)
+
+
+def _method(label: str):
+    from mocapkit import denoise
+
+    name, params = VARIANTS.get(label.split("@")[0], (label.split("@")[0], {}))
+    cls = denoise.available()[name]
+    if cls.needs_training:
+        params = {**cls.quick_params(), **params}
+    return denoise.get(name, **params), cls.needs_training
+
+
+def _train(den) -> None:
+    from mocapkit import io
+    from mocapkit.datasets import bundled
+
+    m = io.read(bundled("16_15.amc")).slice(0, 1000)
+    den.fit([m])
+
+
+def child(label: str, frames: int) -> dict:
+    """Run one measurement in this process and return its row."""
+    import resource
+
+    from threadpoolctl import threadpool_limits
+
+    threadpool_limits(1)
+    den, trained = _method(label)
+    if trained:
+        _train(den)
+    if label.endswith("@c3d"):
+        from mocapkit import io
+        from mocapkit.datasets import shared_data_dir
+
+        motion = io.read(shared_data_dir() / C3D)
+        frames = motion.n_frames
+    else:
+        motion = make_clip(frames)
+    warm, _ = _method(label)                 # warm-up on a tiny clip (imports, caches)
+    if trained:
+        warm = den
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        warm.denoise(make_clip(200))
+        rss0 = _rss_now()
+        reset = _reset_peak()
+        times, walls = [], []
+        for _ in range(3):
+            t0, w0 = time.process_time(), time.perf_counter()
+            den.denoise(motion)
+            times.append(time.process_time() - t0)
+            walls.append(time.perf_counter() - w0)
+            if times[-1] > 2.0:
+                break
+    peak = _rss_peak() if reset else resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+    nbytes = motion.n_frames * motion.n_joints * 3 * 8
+    sec = float(np.median(times))
+    row = {"method": label, "frames": frames, "cpu_s": sec, "wall_s": float(np.median(walls)),
+           "runs": len(times), "frames_per_s": frames / sec, "peak_rss_mb": peak / 1e6,
+           "rss_before_mb": rss0 / 1e6, "input_mb": nbytes / 1e6,
+           "growth_over_input": (peak - rss0) / nbytes, "peak_reset": reset,
+           "coords": motion.n_joints * 3, "observed": float(motion.observed.mean()),
+           "trained": trained}
+    conv = getattr(den, "convergence_", None)
+    if isinstance(conv, dict) and "iterations" in conv:
+        row["iterations"] = conv["iterations"]
+    return row
+
+
+def dgemm_rate() -> float:
+    """Measured FLOP/s (CPU time, like the frames/s) of batched (200 x 93)^T (200 x 93)
+    products, one thread."""
+    from threadpoolctl import threadpool_limits
+
+    threadpool_limits(1)
+    M = np.random.default_rng(0).standard_normal((32, 200, 93))
+    best = np.inf
+    for _ in range(5):
+        t0 = time.process_time()
+        for _ in range(10):
+            np.matmul(np.swapaxes(M, 1, 2), M)
+        best = min(best, time.process_time() - t0)
+    return 10 * 32 * 2 * 200 * 93 * 93 / best
+
+
+def flop_model(label: str, frames: int, iterations: float, n: int = 93) -> float | None:
+    """FLOPs of the IALM of rpca / slra: per iteration and segment (L x n, k = min(L, n))
+    ``2 L n k`` (Gram) + ``2 L n k`` (product with the shrinkage matrix) + ``2 k^3``
+    (V f V^T) + ``4.7 k^3`` (eigh, LAPACK syevd with vectors, counted as issue 21 does);
+    times segments x mean iterations.  Elementwise passes are not counted."""
+    from mocapkit.solvers.lowrank import segment_layout
+
+    name, params = VARIANTS.get(label.split("@")[0], (label.split("@")[0], {}))
+    if name == "rpca":
+        L, p = frames, 1
+    elif name == "slra":
+        st, sp = segment_layout(frames, params.get("segment", 200), params.get("overlap", 0))
+        L, p = float(np.mean(sp - st)), len(st)
+    else:
+        return None
+    k = min(L, n)
+    return p * iterations * (4 * L * n * k + 6.7 * k ** 3)
+
+
+def _run_child(label: str, frames: int, timeout: float) -> dict:
+    cmd = [sys.executable, __file__, "--child", label, str(frames)]
+    env = {**os.environ, **ENV1}
+    try:
+        out = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=env)
+    except subprocess.TimeoutExpired:
+        return {"method": label, "frames": frames, "error": f"timeout {timeout:.0f} s"}
+    if out.returncode != 0:
+        return {"method": label, "frames": frames, "error": out.stderr.strip()[-300:]}
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def run_all(methods: list[str], sizes: list[int], budget: float, save=None) -> list[dict]:
+    """One subprocess per (method, size); ``save(rows)`` after every row (partial results)."""
+    rows = []
+    for label in methods:
+        prev = None
+        for N in ([0] if label.endswith("@c3d") else sizes):
+            if prev is not None and "error" not in prev:
+                pred_s = prev["cpu_s"] * N / prev["frames"]
+                pred_mb = prev["rss_before_mb"] + (prev["peak_rss_mb"] - prev["rss_before_mb"]) \
+                    * N / prev["frames"]
+                if pred_s > budget or pred_mb > 4000:
+                    rows.append({"method": label, "frames": N, "skipped":
+                                 f"predicted {pred_s:.0f} s, {pred_mb:.0f} MB"})
+                    print(rows[-1], flush=True)
+                    break
+            elif prev is not None:
+                break
+            prev = _run_child(label, N, timeout=max(60.0, 4 * budget))
+            rows.append(prev)
+            if save is not None:
+                save(rows)
+            print({k: (round(v, 3) if isinstance(v, float) else v) for k, v in prev.items()},
+                  flush=True)
+    return rows
+
+
+def _c3d_note(r: dict) -> str:
+    if not r["method"].endswith("@c3d"):
+        return ""
+    return f" (basket-sprint C3D, {r['coords']} coords, {100 * (1 - r['observed']):.0f} % missing)"
+
+
+def _fmt(v: float) -> str:
+    return f"{v:,.0f}"
+
+
+def to_markdown(rows: list[dict], rate: float, meta: dict) -> str:
+    from mocapkit.denoise import available
+
+    lines = ["# Scaling: frames/s and peak memory versus clip length", "",
+             f"Generated by `python benchmarks/scaling.py` on {meta['date']} ({meta['note']}). "
+             f"Input: {meta['clip']} tiled to N frames, 0.5 cm Gaussian noise, 93 coordinates; "
+             "one thread; CPU seconds of `denoise()` (median of 3 runs when a run is < 2 s); "
+             "each (method, N) in its own process.  peak = resident high-water mark during "
+             "the call; growth = (peak - RSS before the call) / matrix bytes (N x 93 x 8).  "
+             f"Machine: {os.cpu_count()} shared cores; dgemm (200x93 Gram, CPU time) "
+             f"{rate / 1e9:.1f} GFLOP/s.  Raw rows: scaling.json.", "",
+             "Growth includes the copies of the shared `Denoiser` wrapper (input check, "
+             "re-centring, output Motion): compare with the `linear` row, a method that does "
+             "almost nothing.  A size is skipped when the previous one predicts more than the "
+             "time budget per run or more than 4 GB.", "",
+             "| method | frames | frames/s | peak RSS MB | growth / input | iterations | "
+             "ideal frames/s (FLOP model) | measured / ideal |",
+             "|---|---:|---:|---:|---:|---:|---:|---:|"]
+    for r in rows:
+        if "error" in r or "skipped" in r:
+            why = r.get("error", r.get("skipped"))
+            lines.append(f"| {r['method']} | {r['frames']:,} | -- | -- | -- | -- | -- | "
+                         f"{'skipped: ' + why if 'skipped' in r else 'failed: ' + why[:80]} |")
+            continue
+        it = r.get("iterations")
+        it_mean = float(np.mean(it)) if it is not None else None
+        fl = (flop_model(r["method"], r["frames"], it_mean, r.get("coords", 93))
+              if it_mean is not None else None)
+        ideal = r["frames"] / (fl / rate) if fl else None
+        lines.append(
+            f"| {r['method']}{' (quick fit)' if r.get('trained') else ''}"
+            f"{_c3d_note(r)} | {r['frames']:,} | "
+            f"{_fmt(r['frames_per_s'])} | {r['peak_rss_mb']:.0f} | {r['growth_over_input']:.1f}x | "
+            f"{'' if it_mean is None else format(it_mean, '.1f')} | "
+            f"{'' if ideal is None else _fmt(ideal)} | "
+            f"{'' if ideal is None else format(r['frames_per_s'] / ideal, '.2f')} |")
+    ran = {r["method"] for r in rows}
+    heavy = sorted(SKIP_HEAVY - ran)
+    other = sorted(set(available()) - ran - SKIP_HEAVY)
+    doc = " ".join((flop_model.__doc__ or "").split())
+    lines += ["", f"Not run: {', '.join(heavy) or 'none'} (neural denoisers: they need real "
+              "training data, not a quick fit)" + (f"; not requested in this run: "
+                                                   f"{', '.join(other)}" if other else ""), "",
+              "FLOP model (low-rank IALM): " + doc, ""]
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--child", nargs=2, default=None, help=argparse.SUPPRESS)
+    ap.add_argument("--frames", nargs="+", type=int, default=[1000, 10000, 100000, 1000000])
+    ap.add_argument("--methods", nargs="+", default=None)
+    ap.add_argument("--budget", type=float, default=40.0, help="seconds allowed per run")
+    ap.add_argument("--note", default="full run")
+    ap.add_argument("--out", default=str(ROOT / "docs" / "results" / "scaling"))
+    ap.add_argument("--render", action="store_true",
+                    help="only re-render <out>.md from <out>.json (dgemm rate re-measured)")
+    ap.add_argument("--merge", action="store_true",
+                    help="replace only the rows of --methods in an existing <out>.json")
+    a = ap.parse_args(argv)
+    if a.child:
+        print(json.dumps(child(a.child[0], int(a.child[1]))))
+        return 0
+    from mocapkit.denoise import available
+
+    if a.render:
+        old = json.loads(Path(a.out + ".json").read_text())
+        rate = dgemm_rate()
+        old["dgemm_flops"] = rate
+        Path(a.out + ".json").write_text(json.dumps(old, indent=1))
+        Path(a.out + ".md").write_text(to_markdown(old["rows"], rate, old["meta"]))
+        return 0
+    methods = a.methods or ([m for m in available() if m not in SKIP_HEAVY] + list(VARIANTS)
+                            + [f"{m}@c3d" for m in ("svt", "slra", "trnn", "tsmc")])
+    t0 = time.perf_counter()
+    partial = Path(a.out + ".partial.json")
+    rows = run_all(methods, sorted(a.frames), a.budget,
+                   save=lambda r: partial.write_text(json.dumps(r, indent=1)))
+    if a.merge and Path(a.out + ".json").is_file():
+        old = json.loads(Path(a.out + ".json").read_text())
+        redo = set(methods)
+        rows = [r for r in old["rows"] if r["method"] not in redo] + rows
+        order = {m: i for i, m in enumerate(dict.fromkeys(r["method"] for r in old["rows"]))}
+        rows.sort(key=lambda r: (order.get(r["method"], len(order)), r["frames"]))
+        a.note = old["meta"]["note"] + f"; rows of {', '.join(methods)} re-measured: {a.note}"
+    rate = dgemm_rate()
+    meta = {"date": time.strftime("%Y-%m-%d"), "clip": "CMU 135_02",
+            "note": f"{a.note}; {time.perf_counter() - t0:.0f} s in all"}
+    Path(a.out + ".json").write_text(json.dumps({"meta": meta, "dgemm_flops": rate,
+                                                 "rows": rows}, indent=1))
+    Path(a.out + ".md").write_text(to_markdown(rows, rate, meta))
+    partial.unlink(missing_ok=True)
+    print(to_markdown(rows, rate, meta))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
