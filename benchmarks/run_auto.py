@@ -64,6 +64,16 @@ def render(doc: dict) -> str:
     if est:
         out.append(f"- estimated error within a factor 1.5 of the true error: {est['value']:.0f} % "
                    f"of {est['n']} corrupted cases")
+    means = defaultdict(lambda: defaultdict(list))
+    for r in rows:
+        if r["clip"] != "summary" and r["value"] == r["value"]:
+            cond = f"{r['condition']}@{r['clip'].split('@')[1]}"
+            means[cond][r["method"]].append(r["value"])
+    show = ("auto", "kalman-cv-gate5", "oracle-classical", "best")
+    out += ["", "## Mean RMSE over clips (cm)", "",
+            "| condition | " + " | ".join(show) + " |", "|---|" + "---:|" * len(show)]
+    for cond, d in means.items():
+        out.append(f"| {cond} | " + " | ".join(_v(sum(d[m]) / len(d[m])) if d.get(m) else "" for m in show) + " |")
     out += ["", "## Every case (RMSE cm; auto's estimate and chain beside it)", "",
             "| clip | condition | " + " | ".join(METHODS) + " | auto est. | auto chain | best is |",
             "|---|---|" + "---:|" * len(METHODS) + "---:|---|---|"]
