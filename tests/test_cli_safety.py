@@ -175,7 +175,7 @@ def test_unknown_output_type_refused_before_work(work, capsys):
 # tracebacks -> one line
 # ---------------------------------------------------------------------------------------
 @pytest.mark.parametrize("argv,says", [
-    (["denoise", "in.bvh", "o.bvh", "--param", "gate=abc"], ["gate", "number"]),
+    (["denoise", "in.bvh", "o.bvh", "--param", "min_noise_cm=abc"], ["min_noise_cm", "number"]),
     (["denoise", "in.bvh", "o.bvh", "--method", "median", "--param", "window=2.5"], ["window", "integer"]),
     (["denoise", "in.bvh", "o.bvh", "--method", "hampel", "--param", "joint_test=3"], ["joint_test", "true or false"]),
     (["denoise", "in.bvh", "o.bvh", "--method", "gaussian", "--param", "sigma_frames=[1,2]"], ["sigma_frames"]),
@@ -190,7 +190,7 @@ def test_param_of_wrong_type(work, capsys, argv, says):
 
 def test_param_right_type_still_works(work, capsys):
     assert main(["denoise", "in.bvh", "o.bvh", "--method", "median", "--param", "window=3.0", "-q"]) == 0
-    assert main(["denoise", "in.bvh", "o2.bvh", "--param", "gate=4", "-q"]) == 0
+    assert main(["denoise", "in.bvh", "o2.bvh", "--param", "min_noise_cm=0.3", "-q"]) == 0
 
 
 def test_eval_mask_not_a_valid_npy(work, capsys):

@@ -24,7 +24,7 @@ import pytest
 import mocapkit.io as mio
 from mocapkit import denoise
 from mocapkit.errors import MocapValueError
-from mocapkit.io import _atomic, asfamc, bvh, c3d, kinect, trc
+from mocapkit.io import _atomic, amc, asf, bvh, c3d, kinect, trc
 from mocapkit.motion import Motion
 
 from test_fuzz_readers import _marker_motion, seeds
@@ -82,7 +82,7 @@ def _failing_atomic(monkeypatch, written: list[int]):
             raise _Boom("disk full (simulated)")
         return real_p(path, w, suffix=suffix)
 
-    for mod in (bvh, trc, kinect, asfamc):
+    for mod in (bvh, trc, kinect, amc, asf):      # the modules that call atomic_write
         monkeypatch.setattr(mod, "atomic_write", atomic_write)
     monkeypatch.setattr(c3d, "atomic_write_path", atomic_write_path)
 
