@@ -26,11 +26,8 @@ from ..errors import MocapFormatError
 __all__ = ["read_text", "parse_float", "parse_int", "float_rows"]
 
 
-def read_text(path: str | os.PathLike) -> str:
-    """Read a text file as UTF-8 (latin-1 fallback for stray accented bytes in comments).
-
-    A file with NUL bytes is rejected as binary. A leading BOM is removed.
-    """
+def read_bytes(path: str | os.PathLike) -> bytes:
+    """The file's bytes; unreadable or binary (NUL bytes) files are a MocapFormatError."""
     try:
         with open(path, "rb") as fh:
             raw = fh.read()
@@ -38,6 +35,15 @@ def read_text(path: str | os.PathLike) -> str:
         raise MocapFormatError(path, f"cannot read file ({e.strerror})") from None
     if b"\x00" in raw[:65536]:
         raise MocapFormatError(path, "binary content (NUL bytes) where a text file was expected")
+    return raw
+
+
+def read_text(path: str | os.PathLike) -> str:
+    """Read a text file as UTF-8 (latin-1 fallback for stray accented bytes in comments).
+
+    A file with NUL bytes is rejected as binary. A leading BOM is removed.
+    """
+    raw = read_bytes(path)
     try:
         text = raw.decode("utf-8")
     except UnicodeDecodeError:

@@ -94,7 +94,7 @@ from ..errors import MocapFormatError, MocapValueError
 from ..motion import Motion
 from ..skeleton import Skeleton
 from ._atomic import atomic_write
-from ._text import float_rows, parse_float, parse_int
+from ._text import float_rows, parse_float, parse_int, read_bytes
 
 __all__ = ["read", "write", "node_positions", "UNITS"]
 
@@ -741,7 +741,7 @@ def read(path: str | os.PathLike, *, units: str | float | None = None, end_sites
     MocapFormatError : malformed file (names the line and what was expected).
     """
     path = Path(path)
-    raw = _read_bytes(path)
+    raw = read_bytes(path)
     try:
         parsed = _parse_fast(path, raw)
         if parsed is None:
@@ -765,18 +765,6 @@ def read(path: str | os.PathLike, *, units: str | float | None = None, end_sites
     source = {"path": str(path), "format": "bvh", "units": unit, "bvh": meta,
               "per_frame": {"channels": ch}}
     return Motion(X, skeleton, 1.0 / frame_time, None, source)
-
-
-def _read_bytes(path) -> bytes:
-    """The file's bytes; unreadable or binary (NUL bytes) files are a MocapFormatError."""
-    try:
-        with open(path, "rb") as fh:
-            raw = fh.read()
-    except OSError as e:
-        raise MocapFormatError(path, f"cannot read file ({e.strerror})") from None
-    if b"\x00" in raw[:65536]:
-        raise MocapFormatError(path, "binary content (NUL bytes) where a text file was expected")
-    return raw
 
 
 def _decode(raw: bytes) -> str:

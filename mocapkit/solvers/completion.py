@@ -158,27 +158,8 @@ def smooth_solve(rhs: np.ndarray, eta: float, mu: float, method: str = "dct") ->
     eta : > 0 (the ALM penalty); mu : >= 0 (smoothness weight).
     method : "dct" or "banded".
     """
-    rhs = np.asarray(rhs, dtype=np.float64)
-    n = rhs.shape[0]
-    if method == "banded" and n > 3:
-        from scipy.linalg import solveh_banded
-
-        d0 = np.full(n, 6.0)
-        d0[[0, -1]] = 2.0
-        d1 = np.full(n - 1, -4.0)
-        d1[[0, -1]] = -3.0
-        ab = np.zeros((3, n))
-        ab[2] = eta + mu * d0
-        ab[1, 1:] = mu * d1
-        ab[0, 2:] = mu
-        return solveh_banded(ab, rhs, check_finite=False)
-    if method not in ("dct", "banded"):
-        raise MocapValueError(f"method must be 'dct' or 'banded', got {method!r}")
-    xi = dct_eigenvalues(n)
-    gamma = 1.0 / (eta + mu * xi ** 2)
-    shape = (n,) + (1,) * (rhs.ndim - 1)
-    return _fft.idct(gamma.reshape(shape) * _fft.dct(rhs, type=2, axis=0, norm="ortho"),
-                     type=2, axis=0, norm="ortho")
+    # one implementation; a copy keeps the caller's array intact
+    return _smooth_solve_inplace(np.array(rhs, dtype=np.float64, copy=True), eta, mu, method)
 
 
 def soft_threshold(A: np.ndarray, tau: float) -> np.ndarray:
