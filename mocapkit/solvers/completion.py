@@ -354,16 +354,7 @@ def _tsmc_loop(X: np.ndarray, miss: np.ndarray, V: np.ndarray, mults: tuple, wei
         UtU = U.T @ U
         V = (W.T @ U) @ np.linalg.inv(Ik + (l1 + l2) * UtU)                 # eq. 4.10
         np.matmul(U, V.T, out=W)                           # W = UV
-        np.multiply(Y2, 1.0 / l2, out=M)                   # M = Y2 / l2 (scratch)
-        np.subtract(X, W, out=E)
-        E += M                                             # E = Ze
-        thr = alpha / l2
-        np.clip(E, -thr, thr, out=Y2)
-        np.copyto(Y2, 0.0, where=miss)
-        E -= Y2                                            # eq. 4.11
-        np.subtract(Y2, M, out=M)                          # R2 = X - UV - E
-        nr2 = float(np.linalg.norm(M))
-        Y2 *= l2                                           # eq. 4.14 (Y2)
+        nr2 = _sparse_step(X, W, Y2, M, E, l2, alpha / l2, miss)              # eq. 4.11, 4.14
         np.multiply(W, l1, out=M)
         M -= Y1
         M = _smooth_solve_inplace(M, l1, beta, mstep)                        # eq. 4.13
@@ -385,6 +376,25 @@ def _tsmc_loop(X: np.ndarray, miss: np.ndarray, V: np.ndarray, mults: tuple, wei
 # --------------------------------------------------------------------------------------
 # truncated nuclear norm (thesis Sec. 4.2)
 # --------------------------------------------------------------------------------------
+def _sparse_step(D: np.ndarray, W: np.ndarray, Y: np.ndarray, M: np.ndarray, S: np.ndarray,
+                 pen: float, thr: float, miss: np.ndarray) -> float:
+    """The sparse-error step shared by the tsmc (eq. 4.11, 4.14) and trnn (4.24) ALMs, in
+    place: S = Z - shrink_Omega(Z, thr) with Z = D - W + Y / pen (soft threshold on the
+    observed entries, identity on missing ones), then Y <- pen (D - W - S) and
+    ``||D - W - S||_F`` is returned. M is (T, C) scratch; on return M = D - W - S.
+    (Y is used as scratch for the clipped Z, and Y_old + pen R equals pen clip(Z).)"""
+    np.multiply(Y, 1.0 / pen, out=M)                   # M = Y / pen
+    np.subtract(D, W, out=S)
+    S += M                                             # S = Z
+    np.clip(S, -thr, thr, out=Y)
+    np.copyto(Y, 0.0, where=miss)
+    S -= Y                                             # soft threshold on Omega
+    np.subtract(Y, M, out=M)                           # R = D - W - S
+    nr = float(np.linalg.norm(M))
+    Y *= pen                                           # = Y_old + pen R, since Y holds the clip
+    return nr
+
+
 def _smooth_solve_inplace(rhs: np.ndarray, eta: float, mu: float, method: str) -> np.ndarray:
     """:func:`smooth_solve` that may overwrite ``rhs`` (no extra (T, C) array kept)."""
     n = rhs.shape[0]
@@ -452,16 +462,7 @@ def _trnn_loop(D: np.ndarray, miss: np.ndarray, factors: tuple, mults: tuple, la
         AtA = A.T @ A
         B = (W.T @ A + Q.T @ (P @ A)) @ np.linalg.inv(Id + 2 * eta * AtA)
         np.matmul(A, B.T, out=W)                           # W = AB
-        np.multiply(Y2, 1.0 / eta, out=M)                  # M = Y2 / eta (scratch)
-        np.subtract(D, W, out=S)
-        S += M                                             # S = Ts
-        thr = lam / eta
-        np.clip(S, -thr, thr, out=Y2)
-        np.copyto(Y2, 0.0, where=miss)
-        S -= Y2                                            # soft threshold on Omega, Ts off
-        np.subtract(Y2, M, out=M)                          # R2 = D - AB - S
-        nr2 = float(np.linalg.norm(M))
-        Y2 *= eta                                          # Y2 += eta R2
+        nr2 = _sparse_step(D, W, Y2, M, S, eta, lam / eta, miss)             # soft threshold on Omega
         np.multiply(W, eta, out=M)
         M -= Y1
         M = _smooth_solve_inplace(M, eta, mu, mstep)                                # (4.25)
