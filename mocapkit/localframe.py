@@ -74,6 +74,9 @@ def frame_joints(skeleton: Skeleton, joints: Mapping[str, str] | None = None) ->
     else:
         out["root"] = int(np.flatnonzero(skeleton.parents < 0)[0])
     rest = skeleton.rest_positions()
+    # the on-the-root test needs a rest pose: a marker set without hierarchy (TRC, C3D) has
+    # none (every offset 0), so there the first name that matches is used
+    has_rest = bool((skeleton.parents >= 0).any())
     for key, cands in FRAME_JOINT_ALIASES.items():
         if key in joints:
             out[key] = skeleton.index(joints[key])
@@ -81,7 +84,8 @@ def frame_joints(skeleton: Skeleton, joints: Mapping[str, str] | None = None) ->
         hit = None
         for c in cands:
             j = low.get(c.lower())
-            if j is not None and j != out["root"] and np.linalg.norm(rest[j] - rest[out["root"]]) > 1.0:
+            if j is not None and j != out["root"] and (
+                    not has_rest or np.linalg.norm(rest[j] - rest[out["root"]]) > 1.0):
                 hit = j
                 break
         if hit is None:

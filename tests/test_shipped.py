@@ -142,3 +142,21 @@ def test_marker_files_of_the_shared_data(shared_data):
         pytest.skip("no Eb015pr.c3d")
     m = io.read(p)
     assert all(shipped.load(method, m) is None for method in METHODS)
+
+
+def test_cli_uses_the_shipped_model_without_train(tmp_path, capsys):
+    """`mocapkit denoise --method xiao-sparse` needs no --model on a CMU-joint clip (here
+    written as TRC: names without hierarchy), and says which model it used."""
+    from mocapkit import corrupt, io, metrics
+    from mocapkit.cli import main
+    from mocapkit.datasets import bundled
+
+    clip = io.read(bundled("16_15.amc")).slice(2, 122)
+    noisy, _ = corrupt.combine(clip, [("gaussian", {"sigma_cm": 2.0})], seed=0)
+    src, out = tmp_path / "in.trc", tmp_path / "out.trc"
+    io.write(noisy, src)
+    assert main(["denoise", str(src), str(out), "--method", "xiao-sparse"]) == 0
+    assert "shipped general xiao-sparse model" in capsys.readouterr().out
+    back = io.read(out).positions
+    err = float(np.sqrt(np.mean((back - clip.positions) ** 2)))
+    assert err < 0.6 * metrics.rmse(clip, noisy)

@@ -13,7 +13,8 @@ from pathlib import Path
 MODULES = ["mocapkit.motion", "mocapkit.skeleton", "mocapkit.io", "mocapkit.corrupt", "mocapkit.metrics",
            "mocapkit.signal", "mocapkit.detect", "mocapkit.denoise.base", "mocapkit.batch",
            "mocapkit.bench.core", "mocapkit.viz.report", "mocapkit.viz.plots", "mocapkit.datasets",
-           "mocapkit.retrieval", "mocapkit.recognition"]
+           "mocapkit.retrieval", "mocapkit.recognition", "mocapkit.diagnose", "mocapkit.shipped",
+           "mocapkit.solvers.gcv_spline", "mocapkit.solvers.mssa"]
 
 
 def _doc(obj) -> str:
