@@ -258,7 +258,7 @@ class Denoiser:
     @classmethod
     def load(cls, path: str | os.PathLike) -> "Denoiser":
         """Load a model saved by :meth:`save`. ``Denoiser.load`` picks the right class."""
-        if str(path).lower().endswith(".pt"):      # torch models of the neural family
+        if str(path).lower().endswith((".pt", ".onnx")):   # models of the neural family
             from .neural import load_model
 
             return load_model(path, cls)

@@ -21,18 +21,34 @@ cross-fade; the output has the input's skeleton, frames and fps, joints outside 
 subset attached rigidly to their nearest refined ancestor. A motion whose skeleton lacks
 one of the 21 joints is refused with a MocapValueError naming them.
 
-Without a trained model, ``bra-p`` and ``bra`` load the checkpoints shipped in
-``mocapkit/neural/pretrained/`` (small CPU-trained models; ``docs/neural.md`` says how
-they were trained and how well they do), so they need no training step. ``fit(motions)``
-trains a new model on clean motions (defaults: the paper's settings, 300 epochs per
-network: hours on a CPU; see ``docs/neural.md`` for CPU-sized settings).
+Without a trained model, ``bra-p`` and ``bra`` load the ONNX networks shipped in
+``mocapkit/neural/pretrained/`` and run them with onnxruntime (no torch needed; trained
+by ``benchmarks/train_neural.py``, measured in ``docs/results/bra.md``), so they need no
+training step. ``fit(motions)`` trains a new model on clean motions with torch
+(defaults: the shipped models' settings, :data:`mocapkit.neural.train.OPERATING_POINT`
+-- residual output on a light low-pass of the input, bridged + masked input,
+augmentation, cosine learning rate -- and the paper's 300 epochs per network: hours on
+a CPU; ``residual=False, fill_input=False, mask_input=False, base_sigma=0,
+augment=False, lr_schedule='constant', grad_clip=0, reproduction='mse'`` is the paper's
+original network).
 
-``threads``: torch threads for training (None: every core this process may use) and for
-inference (None: 1, see :meth:`mocapkit.neural.bundle.Bundle.run_windows`).
+``postprocess=None`` uses the model's own setting: the shipped bra-p skips the
+perceptual post-processing D_p(E_p(.)) (measured: it adds the perceptual autoencoder's
+reconstruction error, docs/results/bra.md), i.e. it is Table 2's BRA-P-D trained with the
+perceptual loss; ``postprocess=True`` applies it.
 
-Models are saved as ``.pt`` files (:mod:`mocapkit.neural.bundle`), not ``.npz``.
-torch is imported only when a model is trained or used; without it these methods raise
-MissingDependencyError ("pip install mocapkit[neural]").
+Guard rails: inputs outside 24-1000 fps, without the 21 joints, or with a body far from
+the training bodies' size get one MocapValueError; a result that moves the observed
+samples far beyond the input's estimated noise emits a TrainingMismatchWarning
+(:func:`mocapkit.denoise.base.check_training_match`, recorded in ``training_match_``).
+
+``threads``: torch threads for training (None: every core this process may use) and
+threads for inference (None: 1).
+
+Models are ``.onnx`` (inference only) or ``.pt`` (torch; trainable, resumable) files
+(:mod:`mocapkit.neural.bundle`), not ``.npz``; ``save('x.onnx')`` exports (needs torch
+and onnx). Without torch, training and ``.pt`` models raise MissingDependencyError
+("pip install mocapkit[neural]").
 """
 from __future__ import annotations
 
@@ -46,7 +62,8 @@ from .base import Denoiser, register
 
 _PARAMS = ("hidden", "dropout", "batch_size", "lambdas_perceptual", "lambdas_denoise", "lr_perceptual",
            "lr_denoise", "epochs_perceptual", "epochs_denoise", "steps_perceptual", "steps_denoise",
-           "random_offsets", "seed", "threads", "device")
+           "random_offsets", "seed", "threads", "device", "residual", "fill_input", "mask_input",
+           "augment", "lr_schedule", "base_sigma", "grad_clip", "reproduction", "wide_fc")
 
 
 class _NeuralDenoiser(Denoiser):
@@ -57,15 +74,18 @@ class _NeuralDenoiser(Denoiser):
     clean_tolerance_cm = 6.0
     _perceptual: bool = True
 
-    def __init__(self, *, model: str | None = None, postprocess: bool = True, hidden: int = 512,
-                 dropout: float = 0.2, batch_size: int = 16,
+    def __init__(self, *, model: str | None = None, postprocess: bool | None = None, hidden: int = 256,
+                 dropout: float = 0.0, batch_size: int = 16,
                  lambdas_perceptual: Sequence[float] = (1.0, 1e-4, 1e-4),
                  lambdas_denoise: Sequence[float] = (1.0, 1e-3, 1e-3, 10.0),
-                 lr_perceptual: float = 1e-5, lr_denoise: float = 1e-3,
+                 lr_perceptual: float = 1e-3, lr_denoise: float = 1e-3,
                  epochs_perceptual: float = 300.0, epochs_denoise: float = 300.0,
                  steps_perceptual: int | None = None, steps_denoise: int | None = None,
-                 random_offsets: bool = False, seed: int = 0, threads: int | None = None,
-                 device: str = "cpu", progress: bool = False):
+                 random_offsets: bool = True, seed: int = 0, threads: int | None = None,
+                 device: str = "cpu", progress: bool = False, residual: bool = True,
+                 fill_input: bool = True, mask_input: bool = True, augment: bool = True,
+                 lr_schedule: str = "cosine", base_sigma: float = 1.0, grad_clip: float = 1.0,
+                 reproduction: str = "rms", wide_fc: bool = True, warn: bool = True):
         self.model = model
         self.postprocess = postprocess
         self.hidden = hidden
@@ -84,6 +104,16 @@ class _NeuralDenoiser(Denoiser):
         self.threads = threads
         self.device = device
         self.progress = progress
+        self.residual = residual
+        self.fill_input = fill_input
+        self.mask_input = mask_input
+        self.augment = augment
+        self.lr_schedule = lr_schedule
+        self.base_sigma = base_sigma
+        self.grad_clip = grad_clip
+        self.reproduction = reproduction
+        self.wide_fc = wide_fc
+        self.warn = warn
 
     @classmethod
     def quick_params(cls) -> dict[str, Any]:
@@ -101,7 +131,6 @@ class _NeuralDenoiser(Denoiser):
             return b
         from ..neural.bundle import Bundle
 
-        require_torch()
         path = self.model or pretrained_path(self.name)
         if not self.model and not os.path.isfile(path):
             self._check_fitted()
@@ -120,9 +149,13 @@ class _NeuralDenoiser(Denoiser):
     def _config(self):
         from ..neural.train import TrainConfig
 
+        from ..neural.train import NOISE_MIX_V2
+
         p = {k: getattr(self, k) for k in _PARAMS}
-        return TrainConfig.from_params(perceptual=self._perceptual,
-                                       postprocess=bool(self.postprocess and self._perceptual), **p)
+        post = False if self.postprocess is None else bool(self.postprocess)
+        extra = {"noise": NOISE_MIX_V2} if self.residual else {}     # the paper's mix otherwise
+        return TrainConfig.from_params(perceptual=self._perceptual, postprocess=post and self._perceptual,
+                                       **extra, **p)
 
     def fit(self, motions: Sequence[Motion]) -> "_NeuralDenoiser":
         """Train on clean motions (each with the 21 CMU joints; any fps) with DS_syn noise."""
@@ -137,13 +170,17 @@ class _NeuralDenoiser(Denoiser):
         return self
 
     def denoise(self, motion: Motion) -> Motion:
+        from .base import check_training_match
+
         b = self._bundle()
-        post = bool(self.postprocess) and self._perceptual
-        return b.refine(motion, postprocess=post, threads=self.threads)  # checked by the guard
+        post = None if self.postprocess is None else (bool(self.postprocess) and self._perceptual)
+        out = b.refine(motion, postprocess=post, threads=self.threads)
+        check_training_match(self, motion, out, warn=bool(self.warn), stacklevel=4)
+        return out  # checked by the guard
 
     # -- persistence ------------------------------------------------------------------------
     def save(self, path: str | os.PathLike, *, half: bool = False) -> None:
-        """Write the model as a ``.pt`` file (:mod:`mocapkit.neural.bundle` format)."""
+        """Write the model as ``.pt`` or ``.onnx`` (:mod:`mocapkit.neural.bundle` format)."""
         b = self._bundle()
         b.meta["method"] = self.name
         b.meta["denoiser_params"] = {k: v for k, v in self.get_params().items() if k not in ("model",)}
@@ -155,8 +192,7 @@ class _NeuralDenoiser(Denoiser):
 
 
 def load_model(path: str | os.PathLike, cls: type | None = None) -> "_NeuralDenoiser":
-    """Load a ``.pt`` model written by ``bra`` / ``bra-p`` (``save`` or ``train_cli``)."""
-    require_torch()
+    """Load a ``.onnx`` / ``.pt`` model written by ``bra`` / ``bra-p`` (``save``, ``train_cli``)."""
     from ..neural.bundle import Bundle
 
     b = Bundle.load(path)
@@ -170,7 +206,7 @@ def load_model(path: str | os.PathLike, cls: type | None = None) -> "_NeuralDeno
     if not params:   # written by train_cli: take the training configuration
         tp = b.meta.get("params", {})
         params = {k: tp[k] for k in _PARAMS if k in tp}
-        params["postprocess"] = bool(b.meta.get("postprocess", method == "bra-p"))
+        params["postprocess"] = None
     obj = target(**params)
     obj.model = os.fspath(path)
     obj.bundle_ = b
@@ -185,7 +221,7 @@ class BRAP(_NeuralDenoiser):
 
     name = "bra-p"
     description = ("BRA-P BiLSTM autoencoder with perceptual loss and perceptual post-processing "
-                   "(Li et al. 2020; torch; shipped CPU checkpoint)")
+                   "(Li et al. 2020; shipped ONNX model, onnxruntime)")
     needs_training = not pretrained_path("bra-p").is_file()
     _perceptual = True
 
@@ -197,6 +233,6 @@ class BRA(_NeuralDenoiser):
 
     name = "bra"
     description = ("BRA BiLSTM denoising autoencoder with smoothness and bone-length losses "
-                   "(Li et al. 2019; torch; shipped CPU checkpoint)")
+                   "(Li et al. 2019; shipped ONNX model, onnxruntime)")
     needs_training = not pretrained_path("bra").is_file()
     _perceptual = False

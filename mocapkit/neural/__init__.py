@@ -9,9 +9,11 @@ Modules
 :mod:`~mocapkit.neural.losses`  losses of eqs. (3)-(7) (torch).
 :mod:`~mocapkit.neural.train`   the two-stage trainer, checkpoints, ``train_cli`` (torch).
 
-torch is an optional dependency (``pip install mocapkit[neural]``); importing this
-package and :mod:`clips` works without it, everything that needs it imports it lazily
-and raises :class:`~mocapkit.errors.MissingDependencyError` when it is absent.
+Inference runs the shipped ONNX networks (``pretrained/<method>.onnx``) with onnxruntime,
+a core dependency, so ``--method bra-p`` works without torch. torch is an optional
+dependency (``pip install mocapkit[neural]``) needed only to train, to use ``.pt`` models
+and to export ONNX; everything that needs it imports it lazily and raises
+:class:`~mocapkit.errors.MissingDependencyError` when it is absent.
 The Denoisers ``bra`` and ``bra-p`` live in :mod:`mocapkit.denoise.neural`.
 """
 from __future__ import annotations
@@ -37,5 +39,5 @@ def require_torch():
 
 
 def pretrained_path(method: str = "bra-p") -> Path:
-    """Path of the checkpoint shipped for ``method`` (may not exist)."""
-    return PRETRAINED_DIR / f"{method}.pt"
+    """Path of the ONNX model shipped for ``method`` (may not exist)."""
+    return PRETRAINED_DIR / f"{method}.onnx"

@@ -1,6 +1,17 @@
 """A trained BRA / BRA-P model: networks + normalisation + joint lists, save/load, inference.
 
-File format (``.pt``, ``torch.save`` of a flat dict, read back with
+Two file formats, chosen by the suffix:
+
+``.onnx`` (what ships, inference without torch, issue 20): ``<name>.onnx`` holds the
+denoising network (input ``x`` (B, f, m) float32 -> outputs ``y`` (B, f, n), ``h``
+(B, f, hidden)), ``<name>.perceptual.onnx`` the perceptual autoencoder of a BRA-P model
+(``x`` (B, f, n) -> ``y``, ``h``). The first file's ONNX metadata entry ``mocapkit``
+is a JSON object: ``meta`` (below) and the normalisation ``mean_in``, ``std_in``,
+``mean_out``, ``std_out``. Read with onnxruntime (a core dependency); written by
+:meth:`Bundle.export_onnx`, which needs torch and onnx (the ``neural`` extra) and is
+only called by training / export scripts, never at run time.
+
+``.pt`` (training output, needs torch: ``torch.save`` of a flat dict, read back with
 ``torch.load(weights_only=True)``):
 
 ``meta``         JSON string: ``format`` ("mocapkit-neural"), ``version``
@@ -33,7 +44,63 @@ from . import clips as C
 from . import require_torch
 
 FORMAT = "mocapkit-neural"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+"""2: issue 20 (residual / fill / mask parameters in ``params``); version 1 files load too."""
+SUPPORTED_VERSIONS = (1, 2)
+ONNX_OPSET = 17
+
+
+class OnnxNet:
+    """An exported network run with onnxruntime: ``run(x) -> (y, h)`` on float32 arrays."""
+
+    def __init__(self, path: str | os.PathLike):
+        self.path = os.fspath(path)
+        self._sessions: dict[int, Any] = {}
+        self._session(1)
+
+    def _session(self, threads: int):
+        s = self._sessions.get(threads)
+        if s is None:
+            try:
+                import onnxruntime as ort
+            except ImportError:
+                from ..errors import MissingDependencyError
+
+                raise MissingDependencyError("the neural methods (bra, bra-p) need onnxruntime: "
+                                             "pip install onnxruntime==1.31.1") from None
+            so = ort.SessionOptions()
+            so.intra_op_num_threads = int(threads)
+            so.inter_op_num_threads = 1
+            so.log_severity_level = 3
+            try:
+                s = ort.InferenceSession(self.path, so, providers=["CPUExecutionProvider"])
+            except FileNotFoundError:
+                raise MocapValueError(f"{self.path}: no such model file") from None
+            except Exception as e:  # noqa: BLE001 - a broken / foreign file
+                raise MocapFormatError(self.path, f"not a readable ONNX model ({type(e).__name__}: {e})") from None
+            self._sessions[threads] = s
+        return s
+
+    def metadata(self) -> dict[str, str]:
+        return dict(self._session(1).get_modelmeta().custom_metadata_map)
+
+    def run(self, x: np.ndarray, threads: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+        s = self._session(max(1, int(threads or 1)))
+        y, h = s.run(["y", "h"], {"x": np.ascontiguousarray(x, dtype=np.float32)})
+        return y, h
+
+    def eval(self) -> "OnnxNet":
+        return self
+
+
+def _is_onnx(path: str | os.PathLike) -> bool:
+    return os.fspath(path).lower().endswith(".onnx")
+
+
+def perceptual_onnx_path(path: str | os.PathLike) -> str:
+    """``x/bra-p.onnx`` -> ``x/bra-p.perceptual.onnx``."""
+    p = os.fspath(path)
+    return p[:-len(".onnx")] + ".perceptual.onnx"
 
 
 class Bundle:
@@ -68,6 +135,11 @@ class Bundle:
         return np.asarray(self.meta["parents_out"], dtype=np.int64)
 
     @property
+    def input_channels(self) -> int:
+        """m: positions (3K), their high-pass part when ``base_sigma`` > 0 (3K), mask (K)."""
+        return _input_channels(self.meta)
+
+    @property
     def same_topology(self) -> bool:
         return self.joints_in == self.joints_out
 
@@ -77,6 +149,10 @@ class Bundle:
 
     # -- persistence -------------------------------------------------------------------------
     def save(self, path: str | os.PathLike, *, half: bool = False) -> None:
+        """Write ``.pt`` (torch) or, for a ``.onnx`` path, :meth:`export_onnx`."""
+        if _is_onnx(path):
+            self.export_onnx(path)
+            return
         torch = require_torch()
         from ..io._atomic import atomic_write
 
@@ -97,6 +173,9 @@ class Bundle:
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> "Bundle":
+        """Read a ``.onnx`` (onnxruntime, no torch) or ``.pt`` (torch) model."""
+        if _is_onnx(path):
+            return cls._load_onnx(path)
         torch = require_torch()
         from .model import build
 
@@ -109,11 +188,9 @@ class Bundle:
             raise MocapFormatError(path, f"not a mocapkit neural model ({type(e).__name__}: {e})") from None
         if meta.get("format") != FORMAT:
             raise MocapFormatError(path, "not a mocapkit neural model (no 'mocapkit-neural' header)")
-        if meta.get("version") != FORMAT_VERSION:
-            raise MocapFormatError(path, f"neural model format version {meta.get('version')} is not "
-                                         f"supported (expected {FORMAT_VERSION})")
+        _check_version(path, meta)
         p = meta["params"]
-        m, n = 3 * len(meta["joints_in"]), 3 * len(meta["joints_out"])
+        m, n = _input_channels(meta), 3 * len(meta["joints_out"])
         nets = {}
         for prefix, mm in (("denoise", m), ("perceptual", n)):
             sd = {k[len(prefix) + 1:]: v.float() if v.is_floating_point() else v
@@ -121,7 +198,9 @@ class Bundle:
             if not sd:
                 nets[prefix] = None
                 continue
-            net = build(mm, n, int(p["hidden"]), float(p["dropout"]))
+            net = build(mm, n, int(p["hidden"]), float(p["dropout"]),
+                        residual=bool(p.get("residual", False)) and prefix == "denoise",
+                        wide=bool(p.get("wide_fc", False)) and prefix == "denoise")
             try:
                 net.load_state_dict(sd)
             except RuntimeError as e:
@@ -133,6 +212,50 @@ class Bundle:
         norm_in = C.Normaliser(d["mean_in"].numpy(), float(d["std_in"]))
         norm_out = C.Normaliser(d["mean_out"].numpy(), float(d["std_out"]))
         return cls(nets["denoise"], nets["perceptual"], norm_in, norm_out, meta)
+
+    @classmethod
+    def _load_onnx(cls, path: str | os.PathLike) -> "Bundle":
+        if not os.path.isfile(path):
+            raise MocapValueError(f"{path}: no such model file")
+        net = OnnxNet(path)
+        try:
+            head = json.loads(net.metadata()["mocapkit"])
+            meta = head["meta"]
+        except (KeyError, ValueError, TypeError):
+            raise MocapFormatError(path, "not a mocapkit neural model (no 'mocapkit' ONNX metadata)") from None
+        if meta.get("format") != FORMAT:
+            raise MocapFormatError(path, "not a mocapkit neural model (no 'mocapkit-neural' header)")
+        _check_version(path, meta)
+        pp = perceptual_onnx_path(path)
+        perc = OnnxNet(pp) if meta.get("has_perceptual") and os.path.isfile(pp) else None
+        if meta.get("has_perceptual") and perc is None:
+            raise MocapFormatError(path, f"the perceptual network {os.path.basename(pp)} is missing next to it")
+        norm_in = C.Normaliser(np.asarray(head["mean_in"], float), float(head["std_in"]))
+        norm_out = C.Normaliser(np.asarray(head["mean_out"], float), float(head["std_out"]))
+        return cls(net, perc, norm_in, norm_out, meta)
+
+    def export_onnx(self, path: str | os.PathLike) -> list[str]:
+        """Write the networks as ONNX (module docstring); needs torch and onnx. Returns the files."""
+        torch = require_torch()
+        if isinstance(self.denoise_net, OnnxNet):
+            raise MocapValueError("this model is already an ONNX model")
+        from ..io._atomic import atomic_write
+
+        meta = dict(self.meta)
+        meta["format"], meta["version"] = FORMAT, FORMAT_VERSION
+        meta["has_perceptual"] = self.perceptual_net is not None
+        meta["dtype"] = "float32"
+        head = {"meta": meta, "mean_in": self.norm_in.mean.tolist(), "std_in": self.norm_in.std,
+                "mean_out": self.norm_out.mean.tolist(), "std_out": self.norm_out.std}
+        out = []
+        for net, target, extra in ((self.denoise_net, os.fspath(path), {"mocapkit": json.dumps(head)}),
+                                   (self.perceptual_net, perceptual_onnx_path(path), {})):
+            if net is None:
+                continue
+            data = _export_one(torch, net, extra)
+            atomic_write(target, lambda f, d=data: f.write(d), binary=True)
+            out.append(target)
+        return out
 
     # -- inference -------------------------------------------------------------------------------
     def run_windows(self, Z: np.ndarray, *, postprocess: bool | None = None, batch: int = 256,
@@ -146,9 +269,17 @@ class Bundle:
         and on a busy machine they slow inference down many times (measured: 5,000 vs
         120-1,800 frames/s on 2 shared cores).
         """
-        torch = require_torch()
         post = self.meta.get("postprocess", True) if postprocess is None else postprocess
         post = bool(post) and self.perceptual_net is not None
+        if isinstance(self.denoise_net, OnnxNet):
+            out = []
+            for s in range(0, len(Z), batch):
+                y, _ = self.denoise_net.run(Z[s:s + batch], threads)
+                if post:
+                    y, _ = self.perceptual_net.run(y, threads)
+                out.append(y)
+            return np.concatenate(out, axis=0).astype(np.float64)
+        torch = require_torch()
         out = []
         self.denoise_net.eval()
         if self.perceptual_net is not None:
@@ -164,16 +295,18 @@ class Bundle:
 
     def encode_perceptual(self, Z: np.ndarray, *, threads: int | None = None) -> np.ndarray:
         """Hidden units E_p(X) (K, f, h) of normalised output-space windows (for the P metric)."""
-        torch = require_torch()
         if self.perceptual_net is None:
             raise MocapValueError("this model has no perceptual autoencoder (a BRA model)")
+        if isinstance(self.perceptual_net, OnnxNet):
+            return self.perceptual_net.run(Z, threads)[1].astype(np.float64)
+        torch = require_torch()
         self.perceptual_net.eval()
         with _threads(torch, threads), torch.inference_mode():
             h = self.perceptual_net.encode(torch.from_numpy(np.ascontiguousarray(Z, dtype=np.float32)))
         return h.numpy().astype(np.float64)
 
     def refine_local(self, P: np.ndarray, observed: np.ndarray, *, postprocess: bool | None = None,
-                     threads: int | None = None) -> np.ndarray:
+                     threads: int | None = None, network: bool = True) -> np.ndarray:
         """Refine 60-fps positions of the input joints (T, K_in, 3) cm -> (T, K_out, 3) cm.
 
         ``P`` may hold NaN where ``observed`` is False. Horizontal reference, normalisation,
@@ -186,10 +319,17 @@ class Bundle:
                                  up_axis=up, fallback=C.joint_mean_track(P))
         local = np.where(observed[..., None], P, np.nan) - ref[:, None, :]
         self._check_scale(local, observed)
-        Z = self.norm_in.forward_fill(local.reshape(T, -1))
+        p = self.meta.get("params", {})
+        Z = C.model_input(self.norm_in.forward(local.reshape(T, -1)), observed,
+                          fill=bool(p.get("fill_input", False)), mask=bool(p.get("mask_input", False)),
+                          base_sigma=float(p.get("base_sigma", 0.0) or 0.0),
+                          highpass_gain=float(p.get("highpass_gain", 1.0) or 1.0))
         f = int(self.meta["clip_frames"])
         W, starts, left = C.split_clips(Z, f, int(self.meta["clip_hop"]))
-        Y = self.run_windows(W, postprocess=postprocess, threads=threads)
+        if network:
+            Y = self.run_windows(W, postprocess=postprocess, threads=threads)
+        else:                     # the residual base alone (what the network corrects)
+            Y = W[..., :3 * len(self.joints_out)]
         out = self.norm_out.inverse(C.overlap_add(Y, starts, T, left))
         return out.reshape(T, -1, 3) + ref[:, None, :]
 
@@ -200,18 +340,14 @@ class Bundle:
         """Refuse a body whose size is far from the training data's (issue 18: a clip in
         metres or millimetres came back tens of cm off).  Size = the median over frames
         (with >= 3 observed joints) of the RMS distance of the joints from their centroid,
-        compared with the same for the training mean pose (``norm_in.mean``)."""
-        ok = observed.sum(axis=1) >= 3
-        if not ok.any():
-            return
-        L = local[ok]
-        W = observed[ok][..., None]
-        n = W.sum(axis=1)
-        c = np.where(W, np.nan_to_num(L), 0.0).sum(axis=1) / n
-        d2 = np.where(W[..., 0], ((np.nan_to_num(L) - c[:, None]) ** 2).sum(axis=2), 0.0)
-        size = float(np.median(np.sqrt(d2.sum(axis=1) / n[:, 0])))
-        mp = self.norm_in.mean.reshape(-1, 3)
-        ref = float(np.sqrt(((mp - mp.mean(axis=0)) ** 2).sum(axis=1).mean()))
+        compared with the same for the training clips (``meta['body_size_cm']``; older
+        models: the training mean pose ``norm_in.mean``)."""
+        size = C.body_size(local, observed)
+        ref = self.meta.get("body_size_cm")
+        if ref is None:      # older models: the training mean pose
+            mp = self.norm_in.mean.reshape(-1, 3)
+            ref = float(np.sqrt(((mp - mp.mean(axis=0)) ** 2).sum(axis=1).mean()))
+        ref = float(ref)
         if not (ref > 0 and np.isfinite(size)):
             return
         lo, hi = self.SCALE_RANGE
@@ -221,26 +357,111 @@ class Bundle:
                 f"was trained on (joint spread {size:.3g} cm vs {ref:.3g} cm): check the units "
                 f"(metres or millimetres read as cm?) or train on such data")
 
-    def refine(self, motion: Motion, *, postprocess: bool | None = None, threads: int | None = None) -> Motion:
+    def refine(self, motion: Motion, *, postprocess: bool | None = None, threads: int | None = None,
+               network: bool = True) -> Motion:
         """Refine a whole motion.
 
         Same topology: returns a Motion with the input's skeleton, frames and fps (joints
         outside the model's subset attached rigidly, :func:`clips.attach_dropped`).
         Different topology: a Motion on the model's output skeleton, same frames and fps.
+        ``network=False`` skips the network (a residual model's input low-pass alone, for
+        measuring what the network adds).
         """
         C.check_joints(motion.skeleton, self.joints_in)
         fps = float(self.meta["fps"])
+        lo, hi = self.meta.get("fps_range", FPS_RANGE)
+        if not lo <= float(motion.fps) <= hi:
+            raise MocapValueError(
+                f"the motion is at {float(motion.fps):g} fps; this network was trained at {fps:g} fps "
+                f"and accepts {lo:g}-{hi:g} fps inputs (resampled to {fps:g}): resample it first "
+                f"(Motion.resample) only if its motion is smooth at that rate")
         P, obs = C.prepare_positions(motion, self.joints_in, fps)
         if not obs.any():
             raise MocapValueError("the motion has no observed value of the model's joints")
-        out = self.refine_local(P, obs, postprocess=postprocess, threads=threads)
+        out = self.refine_local(P, obs, postprocess=postprocess, threads=threads, network=network)
         out = _resample_back(out, fps, motion.fps, motion.n_frames)
         if self.same_topology or all(j in motion.skeleton.names for j in self.joints_out):
-            full = C.attach_dropped(out, motion.skeleton, self.joints_out)
+            from ..solvers.lowrank import noise_level
+
+            sigma = noise_level(motion.matrix(), motion.matrix_mask(), robust=True)
+            full = C.attach_dropped(out, motion.skeleton, self.joints_out, source=motion.positions,
+                                    source_observed=motion.observed, noise_cm=sigma, fps=motion.fps)
+            full = clean_blend(full, motion.positions, motion.observed, sigma,
+                               float(self.meta.get("clean_blend_cm", CLEAN_BLEND_CM)))
             src = dict(motion.source)
             src.pop("per_frame", None)
             return Motion(full, motion.skeleton, motion.fps, None, src)
         return Motion(out, self.output_skeleton(), motion.fps, None, {"refined_from": motion.source.get("path")})
+
+
+CLEAN_BLEND_CM = 0.3
+"""Noise level (cm) at which :func:`clean_blend` gives the input and the network equal weight."""
+
+
+def clean_blend(out: np.ndarray, inp: np.ndarray, observed: np.ndarray, noise_cm: float,
+                sigma0: float = CLEAN_BLEND_CM) -> np.ndarray:
+    """"Do no harm" on near-clean input (issue 20): observed samples become
+    ``w inp + (1 - w) out`` with ``w = 1 / (1 + (noise_cm / sigma0)^2)``, ``noise_cm`` the
+    input's robust noise estimate (:func:`mocapkit.solvers.lowrank.noise_level`).
+
+    The network corrects a light low-pass of its input (:func:`clips.model_input`), which
+    costs a clean fast motion up to ~0.6 cm; a clean capture (estimated noise ~0.05 cm,
+    w ~ 0.97) thus comes back as it was, while at 1 cm noise w = 0.08 and at 3 cm 0.01
+    (the network's result). ``sigma0 <= 0`` turns the blend off. Missing samples keep the
+    network's value.
+    """
+    if not sigma0 or sigma0 <= 0:
+        return out
+    w = 1.0 / (1.0 + (float(noise_cm) / float(sigma0)) ** 2)
+    if w < 1e-4:
+        return out
+    res = np.array(out, dtype=np.float64)
+    obs = np.asarray(observed, bool)
+    res[obs] = w * np.asarray(inp, dtype=np.float64)[obs] + (1 - w) * res[obs]
+    return res
+
+
+def _input_channels(meta: dict) -> int:
+    p, k = meta.get("params", {}), len(meta["joints_in"])
+    return 3 * k * (2 if float(p.get("base_sigma", 0.0) or 0.0) > 0 else 1) + (k if p.get("mask_input") else 0)
+
+
+def _check_version(path, meta: dict) -> None:
+    if meta.get("version") not in SUPPORTED_VERSIONS:
+        raise MocapFormatError(path, f"neural model format version {meta.get('version')} is not "
+                                     f"supported (expected one of {SUPPORTED_VERSIONS})")
+
+
+def _export_one(torch: Any, net: Any, metadata: dict[str, str]) -> bytes:
+    """ONNX bytes of a MotionAutoencoder (inputs x; outputs y, h; dynamic batch and frames)."""
+    import io as _io
+    import warnings
+
+    import onnx
+
+    class _Wrap(torch.nn.Module):
+        def __init__(self, n):
+            super().__init__()
+            self.n = n
+
+        def forward(self, x):
+            return self.n(x)
+
+    net = net.cpu().eval()
+    x = torch.zeros(2, 120, net.m)
+    buf = _io.BytesIO()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        torch.onnx.export(_Wrap(net), (x,), buf, input_names=["x"], output_names=["y", "h"],
+                          dynamic_axes={"x": {0: "batch", 1: "frames"}, "y": {0: "batch", 1: "frames"},
+                                        "h": {0: "batch", 1: "frames"}},
+                          opset_version=ONNX_OPSET, dynamo=False)
+    model = onnx.load_from_string(buf.getvalue())
+    for k, v in metadata.items():
+        e = model.metadata_props.add()
+        e.key, e.value = k, v
+    onnx.checker.check_model(model)
+    return model.SerializeToString()
 
 
 @contextmanager
@@ -275,6 +496,11 @@ def _resample_back(X: np.ndarray, fps_model: float, fps: float, T: int) -> np.nd
     return Y.reshape(T, *X.shape[1:])
 
 
+FPS_RANGE = (24.0, 1000.0)
+"""Input frame rates accepted (resampled to the model's 60 fps); below 24 fps the cubic
+upsampling invents the motion between samples and the network was never trained on it."""
+
+
 def make_meta(method: str, params: dict, joints_in: Sequence[str], joints_out: Sequence[str],
               parents_out: np.ndarray, offsets_out: np.ndarray, **extra: Any) -> dict:
     meta = {"format": FORMAT, "version": FORMAT_VERSION, "method": method, "params": dict(params),
@@ -284,6 +510,7 @@ def make_meta(method: str, params: dict, joints_in: Sequence[str], joints_out: S
             "fps": C.FPS, "clip_frames": int(params.get("clip_frames", C.CLIP_FRAMES)),
             "clip_hop": int(params.get("clip_frames", C.CLIP_FRAMES)) // 2,
             "reference_sigma": float(params.get("reference_sigma", C.REFERENCE_SIGMA)),
-            "up_axis": C.UP_AXIS, "postprocess": bool(params.get("postprocess", method == "bra-p"))}
+            "up_axis": C.UP_AXIS, "postprocess": bool(params.get("postprocess", method == "bra-p")),
+            "fps_range": list(FPS_RANGE)}
     meta.update(extra)
     return meta

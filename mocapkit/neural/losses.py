@@ -44,6 +44,20 @@ def reproduction(y: Any, x: Any) -> Any:
     return ((y - x) ** 2).mean()
 
 
+def reproduction_rms(y: Any, x: Any, eps: float = 1e-4) -> Any:
+    """Eq. (3) with ``||.||_2`` read as the norm itself (not squared): the per-clip RMS
+    ``sqrt((1/(f d)) ||Y - X||^2 + eps)``, averaged over the batch (issue 20).
+
+    With a batch mixing 1 dB (~14 cm) and near-clean clips, the MSE is all but the
+    heavy-noise clips' error, so a network trained on it neglects small errors (measured:
+    a residual network at 400 steps made 3 cm clips worse than its own input low-pass);
+    the per-clip RMS weights every clip's error by 1 / its size, i.e. it minimises the
+    mean per-clip error that Table 1's R reports. ``eps`` (normalised units^2) keeps the
+    gradient finite at a perfect clip.
+    """
+    return (((y - x) ** 2).mean(dim=tuple(range(1, y.dim()))) + eps).sqrt().mean()
+
+
 def perceptual(h_r: Any, h_c: Any) -> Any:
     """Eq. (4), L_P = (1/(f h)) ||E_p(X_R) - E_p(X_C)||^2 (MSE of the hidden units)."""
     return ((h_r - h_c) ** 2).mean()

@@ -52,7 +52,37 @@ NOISE_MIX: tuple[tuple[str, float, float], ...] = (
 )
 """The paper's training noise: (kind, missing ratio, Gaussian SNR dB)."""
 
+NOISE_MIX_V2: tuple[tuple[str, float, float], ...] = NOISE_MIX + (
+    ("sigma", 0.0, 8.0),
+    ("sigma", 0.0, 8.0),
+    ("sigma", 0.0, 8.0),
+    ("sigma", 0.2, 4.0),
+    ("spikes", 0.15, 3.0),
+    ("spikes", 0.15, 3.0),
+)
+"""Issue 20's training noise: the paper's four types (40 % of the samples) plus
+``("sigma", r, s)``: Gaussian noise of a sigma drawn log-uniformly in [0.05, s] cm
+(clean-looking to heavy; a network must learn to leave a clean clip alone) with up to
+``r`` of the joints of every frame missing; and ``("spikes", r, s)``: Gaussian noise of
+U[0.3, s] cm plus a fraction U[0, r] of the joint positions moved by 15 cm in a random
+direction."""
+
+SPIKE_CM = 15.0
+
 CHECKPOINT_VERSION = 1
+
+
+OPERATING_POINT: dict[str, Any] = dict(
+    hidden=256, dropout=0.0, batch_size=16, wide_fc=True,
+    lambdas_perceptual=(1.0, 1e-4, 1e-4), lambdas_denoise=(1.0, 1e-3, 1e-3, 10.0),
+    lr_perceptual=1e-3, lr_denoise=1e-3, lr_schedule="cosine", lr_floor=0.05, grad_clip=1.0,
+    reproduction="rms",
+    residual=True, fill_input=True, mask_input=True, base_sigma=1.0, augment=True,
+    scale_range=(0.85, 1.15), random_offsets=True, noise=NOISE_MIX_V2)
+"""Settings of the shipped models (issue 20; benchmarks/train_neural.py) and the defaults
+of :func:`train_cli`: the paper's losses and lambdas (eq. 3 as the per-clip RMS), hidden
+256, residual output on a
+light low-pass of the input, bridged + masked input, augmentation, cosine learning rate."""
 
 
 @dataclass
@@ -88,12 +118,25 @@ class TrainConfig:
     random_offsets: bool = False
     noise: tuple = NOISE_MIX
     device: str = "cpu"
+    residual: bool = False
+    mask_input: bool = False
+    fill_input: bool = False
+    augment: bool = False
+    scale_range: tuple[float, float] = (0.85, 1.15)
+    lr_schedule: str = "constant"
+    lr_floor: float = 0.05
+    base_sigma: float = 0.0
+    grad_clip: float = 0.0
+    reproduction: str = "mse"
+    wide_fc: bool = False
+    highpass_gain: float = 1.0
 
     def to_json(self) -> dict:
         d = asdict(self)
         d["noise"] = [list(n) for n in self.noise]
         d["lambdas_perceptual"] = list(self.lambdas_perceptual)
         d["lambdas_denoise"] = list(self.lambdas_denoise)
+        d["scale_range"] = list(self.scale_range)
         return d
 
     @classmethod
@@ -105,7 +148,7 @@ class TrainConfig:
         p = dict(params)
         if "noise" in p:
             p["noise"] = tuple(tuple(n) for n in p["noise"])
-        for k in ("lambdas_perceptual", "lambdas_denoise"):
+        for k in ("lambdas_perceptual", "lambdas_denoise", "scale_range"):
             if k in p:
                 p[k] = tuple(float(x) for x in p[k])
         return cls(**p)
@@ -121,10 +164,15 @@ class SyntheticSource:
     ----------
     motions : clean training motions (any fps; resampled to 60), all containing ``joints``.
     joints : model joints (first = root); default :data:`clips.CMU_21`.
+    f : clip length (frames).
+    augment : the statistics (:class:`clips.Normaliser`) are those of the rotation-augmented
+        data: horizontal means 0 (a uniform rotation about the vertical averages them out).
+    mask_input : the network input carries the K mask channels (``m = 4 K``).
     """
 
     def __init__(self, motions: Sequence[Motion], joints: Sequence[str] = C.CMU_21,
-                 f: int = C.CLIP_FRAMES):
+                 f: int = C.CLIP_FRAMES, *, augment: bool = False, mask_input: bool = False,
+                 base_sigma: float = 0.0):
         if not motions:
             raise MocapValueError("training needs at least one motion")
         self.joints = list(joints)
@@ -137,6 +185,7 @@ class SyntheticSource:
         self.offsets = np.where(self.parents[:, None] >= 0, rest - rest[np.maximum(self.parents, 0)], rest)
         self.skeleton = Skeleton(tuple(self.joints), self.parents, self.offsets)
         self.bones = C.bones_of(self.parents)
+        self.mirror = C.mirror_permutation(self.joints)
         self.local: list[np.ndarray] = []
         self.names: list[str] = []
         for m in motions:
@@ -151,18 +200,27 @@ class SyntheticSource:
         self.clips = [(i, int(s)) for i, L in enumerate(self.local) for s in C.training_windows(len(L), self.f)]
         allX = np.concatenate([L.reshape(len(L), -1) for L in self.local], axis=0)
         self.norm = C.Normaliser.fit(allX)
+        if augment:
+            mean = self.norm.mean.reshape(-1, 3).copy()
+            mean[:, [a for a in range(3) if a != C.UP_AXIS]] = 0.0
+            mean = mean.reshape(-1)
+            self.norm = C.Normaliser(mean, float(np.sqrt(np.mean((allX - mean) ** 2))))
         self.norm_in = self.norm_out = self.norm
-        self.m = self.n = 3 * len(self.joints)
+        self.body_size = C.body_size(np.concatenate(self.local))
+        self.n = 3 * len(self.joints)
+        self.mask_input = bool(mask_input)
+        self.base_sigma = float(base_sigma)
+        self.m = self.n * (2 if base_sigma > 0 else 1) + (len(self.joints) if mask_input else 0)
         self.joints_in = self.joints_out = self.joints
 
     @property
     def n_clips(self) -> int:
         return len(self.clips)
 
-    def _clean(self, rng: np.random.Generator, B: int, random_offsets: bool, queue: list) -> list[np.ndarray]:
+    def _clean(self, rng: np.random.Generator, B: int, cfg: "TrainConfig", queue: list) -> np.ndarray:
         out = []
         for _ in range(B):
-            if random_offsets:
+            if cfg.random_offsets:
                 lens = np.array([len(L) - self.f + 1 for L in self.local], dtype=float)
                 i = int(rng.choice(len(self.local), p=lens / lens.sum()))
                 s = int(rng.integers(0, len(self.local[i]) - self.f + 1))
@@ -171,7 +229,30 @@ class SyntheticSource:
                     queue.extend(int(k) for k in rng.permutation(len(self.clips)))
                 i, s = self.clips[queue.pop()]
             out.append(self.local[i][s:s + self.f])
-        return out
+        X = np.stack(out)                                          # (B, f, K, 3)
+        if getattr(cfg, "augment", False):
+            X = self.augment(X, rng, cfg.scale_range)
+        return X
+
+    def augment(self, X: np.ndarray, rng: np.random.Generator, scale_range=(0.85, 1.15)) -> np.ndarray:
+        """Rotate (B, f, K, 3) root-local clips about the vertical, mirror half of them
+        left/right, scale them (vectorised; the root stays on the vertical axis)."""
+        B = len(X)
+        X = np.array(X, dtype=np.float64)
+        flip = rng.random(B) < 0.5
+        if flip.any():
+            Y = X[flip][:, :, self.mirror]
+            Y[..., C.MIRROR_AXIS] *= -1.0
+            X[flip] = Y
+        th = rng.uniform(0.0, 2 * np.pi, B)
+        h = [a for a in range(3) if a != C.UP_AXIS]
+        c, s_ = np.cos(th)[:, None, None], np.sin(th)[:, None, None]
+        a, b = X[..., h[0]].copy(), X[..., h[1]].copy()
+        X[..., h[0]] = c * a + s_ * b
+        X[..., h[1]] = -s_ * a + c * b
+        lo, hi = scale_range
+        X *= rng.uniform(lo, hi, B)[:, None, None, None]
+        return X
 
     def ref_lengths(self, X: np.ndarray, std: float) -> np.ndarray:
         """Mean bone lengths over each clean clip (B, nb), in units of std."""
@@ -180,27 +261,51 @@ class SyntheticSource:
         return L / std
 
     def clean_batch(self, rng, B, cfg: TrainConfig, queue: list) -> dict[str, np.ndarray]:
-        X = np.stack(self._clean(rng, B, cfg.random_offsets, queue))            # (B, f, K, 3)
+        X = self._clean(rng, B, cfg, queue)                      # (B, f, K, 3)
         Z = self.norm.forward(X.reshape(B, self.f, -1))
         return {"x_clean": Z, "ref": self.ref_lengths(X, self.norm.std)}
 
-    def noisy_batch(self, rng, B, cfg: TrainConfig, queue: list) -> dict[str, np.ndarray]:
-        from .. import corrupt
+    def corrupt(self, X: np.ndarray, kind: str, ratio: float, level: float,
+                rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+        """One noisy copy of a clean clip X (f, K, 3): (positions with NaN, observed (f, K))."""
+        f, K, _ = X.shape
+        obs = np.ones((f, K), bool)
+        if kind in ("gaussian", "missing"):
+            rel = X[:, 1:] - X[:, :1]
+            sigma = float(np.sqrt(np.mean(rel ** 2) / 10.0 ** (float(level) / 10.0)))
+            miss = float(ratio) if kind == "missing" else 0.0
+        elif kind == "sigma":
+            sigma = float(np.exp(rng.uniform(np.log(0.05), np.log(float(level)))))
+            miss = float(rng.uniform(0.0, float(ratio))) if ratio else 0.0
+        elif kind == "spikes":
+            sigma = float(rng.uniform(0.3, float(level)))
+            miss = 0.0
+        else:
+            raise MocapValueError(f"unknown training noise kind {kind!r}")
+        P = X + rng.normal(0.0, sigma, X.shape)
+        if kind == "spikes":
+            sel = rng.random((f, K)) < rng.uniform(0.0, float(ratio))
+            d = rng.normal(size=(int(sel.sum()), 3))
+            P[sel] += SPIKE_CM * d / np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
+        if miss > 0:
+            n = int(round(miss * K))
+            if n:
+                idx = np.argsort(rng.random((f, K)), axis=1)[:, :n]
+                np.put_along_axis(obs, idx, False, axis=1)
+                P[~obs] = np.nan
+        return P, obs
 
-        clean = self._clean(rng, B, cfg.random_offsets, queue)
+    def noisy_batch(self, rng, B, cfg: TrainConfig, queue: list) -> dict[str, np.ndarray]:
+        clean = self._clean(rng, B, cfg, queue)
         xin, xc, refs = [], [], []
         for X in clean:
-            kind, ratio, snr = cfg.noise[int(rng.integers(len(cfg.noise)))]
-            m = Motion(X, self.skeleton, C.FPS)
-            if kind == "missing":
-                m, _ = corrupt.missing(m, ratio=float(ratio), per_frame=True, seed=rng)
-            elif kind != "gaussian":
-                raise MocapValueError(f"unknown training noise kind {kind!r}")
-            m, _ = corrupt.gaussian(m, snr_db=float(snr), seed=rng)
-            P, obs = np.array(m.positions), m.observed
+            kind, ratio, level = cfg.noise[int(rng.integers(len(cfg.noise)))]
+            P, obs = self.corrupt(X, kind, ratio, level, rng)
             ref = C.ground_reference(P[:, 0], obs[:, 0], sigma=cfg.reference_sigma,
                                      fallback=C.joint_mean_track(P))
-            xin.append(self.norm.forward_fill((P - ref[:, None]).reshape(self.f, -1)))
+            Z = self.norm.forward((P - ref[:, None]).reshape(self.f, -1))
+            xin.append(C.model_input(Z, obs, fill=getattr(cfg, "fill_input", False), mask=self.mask_input,
+                                     base_sigma=self.base_sigma, highpass_gain=cfg.highpass_gain))
             T = X - ref[:, None]
             xc.append(self.norm.forward(T.reshape(self.f, -1)))
             refs.append(T)
@@ -312,6 +417,9 @@ class Trainer:
         self.progress = progress
         self.log = log or (lambda s: None)
         torch.set_num_threads(int(config.threads or available_cores()))
+        # measured (issue 20): without it, denormal floats in the LSTM made CPU training steps
+        # 5-10x slower after a few hundred steps (0.3 s -> 2-4 s per step); process-wide setting
+        torch.set_flush_denormal(True)
         torch.manual_seed(int(config.seed))
         self.rng = np.random.default_rng(int(config.seed))
         self.queue: list[int] = []
@@ -319,7 +427,8 @@ class Trainer:
         self.device = torch.device(config.device)
         self.perceptual = (build(n, n, config.hidden, config.dropout).to(self.device)
                            if config.perceptual else None)
-        self.denoise = build(source.m, n, config.hidden, config.dropout).to(self.device)
+        self.denoise = build(source.m, n, config.hidden, config.dropout,
+                             residual=bool(config.residual), wide=bool(config.wide_fc)).to(self.device)
         self.opt_p = (torch.optim.Adam(self.perceptual.parameters(), lr=config.lr_perceptual)
                       if self.perceptual is not None else None)
         self.opt_d = torch.optim.Adam(self.denoise.parameters(), lr=config.lr_denoise)
@@ -364,7 +473,8 @@ class Trainer:
         xin, xc = self._tensor(batch["x_in"]), self._tensor(batch["x_clean"])
         ref = self._tensor(batch["ref"])
         y, _ = self.denoise(xin)
-        lr, ls = L.reproduction(y, xc), L.smoothness(y)
+        rep = L.reproduction_rms if self.cfg.reproduction == "rms" else L.reproduction
+        lr, ls = rep(y, xc), L.smoothness(y)
         lb = L.bone_length(L.denormalised(y, self.mean_over_std), self.bones, ref)
         l1, l2, l3, l4 = self.cfg.lambdas_denoise
         total = l1 * lr + l2 * ls + l3 * lb
@@ -392,11 +502,29 @@ class Trainer:
             batch = self.src.noisy_batch(self.rng, B, self.cfg, self.queue)
             loss, logs = self._losses_denoise(batch)
             opt = self.opt_d
+        lr = self.learning_rate()
+        for g in opt.param_groups:
+            g["lr"] = lr
         opt.zero_grad(set_to_none=True)
         loss.backward()
+        if self.cfg.grad_clip and self.cfg.grad_clip > 0:
+            params = [p for g in opt.param_groups for p in g["params"]]
+            self.torch.nn.utils.clip_grad_norm_(params, float(self.cfg.grad_clip))
         opt.step()
         self.step += 1
+        logs["lr"] = lr
         return logs
+
+    def learning_rate(self) -> float:
+        """Learning rate of the current step (``lr_schedule``, see :class:`TrainConfig`)."""
+        c = self.cfg
+        base = c.lr_perceptual if self.phase == "perceptual" else c.lr_denoise
+        if c.lr_schedule == "constant":
+            return float(base)
+        if c.lr_schedule != "cosine":
+            raise MocapValueError(f"lr_schedule must be 'constant' or 'cosine', not {c.lr_schedule!r}")
+        frac = min(1.0, self.step / max(1, self.total_steps(self.phase)))
+        return float(base * (c.lr_floor + (1 - c.lr_floor) * 0.5 * (1 + np.cos(np.pi * frac))))
 
     def _enter_denoise(self) -> None:
         self.phase = "denoise"
@@ -430,7 +558,10 @@ class Trainer:
                     bar.set_postfix({k: f"{np.mean(v[-50:]):.4g}" for k, v in acc.items()})
                 if self.step % 50 == 0 or self.step == total:
                     self.history.append({"phase": self.phase, "step": self.step,
+                                         "seconds": round(self.seconds + time.perf_counter() - t0, 1),
                                          **{k: float(np.mean(v[-50:])) for k, v in acc.items()}})
+                    self.log(f"{self.phase} {self.step}/{total} " + " ".join(
+                        f"{k}={np.mean(v[-50:]):.4g}" for k, v in acc.items()))
                 if self.checkpoint is not None and self.cfg.checkpoint_every and (
                         self.step % self.cfg.checkpoint_every == 0) and self.step < total:
                     self.seconds += time.perf_counter() - t0
@@ -473,7 +604,8 @@ class Trainer:
         theirs = meta["config"]
         ignore = {"steps_perceptual", "steps_denoise", "epochs_perceptual", "epochs_denoise",
                   "checkpoint_every", "threads", "device"}
-        diff = sorted(k for k in mine if k not in ignore and mine[k] != theirs.get(k))
+        defaults = TrainConfig().to_json()        # fields added after the checkpoint was written
+        diff = sorted(k for k in mine if k not in ignore and mine[k] != theirs.get(k, defaults.get(k)))
         if diff:
             raise MocapValueError(f"checkpoint {path} was written with other settings ({', '.join(diff)}); "
                                   f"start without resume or use the same parameters")
@@ -508,8 +640,9 @@ class Trainer:
                 "n_clips": self.src.n_clips, "final": self.history[-1:] and self.history[-1],
                 "history": self.history[::max(1, len(self.history) // 40)]}
         info.update(training_info or {})
+        extra = {"body_size_cm": round(float(self.src.body_size), 3)} if hasattr(self.src, "body_size") else {}
         meta = make_meta(method, params, self.src.joints_in, self.src.joints_out, self.src.parents,
-                         self.src.offsets, training=info)
+                         self.src.offsets, training=info, **extra)
         self.denoise.cpu().eval()
         if self.perceptual is not None:
             self.perceptual.cpu().eval()
@@ -521,7 +654,8 @@ def train_motions(motions: Sequence[Motion], config: TrainConfig, *, joints: Seq
                   progress: bool = False, log: Callable[[str], None] | None = None,
                   training_info: dict | None = None) -> Bundle:
     """Train BRA-P (``config.perceptual``) or BRA on clean motions; returns the Bundle."""
-    src = SyntheticSource(motions, joints, config.clip_frames)
+    src = SyntheticSource(motions, joints, config.clip_frames, augment=config.augment,
+                          mask_input=config.mask_input, base_sigma=config.base_sigma)
     tr = Trainer(src, config, checkpoint=checkpoint, progress=progress, log=log)
     if resume and checkpoint is not None and Path(checkpoint).is_file():
         tr.load_checkpoint(checkpoint)
@@ -568,7 +702,10 @@ def train_cli(data: str | os.PathLike | Iterable[str | os.PathLike], output: str
     resume : continue from ``output + '.ckpt'`` when it exists.
     exclude : file stems to hold out (e.g. ``['16_15', '131_03']``).
     half : store the weights as float16 (half the size).
-    params : :class:`TrainConfig` fields (``hidden``, ``steps_denoise``, ``lr_perceptual`` ...).
+    params : :class:`TrainConfig` fields (``hidden``, ``steps_denoise``, ``lr_perceptual`` ...);
+        unspecified ones take :data:`OPERATING_POINT` (``residual=False, fill_input=False,
+        mask_input=False, base_sigma=0, augment=False, lr_schedule='constant',
+        noise=NOISE_MIX`` is the paper's original network).
 
     Returns
     -------
@@ -578,7 +715,7 @@ def train_cli(data: str | os.PathLike | Iterable[str | os.PathLike], output: str
 
     if method not in ("bra-p", "bra"):
         raise MocapValueError(f"train_cli trains 'bra-p' or 'bra', not {method!r}")
-    params = dict(params)
+    params = {**OPERATING_POINT, **dict(params)}
     params.setdefault("perceptual", method == "bra-p")
     cfg = TrainConfig.from_params(**params)
     files = [f for f in _collect(data) if f.stem not in set(exclude)]
