@@ -39,6 +39,7 @@ import numpy as np
 
 from . import signal
 from .errors import MocapValueError
+from .io._rotations import axis_rotation
 from .motion import Motion
 from .skeleton import Skeleton, _side
 
@@ -196,14 +197,7 @@ def body_transform(motion: Motion, *, smooth_s: float = 0.5, up_axis: int | None
             th[ok] = np.unwrap(np.arctan2(Lat[ok, b], Lat[ok, a]))
             th = signal.fill_gaps(th[:, None], ok[:, None], kind="linear")
             theta = _smooth(th, motion.fps, smooth_s)[:, 0]
-    c, s = np.cos(theta), np.sin(theta)
-    R = np.zeros((T, 3, 3))
-    R[:, up, up] = 1.0
-    R[:, a, a] = c
-    R[:, b, a] = s
-    R[:, a, b] = -s
-    R[:, b, b] = c
-    return BodyTransform(origin=O, rotation=R, up_axis=up, heading=theta)
+    return BodyTransform(origin=O, rotation=axis_rotation(up, theta), up_axis=up, heading=theta)
 
 
 def to_body_frame(motion: Motion, *, smooth_s: float = 0.5, up_axis: int | None = None,

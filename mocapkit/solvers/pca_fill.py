@@ -89,24 +89,13 @@ import warnings
 import numpy as np
 
 from ..bodyframe import BodyTransform, up_axis_of
+from ..io._rotations import axis_rotation
 from ..errors import MocapValueError
 from ..gaps import fill_linear, find_gaps
 from ..rigid import distance_stats, yaw_kabsch
 from . import _linalg
 
 __all__ = ["body_frame", "pca_fill", "lowrank_complete"]
-
-
-def _rotations(theta: np.ndarray, up: int) -> np.ndarray:
-    a, b = (up + 1) % 3, (up + 2) % 3
-    c, s = np.cos(theta), np.sin(theta)
-    R = np.zeros(theta.shape + (3, 3))
-    R[..., up, up] = 1.0
-    R[..., a, a] = c
-    R[..., b, a] = s
-    R[..., a, b] = -s
-    R[..., b, b] = c
-    return R
 
 
 def body_frame(P: np.ndarray, observed: np.ndarray, *, up_axis: int | None = None,
@@ -150,7 +139,7 @@ def body_frame(P: np.ndarray, observed: np.ndarray, *, up_axis: int | None = Non
     theta = np.zeros(T)
     mw = np.ones(J)
     for _ in range(int(n_iter)):
-        R = _rotations(theta, up)
+        R = axis_rotation(up, theta)
         L = np.einsum("tji,tkj->tki", R, Q - c[:, None, :])            # local
         with np.errstate(invalid="ignore", divide="ignore"):
             o = (L * wo[..., None]).sum(axis=0) / wo.sum(axis=0)[:, None]
@@ -183,7 +172,7 @@ def body_frame(P: np.ndarray, observed: np.ndarray, *, up_axis: int | None = Non
     c[:, up] = 0.0
     if (~good).any() and good.any():
         c = fill_linear(np.where(good[:, None], c, np.nan), np.repeat(good[:, None], 3, 1))
-    R = _rotations(theta, up)
+    R = axis_rotation(up, theta)
     return BodyTransform(origin=c, rotation=R, up_axis=up, heading=theta)
 
 
