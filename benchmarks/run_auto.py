@@ -50,7 +50,7 @@ def render(doc: dict) -> str:
         if r["clip"] == "summary":
             summ[r["condition"]][r["metric"]] = r
     for cond, d in summ.items():
-        if cond == "corrupted":
+        if cond in ("corrupted", "all"):
             continue
         n = next(iter(d.values())).get("n", "")
         out.append(f"| {cond} | {n} | {_v(d.get('ratio_oracle_median', {}).get('value'), 2)} | "
@@ -60,6 +60,9 @@ def render(doc: dict) -> str:
                    f"{_v(d.get('time_ratio_picked_median', {}).get('value'), 1)} |")
     clean = [(c, d["added_worst"]["value"]) for c, d in summ.items() if "added_worst" in d]
     out += [""] + [f"- error auto adds to a clip with no noise ({c}): worst {v:.3f} cm" for c, v in clean]
+    fails = summ.get("all", {}).get("failed_runs")
+    out.append(f"- failed runs: {int(fails['value']) if fails else 0}"
+               + ("".join(f"\n  - {x}" for x in fails["extra"]["runs"]) if fails else ""))
     est = summ.get("corrupted", {}).get("estimate_within_1.5x")
     if est:
         out.append(f"- estimated error within a factor 1.5 of the true error: {est['value']:.0f} % "

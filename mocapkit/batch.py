@@ -198,12 +198,10 @@ def process_one(in_path: str, out_path: str, method: str, params: dict[str, Any]
             if den.needs_training:                # the shipped general model, if one fits
                 from . import shipped
 
-                den = shipped.load(method, m)
+                den = shipped.load(method, m, **params)
                 if den is None:
                     raise MocapError(f"method {method!r}: no shipped model fits this file's joint "
                                      f"set; give --model")
-                if params:
-                    den.set_params(**params)
         out = den.denoise(m)
         io.write(out, out_path, overwrite=True, **opts)
         return {"status": "ok", "frames": m.n_frames, "seconds": time.perf_counter() - t0,

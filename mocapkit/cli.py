@@ -295,14 +295,13 @@ def _method(name: str, params: dict[str, Any], model: str | None, motion=None, q
         if params:
             m.set_params(**method_params(m.name, params, type(m)))
         return m
-    m = denoise.get(name, **method_params(name, params))
+    params = method_params(name, params)
+    m = denoise.get(name, **params)
     if m.needs_training and motion is not None:
         from . import shipped
 
-        fitted = shipped.load(name, motion)
+        fitted = shipped.load(name, motion, **params)
         if fitted is not None:
-            if params:
-                fitted.set_params(**method_params(name, params, type(fitted)))
             if not quiet:
                 print(f"using the shipped general {name} model ({shipped.describe(name)}); "
                       f"train one on your own clips with: mocapkit train --method {name}")

@@ -164,8 +164,11 @@ def _fresh(fname: str):
     return obj
 
 
-def load(name: str, motion: Motion):
+def load(name: str, motion: Motion, **params):
     """A fitted estimator of method ``name`` for ``motion``, or None.
+
+    ``params`` (already type-checked settings of the method) are set on the fitted model,
+    inside the rate adapter where there is one.
 
     None when ``name`` has no shipped model or none matches the motion's joint set (the
     31-joint CMU/HDM05 Acclaim skeleton). Frame rates: see the module docstring -- at a
@@ -176,6 +179,8 @@ def load(name: str, motion: Motion):
     if c is None:
         return None
     model = _fresh(c["file"])
+    if params:
+        model.set_params(**params)
     if c["mode"] == "native":
         return model
     return RateAdapter(model, float(c["model_fps"]))

@@ -91,12 +91,13 @@ def test_gcv_bad_input_is_one_clear_error():
         gcv_smooth(np.zeros((20, 2)), np.array([[True, False]] * 20))
 
 
-def test_shrinker_matches_gavish_donoho_formula():
-    beta = 0.25
-    y = np.array([0.5, 1.49, 1.51, 2.0, 10.0])
-    expect = np.where(y > 1.5, np.sqrt(np.maximum((y ** 2 - beta - 1) ** 2 - 4 * beta, 0)) / y, 0)
-    np.testing.assert_allclose(shrink(y, beta), expect)
-    assert shrink(np.array([100.0]), beta)[0] == pytest.approx(100.0, rel=1e-3)
+def test_shrinker_known_values():
+    # square matrices (beta = 1): Gavish & Donoho's shrinker is sqrt(y^2 - 4) above y = 2
+    np.testing.assert_allclose(shrink(np.array([1.0, 2.0, 3.0, 5.0]), 1.0),
+                               [0.0, 0.0, np.sqrt(5.0), np.sqrt(21.0)])
+    # below the bulk edge 1 + sqrt(beta) everything is noise; far above it nothing shrinks
+    assert shrink(np.array([1.49]), 0.25)[0] == 0.0
+    assert shrink(np.array([100.0]), 0.25)[0] == pytest.approx(100.0, rel=1e-3)
 
 
 def test_sure_is_unbiased_for_a_linear_smoother():
@@ -192,3 +193,17 @@ def test_cli_info_diagnose_and_default_is_auto(tmp_path, capsys, clip):
     assert main(["denoise", str(src), str(tmp_path / "out.trc"), "--method", "auto"]) == 0
     text = capsys.readouterr().out
     assert "auto:" in text and "estimated error" in text
+
+
+@pytest.mark.shared_data
+def test_bench_auto_quick_protocol_rows(shared_data):
+    from mocapkit.bench.core import PROTOCOLS, Context
+    import mocapkit.bench.protocols  # noqa: F401
+
+    rows = PROTOCOLS["auto"].func(Context(shared_data, quick=True))
+    methods = {r.method for r in rows if r.metric == "rmse"}
+    assert {"auto", "kalman-cv-gate5", "oracle-classical", "best", "gcv-spline", "mssa"} <= methods
+    summ = {(r.condition, r.metric): r.value for r in rows if r.clip == "summary"}
+    assert summ[("clean@30", "added_worst")] <= 0.05
+    assert summ[("spikes@30", "ratio_oracle_median")] < 1.0
+    assert not any(r.metric == "failed" for r in rows)

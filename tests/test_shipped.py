@@ -160,3 +160,12 @@ def test_cli_uses_the_shipped_model_without_train(tmp_path, capsys):
     back = io.read(out).positions
     err = float(np.sqrt(np.mean((back - clip.positions) ** 2)))
     assert err < 0.6 * metrics.rmse(clip, noisy)
+
+
+def test_params_reach_the_model_inside_the_rate_adapter():
+    from mocapkit import io, shipped
+    from mocapkit.datasets import bundled
+
+    clip = io.read(bundled("16_15.amc")).slice(2, 122).resample(60.0)   # no 60 fps model
+    est = shipped.load("xiao-sparse", clip, n_iter=3)
+    assert isinstance(est, shipped.RateAdapter) and est.model.n_iter == 3

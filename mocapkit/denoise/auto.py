@@ -14,7 +14,7 @@ The chain, decided from the clip's own diagnosis (:mod:`mocapkit.diagnose`):
    the mean of the two. *Do no harm*: when the
    estimated noise is below ``min_noise_cm`` and there are no spikes the measured samples
    are returned as they are (at that level smoothing cannot be told from removing motion
-   detail: on noise-free CMU clips the GCV spline adds 0.01-0.08 cm).
+   detail: on noise-free CMU clips the GCV spline adds 0.002-0.08 cm).
 3. **Gaps** -- short holes (spikes, gaps up to ``long_gap_s``) are filled by the spline;
    longer gaps by ``fill-auto`` (per-gap self-validated choice of linear / spline /
    pattern / rigid-body / PCA fill) run on the cleaned samples.
@@ -51,7 +51,9 @@ from .fill_auto import DEFAULT_CANDIDATES
 __all__ = ["Auto", "FILL_CANDIDATES"]
 
 #: fills auto's fill-auto chooses from for long gaps: fill-auto's own, plus trnn (low-rank
-#: completion; measured best on 60-frame gaps of CMU clips at 120 fps, 0.30 vs 0.54 cm)
+#: completion: on ten 60-frame gaps of 16_15 at 120 fps trnn alone gave 0.30 cm where auto
+#: without it gave 0.54; per-gap validation does not always pick right -- see the
+#: gaps10x60 rows of docs/results/auto.md, e.g. balance@30 0.76 vs fill-auto's 0.39)
 FILL_CANDIDATES = DEFAULT_CANDIDATES + ("trnn",)
 
 
@@ -169,9 +171,10 @@ def _smooth(Y: np.ndarray, kept: np.ndarray, fit: np.ndarray, sigma: float,
     """Best of GCV spline, MSSA and their mean on the complete matrix Y (holes filled),
     judged by Monte-Carlo SURE on the kept samples. Returns (out, name, estimated RMSE).
 
-    Measured on 5 CMU clips x 30/120 fps x Gaussian 1/3 cm: the mean of the two is the
-    most accurate in 15 of 20 cases (0.71-0.80 x the oracle-tuned classical filter; GCV
-    alone 0.80-0.92, MSSA alone 0.65-0.87) and SURE picks within 2 % of the best.
+    Measured on 5 CMU clips x 30/120 fps x Gaussian 1/3 cm (before the bench, see
+    docs/results/auto.md for the full run): the mean of the two was best or tied in 18 of
+    20 cases (0.60-0.80 x the oracle-tuned classical filter; GCV alone 0.67-0.92, MSSA
+    alone 0.65-0.87), and the SURE pick was within 3 % of the best candidate.
     ``kalman-cv`` as a fourth candidate was tried: SURE picked it in 4 of 36 fast-motion
     cases and it was worse each time (its outlier gate makes it far from linear, and the
     one-probe divergence then misjudges it), so it is not a candidate.

@@ -25,7 +25,9 @@ grid *chosen on the truth* (the best any classical filter can do); and the candi
 there), ``trnn`` at their defaults (``svt`` was never the best in a first run and is
 left out to keep the run short). ``best`` = the lowest-RMSE candidate per case.
 The protocol runs with every gap filled (FILL_ALL) so every method is scored on every
-sample.
+sample; a method that still leaves samples missing (``fill-auto`` leaves a gap no fill
+validated under 5 cm) gets a NaN RMSE there and is not a ``best`` candidate in that case.
+A method that raises is a ``failed`` row (and counted in the summary).
 
 *Scores*: RMSE (cm, all coordinates) per case; auto's estimated RMSE
 (``source['auto']['estimated_rmse_cm']``) beside it; seconds. Summary rows (``clip =
@@ -111,14 +113,15 @@ def _method(name: str, params: dict):
     return get(base, **params)
 
 
-def _run(truth: Motion, noisy: Motion, name: str, params: dict) -> tuple[float, float, Motion | None]:
+def _run(truth: Motion, noisy: Motion, name: str, params: dict) -> tuple[float, float, Motion | str]:
+    """(RMSE, seconds, output) -- or (NaN, seconds, the error's text) when the method fails."""
     t0 = time.perf_counter()
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             out = _method(name, params).denoise(noisy)
-    except Exception:                        # a failure is a NaN row; the run goes on
-        return float("nan"), time.perf_counter() - t0, None
+    except Exception as e:                   # recorded as a 'failed' row; the run goes on
+        return float("nan"), time.perf_counter() - t0, f"{type(e).__name__}: {e}"
     dt = time.perf_counter() - t0
     if not out.observed.all():
         return float("nan"), dt, out
@@ -134,8 +137,11 @@ def _case(ctx_seed: int, label: str, fps: int, truth: Motion, cond: str, steps: 
             continue                 # thousands of 1-3 frame gaps: ~60 s per 600 frames
         e, dt, out = _run(truth, noisy, name, params)
         res[name] = (e, dt, out)
+        if isinstance(out, str):
+            yield Row(NAME, clip, cond, name, "failed", "", float("nan"), seconds=dt, extra={"error": out})
+            continue
         extra: dict[str, Any] = {}
-        if name == "auto" and out is not None:
+        if name == "auto":
             a = out.source.get("auto", {})
             extra = {"estimate": a.get("estimated_rmse_cm"), "chain": a.get("chain")}
         yield Row(NAME, clip, cond, name, "rmse", "cm", e, seconds=dt, extra=extra)
@@ -187,8 +193,13 @@ def _picked(case: dict[str, Row]) -> str:
 def summarise(rows: list[Row]) -> Iterator[Row]:
     """The summary rows of the module docstring, from the case rows."""
     by: dict[tuple, dict[str, Row]] = {}
+    failed = [r for r in rows if r.metric == "failed"]
+    if failed:
+        yield Row(NAME, "summary", "all", "any", "failed_runs", "n", float(len(failed)),
+                  extra={"runs": [f"{r.method} on {r.clip} {r.condition}: {r.extra['error']}" for r in failed]})
     for r in rows:
-        by.setdefault((r.clip, r.condition), {})[r.method] = r
+        if r.metric == "rmse":
+            by.setdefault((r.clip, r.condition), {})[r.method] = r
     groups: dict[tuple, list[dict[str, Row]]] = {}
     for (clip, cond), d in by.items():
         groups.setdefault((clip.split("@")[1], cond), []).append(d)
