@@ -78,6 +78,8 @@ def render(doc: dict) -> str:
     for cond, d in means.items():
         out.append(f"| {cond} | " + " | ".join(_v(sum(d[m]) / len(d[m])) if d.get(m) else "" for m in show) + " |")
     out += ["", "## Every case (RMSE cm; auto's estimate and chain beside it)", "",
+            "An empty cell: the method left samples missing (fill-auto leaves a gap no fill "
+            "validated under 5 cm), so it is not scored or counted as `best` there.", "",
             "| clip | condition | " + " | ".join(METHODS) + " | auto est. | auto chain | best is |",
             "|---|---|" + "---:|" * len(METHODS) + "---:|---|---|"]
     case = defaultdict(dict)
