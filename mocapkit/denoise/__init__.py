@@ -35,7 +35,7 @@ def default_for(motion):
 
     return _default_for(motion)
 
-_FAMILIES = ("filters", "fill", "kalman", "lowrank", "bases", "sparse", "wavelet", "thesis", "neural", "fill_auto",
+_FAMILIES = ("filters", "fill", "kalman", "lowrank", "bases", "sparse", "wavelet", "psc", "completion", "neural", "fill_auto",
              "mssa", "auto")
 
 

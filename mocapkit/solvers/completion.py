@@ -765,7 +765,7 @@ def lds_em_complete(X: Any, mask: Any = None, *, k: int | None = None, max_iter:
     Parameters
     ----------
     X : (T, C) data (cm); mask : bool (T, C), True = observed.
-    k : latent dimension (default ``min(48, C)``; see :class:`mocapkit.denoise.thesis.DynaMMo`).
+    k : latent dimension (default ``min(48, C)``; see :class:`mocapkit.denoise.completion.DynaMMo`).
     max_iter, tol : EM iterations; stop when the filled values change by less than ``tol``
         relative to their norm (centred).
 
