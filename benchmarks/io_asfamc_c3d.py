@@ -26,7 +26,8 @@ import numpy as np
 from mocapkit import io
 from mocapkit.datasets import bundled, shared_data_dir
 from mocapkit.errors import MocapFormatError
-from mocapkit.io import asfamc
+from mocapkit.io import _kinematics
+from mocapkit.io.units import CMU_CM_PER_UNIT
 
 BEGIN, END = "<!-- BEGIN ASF/AMC/C3D -->", "<!-- END ASF/AMC/C3D -->"
 
@@ -80,9 +81,9 @@ def speed_section(data: Path) -> list[str]:
     p = data / "cmu" / "asfamc" / "135" / "135_02.amc"
     t, m = _best(lambda: io.read(p))
     mb = p.stat().st_size / 1e6
-    comp = asfamc._Compiled(m.source["asf"])
+    comp = _kinematics._Compiled(m.source["asf"])
     D = m.source["per_frame"]["dofs"]
-    tf, _ = _best(lambda: asfamc.forward_kinematics(comp, D, False, asfamc.CMU_CM_PER_UNIT))
+    tf, _ = _best(lambda: _kinematics.forward_kinematics(comp, D, False, CMU_CM_PER_UNIT))
     return ["### Read speed", "",
             f"`135_02.amc` ({mb:.1f} MB, {m.n_frames} frames x {m.n_joints} joints): read in **{t:.2f} s** "
             f"(best of 3; {m.n_frames / t:,.0f} frames/s, {mb / t:.1f} MB/s), of which forward kinematics "
@@ -111,8 +112,8 @@ def round_trip_section(data: Path, tmp: Path) -> list[str]:
 
 def ik_section(tmp: Path) -> list[str]:
     walk = io.read(bundled("16_15.amc"))
-    comp = asfamc._Compiled(walk.source["asf"])
-    f = asfamc.CMU_CM_PER_UNIT
+    comp = _kinematics._Compiled(walk.source["asf"])
+    f = CMU_CM_PER_UNIT
     D = walk.source["per_frame"]["dofs"]
     T = walk.n_frames
     rng = np.random.default_rng(0)
@@ -122,7 +123,7 @@ def ik_section(tmp: Path) -> list[str]:
              "| change | start dofs | max | mean | write (s) |", "|---|---|---|---|---|"]
     for sig in (2.0, 10.0):
         D1 = D + rng.normal(0, sig, D.shape) * (np.arange(D.shape[1]) >= 3)
-        P1 = asfamc.forward_kinematics(comp, D1, False, f)
+        P1 = _kinematics.forward_kinematics(comp, D1, False, f)
         for start in ("stored", "none"):
             m = walk.with_positions(P1)
             if start == "none":

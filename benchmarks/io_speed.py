@@ -35,6 +35,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from types import SimpleNamespace
 
 for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ[_v] = "1"
@@ -130,8 +131,16 @@ def _cpu(fn, n: int = 3):
 
 
 def _mods(pkg: str):
+    """(io, AMC kinematics with ``cm_per_unit``, bvh, denoise) of ``pkg``; a ``--reference``
+    from before issue #16 has them all in ``io.asfamc``."""
     io = __import__(f"{pkg}.io", fromlist=["read"])
-    asfamc = __import__(f"{pkg}.io.asfamc", fromlist=["read"])
+    try:
+        asfamc = __import__(f"{pkg}.io.asfamc", fromlist=["read"])
+    except ImportError:
+        kin = __import__(f"{pkg}.io._kinematics", fromlist=["read"])
+        asf = __import__(f"{pkg}.io.asf", fromlist=["read"])
+        asfamc = SimpleNamespace(_Compiled=kin._Compiled, forward_kinematics=kin.forward_kinematics,
+                                 inverse_kinematics=kin.inverse_kinematics, cm_per_unit=asf.cm_per_unit)
     bvh = __import__(f"{pkg}.io.bvh", fromlist=["read"])
     den = __import__(f"{pkg}.denoise", fromlist=["get"])
     return io, asfamc, bvh, den
@@ -269,7 +278,7 @@ def render(res: dict) -> str:
           "the closed form leaves more than min(0.001 cm + 3 x the targets' bone-length error, 0.5 cm) off "
           "(before: a 36-point scan + 40 golden-section steps per two-dof bone and LM on every frame).",
           "* Rotation helpers in one module, `mocapkit/io/_rotations.py`, used by both; `asfamc.py` split into "
-          "`asf.py`, `amc.py`, `_kinematics.py` (all names re-exported)."]
+          "`asf.py`, `amc.py`, `_kinematics.py`."]
     return "\n".join(L) + "\n"
 
 

@@ -22,8 +22,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from mocapkit import denoise, io  # noqa: E402
 from mocapkit.datasets import bundled, cmu_amc, shared_data_dir  # noqa: E402
+from mocapkit.io.units import CMU_CM_PER_UNIT  # noqa: E402
 
-CMU_UNIT_CM = 5.6444
 
 METHODS = (
     ("slra (paper: 200-frame segments, tol 1e-7)", "slra", {}),
@@ -52,7 +52,7 @@ def load_clip(frames: int = 5000, data_dir: str | None = None):
         P = np.concatenate([m.positions] * reps)[:frames]
         m = m.with_positions(P)
     m = m.slice(0, frames)
-    asf = m.with_positions(m.positions / CMU_UNIT_CM)
+    asf = m.with_positions(m.positions / CMU_CM_PER_UNIT)
     noisy, _ = corrupt.slra_noise(asf, n_frames=frames // 3, eps=1.0, sigma=1.2, seed=0)
     return name, asf, noisy
 

@@ -28,7 +28,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tests"))
 
-from mocapkit import datasets, denoise, metrics, signal  # noqa: E402
+from mocapkit import datasets, denoise, metrics  # noqa: E402
+from mocapkit.signal import rts  # noqa: E402
 from mocapkit.errors import ConvergenceWarning  # noqa: E402
 from mocapkit import io as mio  # noqa: E402
 from test_reliability_convergence import _noisy  # noqa: E402
@@ -60,13 +61,13 @@ def memory_rows() -> list[str]:
     if rss_available():
         for name in RSS:
             add(name, "RSS high-water", lambda: peak_rss(lambda: denoise.get(name).denoise(m)))
-        old = signal._RTS_BLOCK
-        signal._RTS_BLOCK = 10 ** 9            # the previous code: RTS gains for all frames at once
+        old = rts._RTS_BLOCK
+        rts._RTS_BLOCK = 10 ** 9            # the previous code: RTS gains for all frames at once
         try:
             add("kalman-cv, RTS gains unblocked (before this change)", "RSS high-water",
                 lambda: peak_rss(lambda: denoise.get("kalman-cv").denoise(m)))
         finally:
-            signal._RTS_BLOCK = old
+            rts._RTS_BLOCK = old
         with tempfile.TemporaryDirectory() as d:
             p = Path(d) / "big.trc"
             add("TRC write (mocapkit.io.write)", "RSS high-water",
@@ -99,7 +100,7 @@ def convergence_rows() -> list[str]:
                 out = d.denoise(noisy)
                 dt = time.perf_counter() - t0
             err = metrics.rmse(m, out)
-            s = d.convergence_
+            s = out.source["convergence"]
             n_warn = sum(issubclass(w.category, ConvergenceWarning) for w in caught)
             extra = f"; fit {s['fit_ratio']:.3f}" if s.get("fit_ratio") else ""
             label = name + ("" if not params else " " + ", ".join(f"{k}={v}" for k, v in params.items()))
@@ -112,7 +113,7 @@ def convergence_rows() -> list[str]:
                 warned.setdefault(name, []).append(n_warn)
     ok = [k for k, v in status.items() if all(v)]
     bad = [f"{k} ({v.count(False)}/{len(v)} clips; "
-           f"{'one ConvergenceWarning per call' if all(warned[k]) else 'recorded in convergence_, no warning by default'})"
+           f"{'one ConvergenceWarning per call' if all(warned[k]) else 'recorded in the result (source convergence), no warning by default'})"
            for k, v in status.items() if not all(v)]
     summary = (f"At default settings {', '.join(ok) or 'none'} converge on every clip; "
                f"**{', '.join(bad) or 'none'} stop at max_iter**. More iterations help svt "
@@ -121,7 +122,7 @@ def convergence_rows() -> list[str]:
                "opt-in (`warn_convergence=True`).")
     return [summary, "", "Default settings unless a parameter is shown; clips: bundled CMU AMC (120 fps), "
             "1 cm noise, 5 % joints missing (seed 0); lou-chai trained on the other 3 clips.",
-            "residual = the solver's final stopping criterion (`convergence_['criterion']`); for "
+            "residual = the solver's final stopping criterion (`source['convergence']['criterion']` of the result); for "
             "svt with missing entries also the data-fit ratio ||P(A - X)|| / eps, which must "
             "reach <= 1.001. RMSE: cm over all entries against the clean clip.", "",
             "| method | clip | converged | iterations | max_iter | residual | tol | solves not converged | warnings | RMSE cm | s |",

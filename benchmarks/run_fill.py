@@ -41,7 +41,7 @@ sys.path.insert(0, str(ROOT))
 
 from mocapkit import denoise, io  # noqa: E402
 from mocapkit.datasets import shared_data_dir  # noqa: E402
-from mocapkit.gaps import capture_volume, fill_linear, summary_line  # noqa: E402
+from mocapkit.gaps import capture_volume, fill, summary_line  # noqa: E402
 from mocapkit.rigid import distance_stats, find_clusters  # noqa: E402
 from mocapkit.solvers.pca_fill import pca_fill  # noqa: E402
 
@@ -54,7 +54,7 @@ CASES = {
 
 
 def _linear(m):
-    return fill_linear(m.matrix(), m.matrix_mask()).reshape(m.positions.shape)
+    return fill(m.matrix(), m.matrix_mask()).reshape(m.positions.shape)
 
 
 def _method(name, **kw):

@@ -143,7 +143,7 @@ def child(label: str, frames: int) -> dict:
            "growth_over_input": (peak - rss0) / nbytes, "peak_reset": reset,
            "coords": motion.n_joints * 3, "observed": float(motion.observed.mean()),
            "trained": trained}
-    conv = getattr(den, "convergence_", None)
+    conv = (getattr(den, "last_report_", None) or {}).get("convergence")   # of the last run
     if isinstance(conv, dict) and "iterations" in conv:
         row["iterations"] = conv["iterations"]
     return row

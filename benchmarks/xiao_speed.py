@@ -47,6 +47,7 @@ def run(data_dir=None, log=print) -> tuple[str, list[dict]]:
 
     from mocapkit import corrupt, denoise, io
     from mocapkit.datasets import shared_data_dir
+    from mocapkit.denoise.sparse import RANK_TOL
 
     root = shared_data_dir(data_dir)
     if root is None:
@@ -70,7 +71,7 @@ def run(data_dir=None, log=print) -> tuple[str, list[dict]]:
         log(f"train n_jobs={n_jobs}: {secs:.1f} s")
         model = model or m
     ranks = [sv.rank for sv in model._solvers()]
-    lines += ["", f"Truncated dictionary ranks used for coding (rank_tol = {model.rank_tol:g}): "
+    lines += ["", f"Truncated dictionary ranks used for coding (RANK_TOL = {RANK_TOL:g}): "
               f"{', '.join(f'{n} {r}' for n, r in zip(model.part_names_, ranks))} (of K = 512).", ""]
 
     lines += ["### Denoising throughput (CMU 05_05, 915 frames, one core)", "",
@@ -105,8 +106,9 @@ def _solver_bench(model, train, noisy, rows, log) -> list[str]:
     from sklearn.linear_model import orthogonal_mp_gram
     from threadpoolctl import threadpool_limits
 
-    from mocapkit.denoise.sparse import lagged_windows, noise_sigma
-    from mocapkit.localframe import estimate_frame, to_local
+    from mocapkit.windows import lagged
+    from mocapkit.signal import estimate_noise
+    from mocapkit.frames import pelvis_neck_frame
     from mocapkit.solvers.ksvd import batch_omp
     from mocapkit.solvers.sparse_coding import lasso_admm, lasso_fista, lasso_objective
 
@@ -116,12 +118,12 @@ def _solver_bench(model, train, noisy, rows, log) -> list[str]:
     s = model.frame_smooth_s
 
     def local(m):
-        f = estimate_frame(m.positions, m.skeleton, m.fps, median_s=2 * s, sigma_s=s)
-        return to_local(m.positions, f)
+        f = pelvis_neck_frame(m.positions, m.skeleton, m.fps, median_s=2 * s, sigma_s=s)
+        return f.to_local(m.positions)
 
     def windows(m):
         L = local(m)
-        return lagged_windows(L[:, joints].reshape(m.n_frames, -1), model.window) - model.means_[i]
+        return lagged(L[:, joints].reshape(m.n_frames, -1), model.window) - model.means_[i]
 
     Y = windows(train[0])[::max(1, (train[0].n_frames - 14) // 2000)][:2000]
     G, Xy = D.T @ D, Y @ D
@@ -136,7 +138,7 @@ def _solver_bench(model, train, noisy, rows, log) -> list[str]:
     log(f"omp: ours {w_np:.2f} s, sklearn {w_sk:.2f} s")
 
     Z = windows(noisy)[::3]
-    sigma = noise_sigma(local(noisy).reshape(noisy.n_frames, -1))
+    sigma = estimate_noise(local(noisy).reshape(noisy.n_frames, -1), pool="median", fallback=0.0)
     lam = model.lam_factor * sigma ** 2
     with threadpool_limits(1):
         ref = lasso_admm(Z, D, lam, n_iter=5000, tol=0.0)

@@ -110,16 +110,16 @@ def motion_inputs(motion) -> tuple[str, ...]:
 
 
 def amc_companion(motion, out: str | os.PathLike) -> Path | None:
-    """The ASF that :func:`mocapkit.io.asfamc.write` writes beside the AMC ``out`` (same rule:
+    """The ASF that :func:`mocapkit.io.amc.write` writes beside the AMC ``out`` (same rule:
     none when the skeleton lookup for ``out`` already finds an identical skeleton)."""
-    from .io import asfamc
+    from .io.asf import _same_skeleton, find_skeleton, read_asf
 
     asf = motion.source.get("asf")
     if not isinstance(asf, dict) or "bones" not in asf:
         return None                       # the writer refuses this motion with its own message
     try:
-        found = asfamc.find_skeleton(out)
-        if asfamc._same_skeleton(asfamc.read_asf(found), asf):
+        found = find_skeleton(out)
+        if _same_skeleton(read_asf(found), asf):
             return None
     except MocapFormatError:
         pass
@@ -127,10 +127,10 @@ def amc_companion(motion, out: str | os.PathLike) -> Path | None:
 
 
 def _holds_skeleton(path: Path, asf: dict) -> bool:
-    from .io import asfamc
+    from .io.asf import _same_skeleton, read_asf
 
     try:
-        return asfamc._same_skeleton(asfamc.read_asf(path), asf)
+        return _same_skeleton(read_asf(path), asf)
     except (MocapError, OSError, UnicodeDecodeError):
         return False
 
@@ -433,7 +433,7 @@ def run_batch(in_dir: str | os.PathLike, out_dir: str | os.PathLike, *, method: 
                               f"choose one outside it")
     if os.path.lexists(dst) and not dst.is_dir():
         raise MocapValueError(f"{out_dir}: exists and is not a folder")
-    from .cli import method_params
+    from .denoise.base import params_from_text
 
     # the method, its parameters (names and types) and the model are checked once, before any work
     if model is None and method == DEFAULT:
@@ -447,14 +447,14 @@ def run_batch(in_dir: str | os.PathLike, out_dir: str | os.PathLike, *, method: 
 
         if cls.needs_training and method not in shipped.available():
             raise MocapValueError(f"method {method!r} needs --model (no shipped general model)")
-        params = method_params(method, params)
+        params = params_from_text(method, params)
         denoise.get(method, **params)
     else:
         if not Path(model).is_file():
             raise MocapValueError(f"{model}: model file not found")
         den = denoise.base.Denoiser.load(model)
         if params:
-            params = method_params(den.name, params, type(den))
+            params = params_from_text(den.name, params, type(den))
             den.set_params(**params)
     from .io import SUPPORTED_EXTENSIONS
 
@@ -473,45 +473,36 @@ def run_batch(in_dir: str | os.PathLike, out_dir: str | os.PathLike, *, method: 
                            scheduler=scheduler, progress=progress, log=log)
 
 
-def _run_locked(src: Path, dst: Path, inputs: list[Path], *, method: str, params: dict[str, Any],
-                model: str | None, workers: int, scheduler: str | None, progress: bool,
-                log: Callable[[str], None] | None) -> Summary:
-    manifest_path = dst / MANIFEST
-    manifest: dict[str, Any] = {}
-    if manifest_path.exists():
-        try:
-            manifest = json.loads(manifest_path.read_text())
-            if not isinstance(manifest, dict):
-                manifest = {}
-        except (OSError, ValueError):
-            manifest = {}
-    key = _settings_key(method, params, model)
-    old_files = manifest.get("files", {}) if isinstance(manifest.get("files"), dict) else {}
-    same_settings = manifest.get("settings") == key
-    # files an earlier batch wrote here (any settings): the only existing files it may replace
-    ours = {rel for rel, e in old_files.items() if isinstance(e, dict) and e.get("status") == "ok"}
-    ours |= set(manifest.get("pending", []) or [])
-    files: dict[str, Any] = dict(old_files) if same_settings else {}
-    skeletons: dict[str, str] = dict(manifest.get("skeletons", {}) or {})
-    pending: set[str] = set()
-    stop = _Stop()
+def _read_manifest(path: Path) -> dict[str, Any]:
+    """The resume manifest of an earlier batch in this folder ({} when none or unreadable)."""
+    if not path.exists():
+        return {}
+    try:
+        manifest = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return {}
+    return manifest if isinstance(manifest, dict) else {}
 
-    def save_manifest() -> None:
-        _write_json(manifest_path, {"settings": key, "files": files, "skeletons": skeletons,
-                                    "pending": sorted(pending)})
 
-    # copy ASF skeletons so mirrored AMC outputs can be read back
+def _copy_skeletons(src: Path, dst: Path, skeletons: dict[str, str]) -> None:
+    """Copy the ASF skeletons under ``src`` (not already in ``dst``) so mirrored AMC outputs
+    can be read back; records each copy's sha256 in ``skeletons``."""
+    from .io._atomic import atomic_write_path
+
     for asf in sorted(src.rglob("*.asf")):
         rel = str(asf.relative_to(src))
         target = dst / rel
         if any(part.startswith(".") for part in Path(rel).parts[:-1]) or target.exists():
             continue
-        from .io._atomic import atomic_write_path
-
         target.parent.mkdir(parents=True, exist_ok=True)
         atomic_write_path(target, lambda tmp, a=asf: shutil.copy2(a, tmp), suffix=".tmp")
         skeletons[rel] = sha256(target)
 
+
+def _plan_files(src: Path, dst: Path, inputs: list[Path], files: dict[str, Any], ours: set[str]):
+    """``(todo, results, prestate)``: the files to clean as (rel, input, output, stamp), the
+    results of those skipped (unchanged since a run with these settings) or refused (an
+    output this batch did not write), and the state of each output before the run."""
     todo, results, prestate = [], [], {}
     for p in inputs:
         rel = str(p.relative_to(src))
@@ -533,89 +524,132 @@ def _run_locked(src: Path, dst: Path, inputs: list[Path], *, method: str, params
         out.parent.mkdir(parents=True, exist_ok=True)
         prestate[rel] = _stat(out)
         todo.append((rel, str(p), str(out), stamp))
+    return todo, results, prestate
 
-    t0 = time.perf_counter()
-    log_lines: list[str] = []
-    stamps = {r: s for r, _, _, s in todo}
-    outs = {r: Path(o) for r, _, o, _ in todo}
-    done: set[str] = set()
 
-    def record(rel: str, res: dict[str, Any]) -> None:
-        stop.protect += 1
+class _Run:
+    """The bookkeeping of one batch run: results, the manifest (written after every file so
+    an interrupted run resumes where it stopped) and the log lines."""
+
+    def __init__(self, dst: Path, key: str, files: dict, skeletons: dict, ours: set, todo: list,
+                 results: list, stop: _Stop, log: Callable[[str], None] | None):
+        self.dst, self.key, self.files, self.skeletons, self.ours = dst, key, files, skeletons, ours
+        self.todo, self.results, self.stop, self.log = todo, results, stop, log
+        self.pending: set[str] = set()
+        self.done: set[str] = set()
+        self.log_lines: list[str] = []
+        self.stamps = {r: s for r, _, _, s in todo}
+        self.outs = {r: Path(o) for r, _, o, _ in todo}
+        self.bar = None
+
+    def save_manifest(self) -> None:
+        _write_json(self.dst / MANIFEST, {"settings": self.key, "files": self.files,
+                                          "skeletons": self.skeletons, "pending": sorted(self.pending)})
+
+    def record(self, rel: str, res: dict[str, Any]) -> None:
+        """Record one file's result (from :func:`process_one`), uninterruptibly."""
+        self.stop.protect += 1
         try:
             fr = FileResult(rel, res["status"], res.get("reason", ""), res.get("frames", 0),
-                            res.get("seconds", 0.0), res.get("output_sha256", ""), stamps[rel])
+                            res.get("seconds", 0.0), res.get("output_sha256", ""), self.stamps[rel])
+            out = self.outs[rel]
             if fr.status != "ok":
-                for tmp in _temp_files(outs[rel]):    # a worker that died mid-write
+                for tmp in _temp_files(out):    # a worker that died mid-write
                     tmp.unlink(missing_ok=True)
-            if fr.status != "ok" and rel in ours and os.path.lexists(outs[rel]):
+            if fr.status != "ok" and rel in self.ours and os.path.lexists(out):
                 # an earlier batch's output for other settings or input: remove it, so the
                 # folder never holds an output the manifest does not vouch for
-                outs[rel].unlink(missing_ok=True)
-            results.append(fr)
-            files[rel] = asdict(fr)
-            pending.discard(rel)
-            done.add(rel)
+                out.unlink(missing_ok=True)
+            self.results.append(fr)
+            self.files[rel] = asdict(fr)
+            self.pending.discard(rel)
+            self.done.add(rel)
             line = f"{fr.status:<7} {rel}  {fr.frames} frames {fr.seconds:.2f} s {fr.reason}".rstrip()
-            log_lines.append(line)
-            if log:
-                log(line)
-            bar.update()
-            # persist progress after every file so an interrupted run resumes where it stopped
-            save_manifest()
+            self.log_lines.append(line)
+            if self.log:
+                self.log(line)
+            self.bar.update()
+            self.save_manifest()
         finally:
-            stop.protect -= 1
+            self.stop.protect -= 1
 
+    def close(self, procs: list, interrupted: bool, prestate: dict, header: str) -> None:
+        """Stop the workers, reconcile files in flight after an interrupt, write the
+        manifest and append ``header`` and the log lines to the batch log."""
+        for p in procs:
+            if p.is_alive():
+                p.kill()
+        for p in procs:
+            p.join(1.0)
+        self.bar.close()
+        if interrupted:
+            _reconcile(self.todo, self.done, prestate, self.outs, self.files, self.stamps, self.results,
+                       self.pending, self.ours)
+        self.pending.difference_update(self.done)
+        self.save_manifest()
+        with open(self.dst / LOG, "a", encoding="utf-8") as f:
+            f.write(header)
+            f.writelines(line + "\n" for line in self.log_lines)
+
+    def summary(self, elapsed: float, interrupted: bool) -> Summary:
+        results = sorted(self.results, key=lambda r: r.input)
+        return Summary(ok=sum(r.status == "ok" for r in results),
+                       failed=sum(r.status == "failed" for r in results),
+                       skipped=sum(r.status == "skipped" for r in results),
+                       frames=sum(r.frames for r in results if r.status == "ok"),
+                       seconds=elapsed, results=results, interrupted=interrupted,
+                       remaining=sum(1 for r, _, _, _ in self.todo if r not in self.done))
+
+
+def _run_locked(src: Path, dst: Path, inputs: list[Path], *, method: str, params: dict[str, Any],
+                model: str | None, workers: int, scheduler: str | None, progress: bool,
+                log: Callable[[str], None] | None) -> Summary:
+    manifest = _read_manifest(dst / MANIFEST)
+    key = _settings_key(method, params, model)
+    old_files = manifest.get("files", {}) if isinstance(manifest.get("files"), dict) else {}
+    same_settings = manifest.get("settings") == key
+    # files an earlier batch wrote here (any settings): the only existing files it may replace
+    ours = {rel for rel, e in old_files.items() if isinstance(e, dict) and e.get("status") == "ok"}
+    ours |= set(manifest.get("pending", []) or [])
+    files: dict[str, Any] = dict(old_files) if same_settings else {}
+    skeletons: dict[str, str] = dict(manifest.get("skeletons", {}) or {})
+    stop = _Stop()
+    _copy_skeletons(src, dst, skeletons)
+    todo, results, prestate = _plan_files(src, dst, inputs, files, ours)
+    run = _Run(dst, key, files, skeletons, ours, todo, results, stop, log)
+    t0 = time.perf_counter()
     from tqdm import tqdm
 
-    bar = tqdm(total=len(todo), desc=f"batch {method}", unit="file", disable=None if progress else True,
-               leave=False)                                 # None: off when stderr is not a terminal
+    run.bar = tqdm(total=len(todo), desc=f"batch {method}", unit="file", disable=None if progress else True,
+                   leave=False)                                 # None: off when stderr is not a terminal
     interrupted = False
     procs: list = []
     with stop:
         try:
             stop.protect += 1
-            pending.update(r for r, _, _, _ in todo)
-            save_manifest()                 # outputs about to be written are ours if we get killed
+            run.pending.update(r for r, _, _, _ in todo)
+            run.save_manifest()             # outputs about to be written are ours if we get killed
             stop.protect -= 1
             stop.check()
             if scheduler:
-                _run_dask(scheduler, todo, method, params, model, record, stop)
+                _run_dask(scheduler, todo, method, params, model, run.record, stop)
             elif workers <= 1:
                 for r, i, o, s in todo:
                     stop.check()
-                    record(r, process_one(i, o, method, params, model))
+                    run.record(r, process_one(i, o, method, params, model))
             else:
-                _run_local(workers, todo, method, params, model, record, stop, procs)
+                _run_local(workers, todo, method, params, model, run.record, stop, procs)
         except KeyboardInterrupt:
             interrupted = True
         finally:
             stop.protect += 1               # no second interrupt while cleaning up
             try:
-                for p in procs:
-                    if p.is_alive():
-                        p.kill()
-                for p in procs:
-                    p.join(1.0)
-                bar.close()
-                if interrupted:
-                    _reconcile(todo, done, prestate, outs, files, stamps, results, pending, ours)
-                pending.difference_update(done)
-                save_manifest()
-                with open(dst / LOG, "a", encoding="utf-8") as f:
-                    f.write(f"# {time.strftime('%Y-%m-%d %H:%M:%S')} method={method} params={params} "
-                            f"model={model}{' (interrupted)' if interrupted else ''}\n")
-                    f.writelines(line + "\n" for line in log_lines)
+                run.close(procs, interrupted, prestate,
+                          f"# {time.strftime('%Y-%m-%d %H:%M:%S')} method={method} params={params} "
+                          f"model={model}{' (interrupted)' if interrupted else ''}\n")
             finally:
                 stop.protect -= 1
-    elapsed = time.perf_counter() - t0
-    results.sort(key=lambda r: r.input)
-    summ = Summary(ok=sum(r.status == "ok" for r in results),
-                   failed=sum(r.status == "failed" for r in results),
-                   skipped=sum(r.status == "skipped" for r in results),
-                   frames=sum(r.frames for r in results if r.status == "ok"),
-                   seconds=elapsed, results=results, interrupted=interrupted,
-                   remaining=sum(1 for r, _, _, _ in todo if r not in done))
+    summ = run.summary(time.perf_counter() - t0, interrupted)
     if interrupted:
         raise BatchInterrupted(summ)
     return summ

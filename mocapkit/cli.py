@@ -78,131 +78,13 @@ def parse_params(items: Sequence[str] | None) -> dict[str, Any]:
     return out
 
 
-# -- parameter types ------------------------------------------------------------------------
-_SIMPLE = {"int", "float", "bool", "str", "None"}
-
-
-def _kinds(annotation: Any, default: Any) -> list[str] | None:
-    """The accepted kinds of a parameter from its annotation ('float | None') or, without
-    one, from its default's type; None when they cannot be told (anything is accepted)."""
-    import inspect
-
-    if isinstance(annotation, str) and annotation:
-        parts, depth, cur = [], 0, ""
-        for ch in annotation:
-            depth += ch == "["
-            depth -= ch == "]"
-            if ch == "|" and depth == 0:
-                parts.append(cur.strip())
-                cur = ""
-            else:
-                cur += ch
-        parts.append(cur.strip())
-        kinds = []
-        for t in parts:
-            if t.startswith("Optional[") and t.endswith("]") and t[9:-1] in _SIMPLE:
-                kinds += [t[9:-1], "None"]
-            elif t in _SIMPLE:
-                kinds.append(t)
-            elif t.split("[")[0] in ("Sequence", "tuple", "list", "Tuple", "List"):
-                kinds.append(t)
-            else:
-                return None
-        return kinds
-    if annotation not in (None, inspect.Parameter.empty) and isinstance(annotation, type):
-        return [annotation.__name__] if annotation.__name__ in _SIMPLE else None
-    if default is None or default is inspect.Parameter.empty:
-        return None
-    if isinstance(default, bool):
-        return ["bool"]
-    for t in (int, float, str):
-        if isinstance(default, t):
-            return [t.__name__]
-    if isinstance(default, (list, tuple)):
-        return ["Sequence[float]"] if all(isinstance(x, (int, float)) and not isinstance(x, bool)
-                                          for x in default) else None
-    return None
-
-
-def _coerce(v: Any, kinds: list[str]) -> tuple[bool, Any]:
-    import math
-
-    def number(x) -> bool:
-        return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
-
-    if v is None:
-        return "None" in kinds, v
-    if isinstance(v, bool):
-        return "bool" in kinds, v
-    if isinstance(v, int):
-        if "int" in kinds:
-            return True, v
-        return ("float" in kinds, float(v)) if "float" in kinds else (False, v)
-    if isinstance(v, float):
-        if "float" in kinds:
-            return math.isfinite(v), v
-        if "int" in kinds and math.isfinite(v) and v.is_integer():
-            return True, int(v)
-        return False, v
-    if isinstance(v, str):
-        return "str" in kinds, v
-    if isinstance(v, (list, tuple)):
-        for k in kinds:
-            head, _, inner = k.partition("[")
-            if head not in ("Sequence", "tuple", "list", "Tuple", "List"):
-                continue
-            items = [x.strip() for x in inner[:-1].split(",")] if inner.endswith("]") else []
-            if not items or not set(items) <= {"float", "int", "..."}:
-                return True, v                  # elements of another kind: left to the owner
-            n = len(items) if head.lower() == "tuple" and "..." not in items and len(items) > 1 else None
-            if all(number(x) for x in v) and (n is None or len(v) == n):
-                return True, tuple(float(x) for x in v)
-        return False, v
-    return False, v
-
-
-def _describe_kinds(kinds: list[str]) -> str:
-    names = {"int": "an integer", "float": "a number", "bool": "true or false", "str": "a string",
-             "None": "none"}
-    return " or ".join(names.get(k, f"a list of numbers ({k})") for k in kinds)
-
-
-def check_param_types(owner: str, specs: dict[str, tuple[Any, Any]], params: dict[str, Any]) -> dict[str, Any]:
-    """``params`` checked against ``specs`` (name -> (annotation, default)); integers given
-    for a float are converted, integral floats for an int too. Unknown names are left for
-    the owner to report. Raises MocapValueError naming the parameter and the expected type."""
-    out = {}
-    for k, v in params.items():
-        if k not in specs:
-            out[k] = v
-            continue
-        kinds = _kinds(*specs[k])
-        if kinds is None:
-            out[k] = v
-            continue
-        ok, conv = _coerce(v, kinds)
-        if not ok:
-            raise MocapValueError(f"--param {k}={v!r}: {owner} expects {_describe_kinds(kinds)} for {k!r} "
-                                  f"(default {specs[k][1]!r})")
-        out[k] = conv
-    return out
-
-
-def _method_specs(cls) -> dict[str, tuple[Any, Any]]:
-    import inspect
-
-    return {p.name: (p.annotation, p.default) for p in inspect.signature(cls.__init__).parameters.values()
-            if p.name != "self" and p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)}
-
-
 def method_params(name: str, params: dict[str, Any], cls: Any = None) -> dict[str, Any]:
-    """``params`` of method ``name`` (or of the class ``cls`` of a loaded model) type-checked."""
-    from . import denoise
+    """``params`` parsed from ``--param`` for method ``name`` (or the class ``cls`` of a
+    loaded model) converted to the kinds the method declares
+    (:func:`mocapkit.denoise.base.params_from_text`); ``denoise.get`` / ``set_params`` check them."""
+    from .denoise.base import params_from_text
 
-    cls = cls or denoise.available().get(name)
-    if cls is None:
-        return params                       # denoise.get reports the unknown method
-    return check_param_types(f"method {cls.name!r}", _method_specs(cls), params)
+    return params_from_text(name, params, cls)
 
 
 def _params_for(name: str, items: Sequence[str] | None) -> dict[str, Any]:
@@ -223,7 +105,7 @@ def _supported_files_under(folder: str | Path) -> list[str]:
 def _declared_inputs(paths: Sequence[str], skeleton: str | None = None) -> list[str]:
     """``paths`` plus the ASF skeleton each AMC among them resolves to (``--skeleton`` or
     the one found beside it, as the reader does), plus every readable file under a folder."""
-    from .io.asfamc import find_skeleton
+    from .io.asf import find_skeleton
 
     out: list[str] = []
     for p in paths:
@@ -484,21 +366,19 @@ def cmd_train(a: argparse.Namespace) -> int:
     # never write over a training clip, its skeleton, or any motion file under --data
     protected = _declared_inputs(sources, a.skeleton)
     check_output_path(a.output, protected, overwrite=a.force or a.resume)
-    if a.method in ("bra", "bra-p"):
-        # neural methods: their own trainer (progress bar, checkpoints, resume)
-        import dataclasses
-
-        from .neural.train import TrainConfig, train_cli
-
-        specs = {f.name: (f.type, f.default) for f in dataclasses.fields(TrainConfig)}
-        params = check_param_types(f"training of {a.method!r}", specs, params)
-        check_output_path(str(a.output) + ".ckpt", protected, overwrite=True, claimed=[a.output])
-        train_cli(sources if len(sources) > 1 else sources[0], a.output, method=a.method,
-                  resume=a.resume, progress=not a.quiet, exclude=a.exclude or (), **params)
-        return 0
-    method = denoise.get(a.method, **method_params(a.method, params))
-    if Path(a.output).suffix.lower() == ".pt":
-        raise MocapValueError(f"-o {a.output}: {a.method} models are saved as .npz (.pt is for bra / bra-p)")
+    cls = denoise.available().get(a.method)
+    if cls is None:
+        denoise.get(a.method)                   # the unknown-method message
+    params = method_params(a.method, params)
+    for suffix in cls.training_side_files:      # e.g. the neural trainer's checkpoint
+        check_output_path(str(a.output) + suffix, protected, overwrite=True, claimed=[a.output])
+    if cls.train_files(sources, a.output, params=params, resume=a.resume, progress=not a.quiet,
+                       exclude=a.exclude or ()):
+        return 0                                # the method's own trainer wrote the model
+    method = denoise.get(a.method, **params)
+    if Path(a.output).suffix.lower() in denoise.base.model_suffixes():
+        raise MocapValueError(f"-o {a.output}: {a.method} models are saved as .npz "
+                              f"({Path(a.output).suffix} is another method family's format)")
     from .batch import find_inputs
 
     paths: list[str] = []
@@ -757,7 +637,7 @@ def cmd_search(a: argparse.Namespace) -> int:
 
 
 def cmd_classify(a: argparse.Namespace) -> int:
-    from .recognition.classifier import load_model, train_classifier
+    from .recognition import load_model, train_classifier
 
     if a.model == "train":
         if not a.output:

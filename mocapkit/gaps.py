@@ -1,4 +1,5 @@
-"""Gaps: finding them, the one policy on which of them may be filled, and the report.
+"""Gaps: finding them, the one gap filler (:func:`fill`), the one policy on which of them
+may be filled, and the report.
 
 Real captures have many short gaps, some very long ones, and gaps that touch the start
 or end of the trial. Extrapolating a trajectory into such a gap is how a marker ends up
@@ -50,7 +51,7 @@ import numpy as np
 from .errors import MocapValueError
 
 __all__ = ["Gap", "GapPolicy", "DEFAULT_POLICY", "FILL_ALL", "find_gaps", "gap_lengths",
-           "gap_table", "supported", "capture_volume", "outside_volume", "outside_envelope", "fill_linear", "frame_centroid",
+           "gap_table", "supported", "capture_volume", "outside_volume", "outside_envelope", "fill", "frame_centroid",
            "use_policy", "current_policy", "apply_policy", "summary_line"]
 
 
@@ -267,35 +268,123 @@ def outside_envelope(positions: np.ndarray, observed: np.ndarray, candidate: np.
     return cand & frames & (d > 1.25 * r[None, :] + margin_cm)
 
 
-def fill_linear(X: np.ndarray, mask: np.ndarray, *, ends: str = "hold") -> np.ndarray:
-    """Fill unobserved entries of a (T, C) matrix by linear interpolation in time.
+def fill(X, mask=None, /, *, kind: str = "linear", ends: str = "nearest",
+         never_observed: float = np.nan) -> np.ndarray:
+    """Fill the unobserved samples of a (T, ...) array by interpolation in time (axis 0,
+    every other axis a channel); observed samples are returned bit-identical. The one gap
+    filler of the package (the gap *policy* -- which fills a method may return -- is
+    :func:`apply_policy`).
 
-    The one gap filler of the package. ``ends="hold"`` holds the nearest observed value
-    over leading/trailing gaps (a solver's starting point), ``ends="nan"`` leaves them
-    NaN. A channel that is never observed stays NaN (the never-observed rule: nothing
-    supports a value there), so callers decide what a solver starts from.
+    Parameters
+    ----------
+    X : array (T, ...); unobserved values may be NaN.
+    mask : bool like X, True = observed (default ``np.isfinite(X)``); non-finite entries
+        count as unobserved whatever the mask says.
+    kind : ``"linear"`` (default) -- piecewise-linear, one ``np.interp`` per incomplete
+        channel. ``"cubic"`` -- cubic spline through each channel's observed samples
+        (``scipy.interpolate.CubicSpline``, not-a-knot ends, so a cubic polynomial is
+        reproduced exactly), one spline per distinct mask column (the x, y, z of a marker
+        together); channels with fewer than 4 observed samples fall back to linear.
+    ends : before the first / after the last observed sample of a channel:
+        ``"nearest"`` (default) holds the first/last observed value (never drifts);
+        ``"linear"`` continues the interpolant's end slope (the spline's one-sided
+        derivative, or the last segment's slope): follows a moving marker over a few
+        frames but diverges over long end gaps; ``"nan"`` leaves them missing.
+    never_observed : value of a channel with no observed sample. The never-observed rule
+        of the package: nothing supports a value there, so by default it stays NaN (and
+        the gap policy leaves it missing). A solver that needs a finite starting matrix
+        asks for one explicitly with ``never_observed=0.0``; that value is never returned
+        to the user.
 
-    >>> fill_linear(np.array([[0.], [np.nan], [2.], [np.nan]]), np.array([[1], [0], [1], [0]], bool)).ravel()
+    Returns
+    -------
+    float64 array like X.
+
+    >>> fill(np.array([[0.], [np.nan], [2.], [np.nan]])).ravel()
     array([0., 1., 2., 2.])
+    >>> fill(np.array([[0., np.nan], [np.nan, np.nan], [2., np.nan]]), ends="nan", never_observed=0.0)
+    array([[0., 0.],
+           [1., 0.],
+           [2., 0.]])
     """
+    if kind not in ("linear", "cubic"):
+        raise MocapValueError(f"kind must be 'linear' or 'cubic', got {kind!r}")
+    if ends not in ("nearest", "linear", "nan"):
+        raise MocapValueError(f"ends must be 'nearest', 'linear' or 'nan', got {ends!r}")
     X = np.array(X, dtype=float, copy=True)
-    mask = np.asarray(mask, dtype=bool) & np.isfinite(X)
-    if ends not in ("hold", "nan"):
-        raise MocapValueError(f"ends must be 'hold' or 'nan', got {ends!r}")
-    if mask.all():
+    if X.ndim == 0:
+        raise MocapValueError("expected an array with a time axis, got a scalar")
+    A = X.reshape(X.shape[0], -1)                       # a view: filled in place
+    M = np.isfinite(A)
+    if mask is not None:
+        Mm = np.asarray(mask, dtype=bool)
+        if Mm.shape != X.shape:
+            raise MocapValueError(f"mask shape {Mm.shape} does not match data shape {X.shape}")
+        M &= Mm.reshape(A.shape)
+    if M.all():
         return X
-    t = np.arange(X.shape[0])
-    # one np.interp per incomplete channel (C small, T large). Not signal.fill_gaps: it gives
-    # the same values to 1e-14, but solvers started from it (pca_fill.lowrank_complete) were
-    # measured to land elsewhere -- see the note in that function
-    for c in np.flatnonzero(~mask.all(axis=0)):
-        m = mask[:, c]
-        X[:, c] = np.interp(t, t[m], X[m, c]) if m.any() else np.nan
-    if ends == "nan":
-        first = np.argmax(mask, axis=0)
-        last = X.shape[0] - 1 - np.argmax(mask[::-1], axis=0)
-        X[(t[:, None] < first) | (t[:, None] > last)] = np.nan
+    cols = np.flatnonzero(~M.all(axis=0))
+    never = cols[~M[:, cols].any(axis=0)]
+    A[:, never] = never_observed
+    cols = cols[M[:, cols].any(axis=0)]
+    t = np.arange(A.shape[0])
+    cubic = cols[M[:, cols].sum(axis=0) >= 4] if kind == "cubic" else cols[:0]
+    # one np.interp per incomplete channel (C small, T large). Not the grouped formula
+    # (1 - w) a + w b: it gives the same values to 1e-14, but solvers started from it
+    # (pca_fill.lowrank_complete) were measured to land elsewhere -- see the note there
+    for c in np.setdiff1d(cols, cubic):
+        m = M[:, c]
+        A[:, c] = np.interp(t, t[m], A[m, c])
+    slopes = _fill_cubic(A, M, cubic) if cubic.size else {}
+    if ends != "nearest":
+        _fill_ends(A, M, cols, ends, slopes)
     return X
+
+
+def _fill_cubic(A: np.ndarray, M: np.ndarray, cols: np.ndarray) -> dict[int, tuple]:
+    """Cubic-spline fill (in place) of channels ``cols`` of A (T, C), one spline per
+    distinct mask column; ends held. Returns the end slopes {channel: (d0, d1)}."""
+    from scipy.interpolate import CubicSpline
+
+    T = A.shape[0]
+    groups: dict[bytes, list[int]] = {}
+    for c in cols:
+        groups.setdefault(np.packbits(M[:, c]).tobytes(), []).append(int(c))
+    slopes = {}
+    for cs_cols in groups.values():
+        m = M[:, cs_cols[0]]
+        to = np.flatnonzero(m)
+        tm = np.flatnonzero(~m)
+        Yo = A[np.ix_(to, cs_cols)]
+        cs = CubicSpline(to.astype(float), Yo, axis=0, bc_type="not-a-knot")
+        inside = tm[(tm > to[0]) & (tm < to[-1])]
+        if inside.size:
+            A[np.ix_(inside, cs_cols)] = cs(inside.astype(float))
+        A[np.ix_(np.arange(to[0]), cs_cols)] = Yo[0]
+        A[np.ix_(np.arange(to[-1] + 1, T), cs_cols)] = Yo[-1]
+        d0, d1 = cs(float(to[0]), 1), cs(float(to[-1]), 1)
+        slopes.update({c: (d0[i], d1[i]) for i, c in enumerate(cs_cols)})
+    return slopes
+
+
+def _fill_ends(A: np.ndarray, M: np.ndarray, cols: np.ndarray, ends: str, slopes: dict) -> None:
+    """Overwrite (in place) the leading / trailing gaps of channels ``cols`` (each observed
+    at least once, ends currently held): NaN, or continued with the end slope (``slopes``
+    for spline channels, else the first / last segment's; 0 for one observed sample)."""
+    t = np.arange(A.shape[0], dtype=float)
+    for c in cols:
+        to = np.flatnonzero(M[:, c])
+        lo, hi = to[0], to[-1]
+        if ends == "nan":
+            A[:lo, c] = np.nan
+            A[hi + 1:, c] = np.nan
+            continue
+        if len(to) == 1:
+            continue
+        y = A[to, c]
+        d0, d1 = slopes.get(int(c), ((y[1] - y[0]) / (to[1] - to[0]), (y[-1] - y[-2]) / (to[-1] - to[-2])))
+        A[:lo, c] = y[0] + (t[:lo] - lo) * d0
+        A[hi + 1:, c] = y[-1] + (t[hi + 1:] - hi) * d1
 
 
 def frame_centroid(positions: np.ndarray, observed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -370,9 +459,7 @@ def apply_policy(inp, out, *, evidence: str, method: str, policy: GapPolicy | No
     src.pop("fill_codes", None)
     src["gap_report"] = report
     P[~keep] = np.nan
-    from .motion import Motion
-
-    return Motion(P, out.skeleton, out.fps, keep, src, filled)
+    return type(out)(P, out.skeleton, out.fps, keep, src, filled)     # a Motion (no import: motion uses fill)
 
 
 def summary_line(report: dict | None) -> str:

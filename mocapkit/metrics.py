@@ -164,6 +164,17 @@ def rmse(truth: Any, est: Any, mask: Any = None) -> float:
     Returns
     -------
     float, cm.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from mocapkit import metrics
+    >>> truth = np.zeros((2, 1, 3))                    # 2 frames, 1 joint
+    >>> est = truth + [[[3.0, 0.0, 0.0]], [[0.0, 0.0, 0.0]]]
+    >>> metrics.rmse(truth, est)                       # sqrt(9 / 6)
+    1.224744871391589
+    >>> metrics.rmse(truth, est, mask=np.array([[False], [True]]))
+    0.0
     """
     t, e, sk, _ = _pair(truth, est)
     sel = _coord_mask(mask, *t.obs.shape) & t.obs[:, :, None]

@@ -26,6 +26,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from .errors import MocapValueError
+from .gaps import fill
 from .skeleton import Skeleton
 
 
@@ -205,7 +206,7 @@ class Motion:
         t_old = np.arange(T) / self.fps
         n_new = max(1, int(np.floor((T - 1) * fps / self.fps + 1e-9)) + 1)
         t_new = np.arange(n_new) / fps
-        X = fill_gaps_linear(self.matrix(), self.matrix_mask())
+        X = fill(self.matrix(), self.matrix_mask(), never_observed=0.0)   # never-observed: not returned
         if T >= 4:
             Y = CubicSpline(t_old, X, axis=0)(t_new)
         elif T >= 2:
@@ -224,11 +225,14 @@ class Motion:
 
     # -- simple measures -------------------------------------------------------------------
     def height(self) -> float:
-        """Standing height estimate in cm: the 95th-5th percentile spread of the vertical axis.
+        """Body height estimate in cm (NaN when no frame has an observed joint).
 
-        The vertical axis is the one with the largest rest-pose extent of the skeleton
-        (Y for CMU/BVH, Z for C3D/Kinect-style data usually); computed per frame as
-        max - min over joints and summarised by the median over frames.
+        In every frame with an observed joint, the extent of the observed joints along
+        each axis (max - min over joints, cm; frames where an axis has no finite value
+        are dropped). The axis with the largest median extent over frames is taken as the
+        body's long (vertical) axis -- Y for CMU/BVH, Z for most C3D data -- and the result
+        is the 90th percentile over frames of the extent along it (the upright frames, so
+        crouching or lying frames lower it only when they are over 90 % of the clip).
         """
         P = self.positions
         seen = self.observed.any(axis=1)                            # frames with a marker
@@ -248,18 +252,3 @@ class Motion:
         if len(b) == 0:
             return np.zeros((self.n_frames, 0))
         return np.linalg.norm(self.positions[:, b[:, 0]] - self.positions[:, b[:, 1]], axis=2)
-
-
-def fill_gaps_linear(X: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    """A solver's starting point: :func:`mocapkit.gaps.fill_linear` (linear in time, ends
-    held) with a never-observed channel set to 0 instead of NaN.
-
-    Solvers need a finite matrix to start from; the value of a never-observed channel is
-    never returned to the user (the gap policy leaves it missing), so 0 only keeps the
-    arithmetic finite. For what a *user* gets, see :mod:`mocapkit.gaps`.
-    """
-    from .gaps import fill_linear
-
-    Y = fill_linear(X, mask)
-    Y[~np.isfinite(Y)] = 0.0
-    return Y

@@ -116,7 +116,7 @@ def yaw_kabsch(A: np.ndarray, B: np.ndarray, weights: np.ndarray | None = None,
 
     A, B : (..., N, 3) cm; weights (..., N) or (N,). Returns the angle (...,) in radians
     (positive = counter-clockwise from the first horizontal axis ``(up+1) % 3`` towards the
-    second ``(up+2) % 3``, as :mod:`mocapkit.bodyframe`) and the horizontal translation
+    second ``(up+2) % 3``, as :func:`mocapkit.frames.heading_frame`) and the horizontal translation
     (..., 3) (its ``up_axis`` component is 0): ``B_h ~ Rot(angle) A_h + t``.
     """
     A = np.asarray(A, dtype=float)
@@ -377,46 +377,69 @@ def rigid_fill(P: np.ndarray, observed: np.ndarray, clusters: Sequence[Sequence[
         for g in find_gaps(oc):
             if g.kind == "never":
                 continue
-            m = g.joint
-            don = np.array([i for i in range(len(cl)) if i != m])
-            s, e = g.start, g.stop
-            fr = np.arange(s, e)
-            od = oc[s:e][:, don]                              # donors seen in the gap frames
             if reference == "average":
-                have = np.isfinite(tmpl).all(axis=1)
-                if not have[m]:
-                    continue
-                w = od & have[don][None, :]
-                R, t, spr = kabsch(np.where(have[don][:, None], tmpl[don], 0.0)[None].repeat(len(fr), 0),
-                                   Qc[s:e][:, don], w.astype(float), return_spread=True)
-                pred = apply_rigid(R, t, np.broadcast_to(tmpl[m], (len(fr), 3)))
-                good = (w.sum(axis=1) >= k_min) & (spr >= spread_min)
+                got = _template_prediction(tmpl, Qc, oc, g.joint, g.start, g.stop, k_min, spread_min)
             else:
-                ok_ref = oc[:, m] & (oc[:, don].sum(axis=1) >= k_min)
-                r0, r1 = _nearest_ref(ok_ref, s, e)
-                preds, goods = [], []
-                for r in (r0, r1):
-                    if r is None:
-                        preds.append(None)
-                        goods.append(np.zeros(len(fr), bool))
-                        continue
-                    w = od & oc[r, don][None, :]
-                    R, t, spr = kabsch(np.broadcast_to(Qc[r, don], (len(fr), len(don), 3)),
-                                       Qc[s:e][:, don], w.astype(float), return_spread=True)
-                    preds.append(apply_rigid(R, t, np.broadcast_to(Pc[r, m], (len(fr), 3))))
-                    goods.append((w.sum(axis=1) >= k_min) & (spr >= spread_min))
-                if r0 is not None and r1 is not None:
-                    a = ((fr - r0) / float(r1 - r0))[:, None]
-                else:
-                    a = np.full((len(fr), 1), 0.0 if r0 is not None else 1.0)
-                a = np.where(~goods[1][:, None], 0.0, np.where(~goods[0][:, None], 1.0, a))
-                p0 = np.where(goods[0][:, None], preds[0] if preds[0] is not None else 0.0, 0.0)
-                p1 = np.where(goods[1][:, None], preds[1] if preds[1] is not None else 0.0, 0.0)
-                pred = (1.0 - a) * p0 + a * p1         # blend of the two predictions
-                good = goods[0] | goods[1]
+                got = _ends_prediction(Pc, Qc, oc, g.joint, g.start, g.stop, k_min, spread_min)
+            if got is None:
+                continue
+            pred, good = got
             good &= np.isfinite(pred).all(axis=1)
             if good.any():
-                j = cl[m]
+                fr = np.arange(g.start, g.stop)
+                j = cl[g.joint]
                 out[fr[good], j] = pred[good]
                 filled[fr[good], j] = True
     return out, filled
+
+
+def _template_prediction(tmpl: np.ndarray, Qc: np.ndarray, oc: np.ndarray, m: int, s: int,
+                         e: int, k_min: int, spread_min: float):
+    """``reference="average"`` of :func:`rigid_fill`: marker m of the cluster at frames
+    s..e-1 from the template ``tmpl`` (K, 3) fitted to the donors seen in each frame.
+
+    Qc (T, K, 3) the cluster's positions (0 where unseen), oc (T, K) seen.  Returns the
+    prediction (e - s, 3) and the frames with a usable fit (>= ``k_min`` donors, spread >=
+    ``spread_min``), or None when the template lacks marker m."""
+    have = np.isfinite(tmpl).all(axis=1)
+    if not have[m]:
+        return None
+    don = np.array([i for i in range(oc.shape[1]) if i != m])
+    w = oc[s:e][:, don] & have[don][None, :]
+    R, t, spr = kabsch(np.where(have[don][:, None], tmpl[don], 0.0)[None].repeat(e - s, 0),
+                       Qc[s:e][:, don], w.astype(float), return_spread=True)
+    pred = apply_rigid(R, t, np.broadcast_to(tmpl[m], (e - s, 3)))
+    return pred, (w.sum(axis=1) >= k_min) & (spr >= spread_min)
+
+
+def _ends_prediction(Pc: np.ndarray, Qc: np.ndarray, oc: np.ndarray, m: int, s: int, e: int,
+                     k_min: int, spread_min: float) -> tuple[np.ndarray, np.ndarray]:
+    """``reference="ends"`` of :func:`rigid_fill`: marker m at frames s..e-1 predicted from
+    the nearest frames before and after the gap that see it and >= ``k_min`` donors (a
+    rigid fit of the donors seen in both), blended linearly over the gap (one side only
+    where the other has no usable fit).  Pc (T, K, 3) the cluster, Qc the same with 0 where
+    unseen, oc (T, K) seen.  Returns the prediction (e - s, 3) and the frames with a fit."""
+    don = np.array([i for i in range(oc.shape[1]) if i != m])
+    fr = np.arange(s, e)
+    od = oc[s:e][:, don]                              # donors seen in the gap frames
+    ok_ref = oc[:, m] & (oc[:, don].sum(axis=1) >= k_min)
+    r0, r1 = _nearest_ref(ok_ref, s, e)
+    preds, goods = [], []
+    for r in (r0, r1):
+        if r is None:
+            preds.append(None)
+            goods.append(np.zeros(len(fr), bool))
+            continue
+        w = od & oc[r, don][None, :]
+        R, t, spr = kabsch(np.broadcast_to(Qc[r, don], (len(fr), len(don), 3)),
+                           Qc[s:e][:, don], w.astype(float), return_spread=True)
+        preds.append(apply_rigid(R, t, np.broadcast_to(Pc[r, m], (len(fr), 3))))
+        goods.append((w.sum(axis=1) >= k_min) & (spr >= spread_min))
+    if r0 is not None and r1 is not None:
+        a = ((fr - r0) / float(r1 - r0))[:, None]
+    else:
+        a = np.full((len(fr), 1), 0.0 if r0 is not None else 1.0)
+    a = np.where(~goods[1][:, None], 0.0, np.where(~goods[0][:, None], 1.0, a))
+    p0 = np.where(goods[0][:, None], preds[0] if preds[0] is not None else 0.0, 0.0)
+    p1 = np.where(goods[1][:, None], preds[1] if preds[1] is not None else 0.0, 0.0)
+    return (1.0 - a) * p0 + a * p1, goods[0] | goods[1]         # blend of the two predictions

@@ -44,6 +44,46 @@ def _side(name: str) -> str | None:
     return None
 
 
+#: The package's one joint-name alias table, by role (matched case-insensitively):
+#:
+#: * ``hip``, ``shoulder`` -- words looked for inside the name of a joint that has a side
+#:   (:func:`_side`); the shallowest such joint wins (:func:`mocapkit.frames.find_hips`:
+#:   the heading and pelvis-neck frames, the retrieval key points);
+#: * ``neck`` -- whole names of the midline joint at the top of the spine, in order of
+#:   preference (Xiao et al.'s "upper neck": CMU ASF ``upperneck``, cgspeed BVH
+#:   ``Neck1``/``Neck``, Daz ``neck``, Kinect ``ShoulderCenter``/``SpineShoulder``, else
+#:   the head);
+#: * ``upper_arm`` -- side-stripped names of the shoulder joint at the top of the upper arm
+#:   (retrieval key points), tried in order, exact name first, then contained (cgspeed
+#:   ``LeftArm``, Daz ``lShldr``).
+#:
+#: Left/right partners (:func:`mocapkit.frames.mirror_permutation`) are names equal after
+#: :func:`strip_side`.
+JOINT_ALIASES: dict[str, tuple[str, ...]] = {
+    # thigh joints: lfemur/rfemur (CMU ASF), LeftUpLeg/RightUpLeg (cgspeed BVH), lThigh/rThigh
+    # (Daz BVH), HipLeft/HipRight (Kinect); lhipjoint/rhipjoint are the hip centres in ASF
+    "hip": ("hipjoint", "upleg", "femur", "thigh", "hip"),
+    "shoulder": ("clavicle", "collar", "shoulder", "shldr", "humerus", "upperarm", "arm"),
+    "neck": ("upperneck", "neck1", "neck", "neck2", "shouldercenter", "spineshoulder", "head"),
+    "upper_arm": ("arm", "shldr", "shoulder", "clavicle"),
+}
+
+
+def strip_side(name: str) -> str:
+    """Joint name without its left/right marker (lowercase): 'lfemur' -> 'femur',
+    'LeftUpLeg' -> 'upleg', 'HipLeft' -> 'hip', 'l_knee' -> 'knee'."""
+    low = name.strip().lower()
+    for pre in ("left", "right"):
+        if low.startswith(pre):
+            return low[len(pre):].lstrip("_. ")
+        if low.endswith(pre):
+            return low[:-len(pre)].rstrip("_. ")
+    m = re.match(r"^[lr][_\.\s](.+)$", low) or re.match(r"^(.+)[_\.\s][lr]$", low)
+    if m:
+        return m.group(1)
+    return low[1:] if low[:1] in ("l", "r") else low
+
+
 def _limb(name: str) -> str | None:
     low = re.sub(r"left|right", "", name.lower())
     if low in _MIDLINE and low == name.lower():   # 'HipLeft'/'LeftHip' keep their side: a leg joint
@@ -134,6 +174,13 @@ class Skeleton:
     def bone_lengths(self) -> np.ndarray:
         """Rest bone lengths in cm, one per :meth:`bones` entry."""
         return np.array([np.linalg.norm(self.offsets[c]) for c, _ in self.bones()])
+
+    def depths(self) -> np.ndarray:
+        """Depth of each joint in the tree (J,) int: 0 for a root, parent's depth + 1."""
+        d = np.zeros(self.n_joints, dtype=int)
+        for j, p in enumerate(self.parents):
+            d[j] = d[p] + 1 if p >= 0 else 0
+        return d
 
     def children(self, j: int) -> list[int]:
         return [int(c) for c in np.flatnonzero(self.parents == j)]

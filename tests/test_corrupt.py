@@ -274,7 +274,7 @@ def test_bad_arguments(clip):
 
 
 def test_real_cmu_clip(shared_data):
-    pytest.importorskip("mocapkit.io.asfamc")
+    pytest.importorskip("mocapkit.io.amc")
     from mocapkit import io
     from mocapkit.datasets import cmu_amc
 

@@ -4,7 +4,7 @@ import pytest
 from scipy.ndimage import gaussian_filter1d, median_filter
 from scipy.signal import butter, savgol_filter, sosfreqz
 
-from mocapkit import Motion, Skeleton, denoise, signal
+from mocapkit import Motion, Skeleton, denoise, gaps, signal
 from mocapkit.errors import MocapError, MocapValueError
 
 FILTERS = ("gaussian", "spline", "linear", "butterworth", "savgol", "median", "hampel")
@@ -23,7 +23,7 @@ def smooth_motion(T=600, J=8, fps=120.0, seed=0):
     return Motion(P, sk, fps)
 
 
-# -- fill_gaps / spline / linear ------------------------------------------------------------
+# -- gaps.fill / spline / linear -------------------------------------------------------------
 def test_spline_exact_on_cubic_and_keeps_observed_bitwise():
     T = 80
     t = np.arange(T, dtype=float)
@@ -49,17 +49,18 @@ def test_fill_gaps_ends_and_linear():
     m[:4] = False
     m[15:] = False
     m[8:11, 0] = False
-    near = signal.fill_gaps(np.where(m, x, np.nan), m, kind="cubic")
+    near = gaps.fill(np.where(m, x, np.nan), m, kind="cubic")
     np.testing.assert_allclose(near[:4], np.repeat(x[4:5], 4, axis=0))          # held
     np.testing.assert_allclose(near[15:], np.repeat(x[14:15], 5, axis=0))
     for kind in ("cubic", "linear"):
-        lin = signal.fill_gaps(np.where(m, x, np.nan), m, kind=kind, ends="linear")
+        lin = gaps.fill(np.where(m, x, np.nan), m, kind=kind, ends="linear")
         np.testing.assert_allclose(lin, x, atol=1e-9)                          # a line is kept
     # linear fill between two points is the chord
     y = np.array([0.0, np.nan, np.nan, 3.0])
-    np.testing.assert_allclose(signal.fill_gaps(y, kind="linear"), [0, 1, 2, 3])
-    with pytest.raises(MocapValueError, match="no observed sample"):
-        signal.fill_gaps(np.full((5, 2), np.nan))
+    np.testing.assert_allclose(gaps.fill(y, kind="linear"), [0, 1, 2, 3])
+    assert np.isnan(gaps.fill(np.full((5, 2), np.nan), kind="cubic")).all()   # never observed: stays NaN
+    with pytest.raises(MocapValueError, match="mask shape"):
+        gaps.fill(y, np.ones(3, bool))
 
 
 def test_never_observed_joint_is_named():
@@ -243,7 +244,7 @@ def test_registry_metadata():
 
 # -- one real clip -------------------------------------------------------------------------------
 def test_filters_on_real_clip(shared_data):
-    pytest.importorskip("mocapkit.io.asfamc")
+    pytest.importorskip("mocapkit.io.amc")
     from mocapkit import io
     from mocapkit.datasets import cmu_amc
 

@@ -62,14 +62,19 @@ def test_supported_interp_vs_markers_and_max_gap():
         gaps.GapPolicy(max_gap_s=0)
 
 
-def test_fill_linear_never_observed_rule():
+def test_fill_never_observed_rule():
     X = np.array([[np.nan, 1.0], [np.nan, np.nan], [np.nan, 3.0], [np.nan, np.nan]])
     m = np.isfinite(X)
-    Y = gaps.fill_linear(X, m)
-    assert np.isnan(Y[:, 0]).all()                        # never observed: stays missing
-    assert np.allclose(Y[:, 1], [1, 2, 3, 3])
-    assert np.allclose(gaps.fill_linear(X, m, ends="nan")[:3, 1], [1, 2, 3])
-    assert np.isnan(gaps.fill_linear(X, m, ends="nan")[3, 1])
+    for kind in ("linear", "cubic"):
+        Y = gaps.fill(X, m, kind=kind)
+        assert np.isnan(Y[:, 0]).all()                    # never observed: stays missing
+        assert np.allclose(Y[:, 1], [1, 2, 3, 3])
+    assert np.allclose(gaps.fill(X, m, ends="nan")[:3, 1], [1, 2, 3])
+    assert np.isnan(gaps.fill(X, m, ends="nan")[3, 1])
+    assert np.isnan(gaps.fill(X, m, ends="linear")[:, 0]).all()
+    # a solver's finite start asks for it explicitly
+    assert (gaps.fill(X, m, never_observed=0.0)[:, 0] == 0).all()
+    assert np.allclose(gaps.fill(X, m, never_observed=0.0)[:, 1], [1, 2, 3, 3])
 
 
 def test_kalman_cv_does_not_extrapolate_an_edge_gap():

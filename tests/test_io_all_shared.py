@@ -22,7 +22,7 @@ from mocapkit.datasets import shared_data_dir
 from mocapkit.errors import MocapFormatError
 
 DATA = shared_data_dir()
-MODULE = {"AMC": "asfamc", "ASF": "asfamc", "BVH": "bvh", "C3D": "c3d", "TRC": "trc", "TXT": "kinect"}
+MODULE = {"AMC": "amc", "ASF": "amc", "BVH": "bvh", "C3D": "c3d", "TRC": "trc", "TXT": "kinect"}
 MSR_SAMPLE = 40
 # CMU walking trials present as ASF/AMC (README "Labels")
 CMU_WALKS = ("05_01", "07_03", "07_05", "16_15", "35_01", "131_01", "131_02", "131_09", "131_11",

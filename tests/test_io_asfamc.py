@@ -13,7 +13,11 @@ import pytest
 from mocapkit import io
 from mocapkit.datasets import bundled
 from mocapkit.errors import MocapFormatError, MocapValueError
-from mocapkit.io import asfamc
+from mocapkit.io import _kinematics as kin
+from mocapkit.io import _rotations as rot
+from mocapkit.io import amc as amc_io
+from mocapkit.io import asf as asf_io
+from mocapkit.io import bvh as bvh_io
 
 CM = 2.54 / 0.45          # cm per CMU length unit
 
@@ -154,6 +158,21 @@ def test_cmu_units_and_offsets(walk):
     assert 150 < walk.height() < 200
 
 
+@pytest.mark.parametrize("name,cm", [("cmu", 2.54 / 0.45), ("CMU", 2.54 / 0.45), ("in", 2.54),
+                                     ("inches", 2.54), ("centimetre", 1.0), ("mm", 0.1), ("m", 100.0)])
+def test_units_option_takes_the_bvh_unit_names(name, cm):
+    """``units=`` of the AMC reader takes the unit names of the BVH reader (one table)."""
+    walk1 = io.read(bundled("16_15.amc"), units=name).slice(0, 1)
+    bvh_factor = bvh_io._resolve_units(name, [], "x.bvh")["factor_to_cm"]
+    assert walk1.source["units"]["cm_per_unit"] == bvh_factor == pytest.approx(cm, rel=1e-15)
+    np.testing.assert_allclose(walk1.positions[0, 0], np.array([1.22935, 17.2598, -26.9208]) * cm)
+
+
+def test_units_option_unknown_name():
+    with pytest.raises(MocapValueError, match=r"one of cm, mm, m, inch, cmu, got 'furlong'"):
+        io.read(bundled("16_15.amc"), units="furlong")
+
+
 def test_asf_rest_pose_motion():
     m = io.read(bundled("16.asf"))
     assert m.n_frames == 1 and m.n_joints == 31
@@ -173,7 +192,7 @@ def test_lookup_cmu_and_hdm05_layouts(tmp_path):
     shutil.copy(src_asf, d / "05.asf")
     shutil.copy(src_asf, d / "0.asf")                 # shorter prefix: loses to 05.asf
     shutil.copy(src_amc, d / "05_04.amc")
-    assert asfamc.find_skeleton(d / "05_04.amc") == d / "05.asf"
+    assert asf_io.find_skeleton(d / "05_04.amc") == d / "05.asf"
     # HDM05: HDM_bd.asf one folder up from hopBothLegs1hops/HDM_bd_....amc
     h = tmp_path / "hdm"
     (h / "hopBothLegs1hops").mkdir(parents=True)
@@ -181,14 +200,14 @@ def test_lookup_cmu_and_hdm05_layouts(tmp_path):
     shutil.copy(src_asf, h / "HDM_mm.asf")
     amc = h / "hopBothLegs1hops" / "HDM_bd_hopBothLegs1hops_001_120.amc"
     shutil.copy(src_amc, amc)
-    assert asfamc.find_skeleton(amc) == h / "HDM_bd.asf"
+    assert asf_io.find_skeleton(amc) == h / "HDM_bd.asf"
     assert io.read(amc).n_frames == 471
     # the only .asf in the AMC's folder
     o = tmp_path / "only"
     o.mkdir()
     shutil.copy(src_asf, o / "subject.asf")
     shutil.copy(src_amc, o / "clip.amc")
-    assert asfamc.find_skeleton(o / "clip.amc") == o / "subject.asf"
+    assert asf_io.find_skeleton(o / "clip.amc") == o / "subject.asf"
     # explicit skeleton=
     assert io.read(o / "clip.amc", skeleton=o / "subject.asf").n_joints == 31
 
@@ -224,9 +243,9 @@ def test_amc_write_read_identical(walk, tmp_path):
 
 
 def test_asf_writer_round_trip(walk, tmp_path):
-    p = asfamc.write_asf(walk.source["asf"], tmp_path / "w.asf")
-    again = asfamc.read_asf(p)
-    assert asfamc._same_skeleton(again, walk.source["asf"])
+    p = asf_io.write_asf(walk.source["asf"], tmp_path / "w.asf")
+    again = asf_io.read_asf(p)
+    assert asf_io._same_skeleton(again, walk.source["asf"])
     assert again["bones"][1]["limits"] == walk.source["asf"]["bones"][1]["limits"]
 
 
@@ -242,11 +261,11 @@ def test_writer_refuses_input_and_non_amc(walk, tmp_path):
 
 def test_ik_recovers_perturbed_dofs(walk, tmp_path):
     """Positions from FK of perturbed dofs (2 degrees on every angle) are re-found by IK."""
-    comp = asfamc._Compiled(walk.source["asf"])
+    comp = kin._Compiled(walk.source["asf"])
     D = walk.source["per_frame"]["dofs"]
     rng = np.random.default_rng(0)
     D1 = D + rng.normal(0, 2.0, D.shape) * (np.arange(D.shape[1]) >= 3)
-    P1 = asfamc.forward_kinematics(comp, D1, False, CM)[:60]
+    P1 = kin.forward_kinematics(comp, D1, False, CM)[:60]
     moved = walk.slice(0, 60).with_positions(P1)          # stored dofs (unperturbed) kept
     io.write(moved, tmp_path / "ik.amc")
     back = io.read(tmp_path / "ik.amc")
@@ -258,10 +277,10 @@ def test_ik_recovers_perturbed_dofs(walk, tmp_path):
 
 def test_ik_without_stored_dofs(walk):
     """No stored dofs (e.g. after resampling): IK from the rest pose still fits clean positions."""
-    comp = asfamc._Compiled(walk.source["asf"])
+    comp = kin._Compiled(walk.source["asf"])
     P = walk.positions[:60]
-    out = asfamc.inverse_kinematics(comp, P, CM, False, None)
-    err = np.linalg.norm(asfamc.forward_kinematics(comp, out, False, CM) - P, axis=2)
+    out = kin.inverse_kinematics(comp, P, CM, False, None)
+    err = np.linalg.norm(kin.forward_kinematics(comp, out, False, CM) - P, axis=2)
     assert err.max() < 0.5 and err.mean() < 0.03           # measured 0.12 / 0.006 cm
 
 
@@ -284,10 +303,10 @@ def test_partial_dof_fit_matches_dense_search():
     U = rng.normal(size=(2, 3))
     W = rng.normal(size=(T, 2, 3))
     for order, axes in (("XYZ", [0]), ("XYZ", [0, 2]), ("ZYX", [1, 2]), ("YZX", [0, 1])):
-        ang = asfamc._fit_partial(order, axes, U, W, np.zeros((T, 3)), np.zeros((T, 3)))
+        ang = kin._fit_partial(order, axes, U, W, np.zeros((T, 3)), np.zeros((T, 3)))
 
         def cost(A):                                   # A (G, 3) -> (G, T)
-            M = asfamc._euler_matrix(order, A)
+            M = kin._euler_matrix(order, A)
             return np.sum((np.einsum("gij,nj->gni", M, U)[:, None] - W[None]) ** 2, axis=(2, 3))
         grid = np.deg2rad(np.arange(-180, 180, 3.0))
         if len(axes) == 1:
@@ -298,7 +317,7 @@ def test_partial_dof_fit_matches_dense_search():
             A = np.zeros((g1.size, 3))
             A[:, axes[0]], A[:, axes[1]] = g1.ravel(), g2.ravel()
         best = cost(A).min(axis=0)                     # dense reference (3 degree grid)
-        M = asfamc._euler_matrix(order, ang)
+        M = kin._euler_matrix(order, ang)
         got = np.sum((np.einsum("tij,nj->tni", M, U) - W) ** 2, axis=(1, 2))
         assert np.all(got <= best + 1e-9)
         assert np.all(ang[:, [a for a in range(3) if a not in axes]] == 0)
@@ -307,23 +326,23 @@ def test_partial_dof_fit_matches_dense_search():
 def test_min_rotation_and_kabsch():
     rng = np.random.default_rng(4)
     a, b = rng.normal(size=(50, 3)), rng.normal(size=(50, 3))
-    R = asfamc._min_rotation(a, b)
+    R = rot.min_rotation(a, b)
     an = a / np.linalg.norm(a, axis=1, keepdims=True)
     bn = b / np.linalg.norm(b, axis=1, keepdims=True)
     np.testing.assert_allclose(np.einsum("tij,tj->ti", R, an), bn, atol=1e-12)
     np.testing.assert_allclose(R @ np.swapaxes(R, 1, 2), np.broadcast_to(np.eye(3), R.shape), atol=1e-10)
-    Rt = asfamc._euler_matrix("XYZ", rng.uniform(-3, 3, (50, 3)))
+    Rt = kin._euler_matrix("XYZ", rng.uniform(-3, 3, (50, 3)))
     U = rng.normal(size=(50, 4, 3))
-    np.testing.assert_allclose(asfamc._kabsch(U, np.einsum("tij,tnj->tni", Rt, U)), Rt, atol=1e-10)
+    np.testing.assert_allclose(rot.kabsch(U, np.einsum("tij,tnj->tni", Rt, U))[0], Rt, atol=1e-10)
 
 
 def test_euler_both_branches():
     rng = np.random.default_rng(5)
     for order in ("XYZ", "ZYX", "YZX", "XZY", "YXZ", "ZXY"):
         ang = rng.uniform(-3, 3, (20, 3))
-        M = asfamc._euler_matrix(order, ang)
-        for c in asfamc._euler_from(M, order):
-            np.testing.assert_allclose(asfamc._euler_matrix(order, c), M, atol=1e-12)
+        M = kin._euler_matrix(order, ang)
+        for c in kin._euler_from(M, order):
+            np.testing.assert_allclose(kin._euler_matrix(order, c), M, atol=1e-12)
 
 
 # ------------------------------------------------------------------------------------
@@ -461,7 +480,7 @@ def test_asf_bad_numbers_and_truncation(pair):
 def test_asf_is_not_an_amc(pair):
     asf, amc, lines = pair
     with pytest.raises(MocapFormatError, match="ASF skeleton, not an AMC"):
-        asfamc.read(asf, skeleton=asf)
+        amc_io.read(asf, skeleton=asf)
 
 
 # ------------------------------------------------------------------------------------

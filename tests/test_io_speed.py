@@ -14,7 +14,8 @@ from mocapkit.datasets import bundled
 from mocapkit.errors import MocapFormatError
 from mocapkit.io import _kinematics as K
 from mocapkit.io import _rotations as R
-from mocapkit.io import asfamc, bvh
+from mocapkit.io import _kinematics as kin
+from mocapkit.io import bvh
 from mocapkit.io._numfmt import fixed_rows
 
 CM = 2.54 / 0.45
@@ -173,15 +174,15 @@ def test_amc_ik_closed_form_recovers_random_poses_without_start():
     """No stored dofs at all: random poses (within the ASF limits) come back to < 0.5 cm
     (old IK: 9.3 cm max on 131_02 without start, see docs/results/io_speed.md)."""
     m = io.read(bundled("16_15.amc"))
-    comp = asfamc._Compiled(m.source["asf"])
+    comp = kin._Compiled(m.source["asf"])
     D = m.source["per_frame"]["dofs"][:80]
-    P = asfamc.forward_kinematics(comp, D, False, CM)
-    out = asfamc.inverse_kinematics(comp, P, CM, False, None)
-    err = np.linalg.norm(asfamc.forward_kinematics(comp, out, False, CM) - P, axis=2)
+    P = kin.forward_kinematics(comp, D, False, CM)
+    out = kin.inverse_kinematics(comp, P, CM, False, None)
+    err = np.linalg.norm(kin.forward_kinematics(comp, out, False, CM) - P, axis=2)
     assert err.max() < 0.5 and err.mean() < 0.02
     # the top-down pass alone (no Levenberg-Marquardt) is already close
-    out0 = asfamc.inverse_kinematics(comp, P, CM, False, None, refine=0)
-    err0 = np.linalg.norm(asfamc.forward_kinematics(comp, out0, False, CM) - P, axis=2)
+    out0 = kin.inverse_kinematics(comp, P, CM, False, None, refine=0)
+    err0 = np.linalg.norm(kin.forward_kinematics(comp, out0, False, CM) - P, axis=2)
     assert err0.mean() < 0.05
 
 
@@ -189,9 +190,9 @@ def test_hinge_twist_picks_the_bend_inside_the_limits():
     """A straight-start femur twist is fixed by the knee's cone in closed form: every
     recovered knee angle lies inside the ASF limits (-10, 170) degrees."""
     m = io.read(bundled("16_15.amc"))
-    comp = asfamc._Compiled(m.source["asf"])
+    comp = kin._Compiled(m.source["asf"])
     D = m.source["per_frame"]["dofs"][:80]
-    out = asfamc.inverse_kinematics(comp, asfamc.forward_kinematics(comp, D, False, CM), CM, False, None,
+    out = kin.inverse_kinematics(comp, kin.forward_kinematics(comp, D, False, CM), CM, False, None,
                                     refine=0)
     for knee in ("ltibia", "rtibia"):
         col = comp.dof_cols[knee][0]

@@ -388,6 +388,20 @@ def test_trc_nummarkers_mismatch_warns(tmp_path):
     assert m.n_joints == 3
 
 
+@pytest.mark.parametrize("count", ["inf", "-inf", "nan", "many"])
+def test_trc_header_count_not_a_number_is_noted_not_raised(tmp_path, count):
+    """A NumFrames that is no finite number ('inf' once raised OverflowError) is noted in
+    source['warnings']; the data rows are read."""
+    text, _, _ = trc_text()
+    lines = text.splitlines()
+    lines[2] = lines[2].replace("\t3\t3\tm\t", f"\t{count}\t3\tm\t")
+    p = tmp_path / "nf.trc"
+    p.write_text("\n".join(lines) + "\n")
+    m = mio.read(p)
+    assert m.n_frames == 3
+    assert m.source["warnings"] == [f"header NumFrames {count!r} is not a number"]
+
+
 def test_trc_consistent_header_gives_no_warning(tmp_path):
     text, _, _ = trc_text()
     p = tmp_path / "ok.trc"

@@ -5,6 +5,7 @@ import pytest
 from mocapkit import Motion, Skeleton, denoise, gaps, signal
 from mocapkit.denoise.base import Denoiser
 from mocapkit.errors import MocapValueError, NotFittedError
+from mocapkit.signal.rts import _dense_posterior
 
 
 # -- the smoother equals the dense Gaussian posterior ------------------------------------------
@@ -25,7 +26,7 @@ def test_rts_equals_dense_posterior(rng, n, p):
     x0 = rng.normal(size=n)
     P0 = np.diag(rng.uniform(1, 3, n))
     b = rng.normal(size=n) * 0.1 if p > 1 else None
-    mu, cov = signal._dense_posterior(Y, M, F=F, Q=Q, R=R, H=H, x0=x0, P0=P0, b=b)
+    mu, cov = _dense_posterior(Y, M, F=F, Q=Q, R=R, H=H, x0=x0, P0=P0, b=b)
     xs, used, Ps = signal.rts_smoother(Y[:, None, :], M[:, None, :], F=F, Q=Q, R=R[None], H=H,
                                        x0=x0[None], P0=P0[None], b=b, return_cov=True)
     np.testing.assert_allclose(xs[:, 0], mu, atol=1e-8)
@@ -48,7 +49,7 @@ def test_generic_batched_vector_path_equals_dense(rng):
     R = np.array([[0.5, 1.5], [1.0, 2.0]])
     xs, _ = signal.rts_smoother(Y, M, F=F, Q=Q, R=R, H=H, x0=np.zeros(n), P0=np.eye(n) * 3)
     for i in range(2):
-        mu, _ = signal._dense_posterior(Y[:, i], M[:, i], F=F, Q=Q, R=R[i], H=H,
+        mu, _ = _dense_posterior(Y[:, i], M[:, i], F=F, Q=Q, R=R[i], H=H,
                                         x0=np.zeros(n), P0=np.eye(n) * 3)
         np.testing.assert_allclose(xs[:, i], mu, atol=1e-8)
 
@@ -70,7 +71,7 @@ def test_steady_state_covariance_and_reuse(rng):
     M = np.ones((T, p), bool)
     M[20:25, :4] = False
     x0 = rng.normal(size=n)
-    mu, _ = signal._dense_posterior(Y, M, F=F, Q=Q, R=R, H=H, x0=x0, P0=Pss)
+    mu, _ = _dense_posterior(Y, M, F=F, Q=Q, R=R, H=H, x0=x0, P0=Pss)
     xs, _ = signal.rts_smoother(Y[:, None], M[:, None], F=F, Q=Q, R=R[None], H=H, x0=x0[None], P0=Pss[None])
     np.testing.assert_allclose(xs[:, 0], mu, atol=1e-8)
 
@@ -85,7 +86,7 @@ def test_batched_channels_are_independent(rng):
     R = rng.uniform(0.5, 2, C)
     xs, _ = signal.rts_smoother(Y, M, F=F, Q=Q, R=R, P0=np.eye(2) * 10)
     for c in range(C):
-        mu, _ = signal._dense_posterior(Y[:, c:c + 1], M[:, c:c + 1], F=F, Q=Q[c], R=R[c:c + 1],
+        mu, _ = _dense_posterior(Y[:, c:c + 1], M[:, c:c + 1], F=F, Q=Q[c], R=R[c:c + 1],
                                         H=np.eye(1, 2), x0=np.zeros(2), P0=np.eye(2) * 10)
         np.testing.assert_allclose(xs[:, c], mu, atol=1e-8)
 
@@ -96,7 +97,7 @@ def test_noise_sigma_and_ml_process_noise(rng):
     smooth = np.stack([30 * np.sin(2 * np.pi * 0.8 * t), 10 * np.cos(2 * np.pi * 1.3 * t)], axis=1)
     noisy = smooth + rng.normal(0, 1.5, smooth.shape)
     noisy[::50] += 20                                           # spikes do not bias the MAD
-    np.testing.assert_allclose(signal.estimate_noise_sigma(noisy), 1.5, rtol=0.08)
+    np.testing.assert_allclose(signal.estimate_noise(noisy), 1.5, rtol=0.08)
     # q of a simulated white-noise-acceleration model is recovered by the likelihood grid
     dt, qtrue = 1 / 120, np.array([100.0, 3000.0, 50000.0])
     F, Q = signal.cv_model(dt, qtrue)
@@ -314,7 +315,7 @@ def test_kalman_complete_output_with_30pct_missing(name):
 
 
 def test_kalman_on_real_clip(shared_data):
-    pytest.importorskip("mocapkit.io.asfamc")
+    pytest.importorskip("mocapkit.io.amc")
     from mocapkit import io
     from mocapkit.datasets import cmu_amc
 

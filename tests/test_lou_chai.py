@@ -1,11 +1,10 @@
 """Lou & Chai 2010 filter bases (mocapkit.solvers.robust_bases, denoise 'lou-chai') and the
-body-centred frame (mocapkit.bodyframe)."""
+heading frame (mocapkit.frames)."""
 import numpy as np
 import pytest
 
-from mocapkit import Motion, Skeleton, denoise
-from mocapkit.bodyframe import (find_hips, from_body_frame, mirror_local,
-                                mirror_permutation, to_body_frame)
+from mocapkit import Motion, Skeleton, denoise, windows
+from mocapkit.frames import find_hips, heading_frame, mirror_local, mirror_permutation
 from mocapkit.errors import MocapError, MocapValueError, NotFittedError
 from mocapkit.solvers import robust_bases as rb
 
@@ -94,7 +93,7 @@ def test_bases_reproduce_sum_of_sinusoids():
     # an unseen stretch of the same signal (other phase) is reconstructed exactly
     Y = sinusoids(120, 5, freqs, phase0=3.21)
     A = rb.WindowProjector(E, 20, 5, 120, "direct")(Y)
-    np.testing.assert_allclose(A / rb.window_counts(120, 20)[:, None], Y, atol=1e-6)
+    np.testing.assert_allclose(A / windows.counts(120, 20)[:, None], Y, atol=1e-6)
     # energy fraction -> K
     assert rb.choose_k(np.array([5.0, 3, 1, 1]), 0.8) == 2
     assert rb.choose_k(np.array([5.0, 3, 1, 1]), 0.5) == 1
@@ -112,7 +111,7 @@ def test_window_projector_implementations_agree(T, L, M, K):
     for method, tol in (("direct", 1e-12), ("fft", 1e-11), ("fft32", 1e-4)):
         np.testing.assert_allclose(rb.WindowProjector(E, M, L, T, method)(Z), ref, atol=tol)
     C = rb.coefficients(Z, rb._split_bases(E, M, L))
-    np.testing.assert_allclose(C, rb.window_matrix(Z, M) @ E, atol=1e-12)
+    np.testing.assert_allclose(C, windows.lagged(Z, M) @ E, atol=1e-12)
 
 
 def test_welsch():
@@ -142,10 +141,10 @@ def test_solver_matches_dense_quadratic_reference(method):
     Z, info = rb.robust_filter(np.where(mask, Y, np.nan), E, M, mask=mask, lam=lam, p=np.inf,
                                max_iter=3000, tol=0.0, method=method, return_info=True)
     np.testing.assert_allclose(Z, ref, atol=1e-7)
-    c = info["cost"]
+    c = info.extra["cost"]
     assert np.all(np.diff(c) <= 1e-9 * c[0])           # never increases
     # the reference really is the minimiser: its cost is below a perturbed one
-    n_t = rb.window_counts(len(Y), M)
+    n_t = windows.counts(len(Y), M)
     P = rb.WindowProjector(E, M, Y.shape[1], len(Y), "direct")
     J = lambda Z: rb.objective(Z, np.where(mask, Y, 0), mask, P(Z), n_t, lam, np.inf)  # noqa: E731
     assert J(ref) < J(ref + 1e-3 * np.random.default_rng(1).normal(size=ref.shape))
@@ -157,12 +156,12 @@ def test_robust_cost_decreases_and_fill_step_is_exact():
     Y[5, 1] += 40.0                                              # a spike
     Z, info = rb.robust_filter(Y, E, M, mask=mask, lam=0.1, p=3.0, max_iter=50, tol=0.0,
                                return_info=True)
-    c = info["cost"]
+    c = info.extra["cost"]
     assert np.all(np.diff(c) <= 1e-8 * c[0])
-    assert info["fill_cg_iter"] > 0
+    assert info.extra["fill_cg_iter"] > 0
     # after the final fill step the missing entries minimise the bases term exactly:
     # gradient ((N - A) z)_m = 0
-    n_t = rb.window_counts(len(Y), M)
+    n_t = windows.counts(len(Y), M)
     A = rb.WindowProjector(E, M, 3, len(Y), "direct")(Z)
     grad = n_t[:, None] * Z - A
     assert np.abs(grad[~mask]).max() < 1e-3 * np.abs(grad[mask]).max() + 1e-8
@@ -220,15 +219,20 @@ def test_solver_errors():
 # ---------------------------------------------------------------------------------------
 def test_body_frame_round_trip_exact_and_invariant():
     m = walker(seed=1)
-    local, tr = to_body_frame(m)
-    np.testing.assert_allclose(from_body_frame(local, tr), m.positions, atol=1e-9)
+    tr = heading_frame(m)
+    local = tr.to_local(m.positions)
+    np.testing.assert_allclose(tr.to_world(local), m.positions, atol=1e-9)
+    np.testing.assert_allclose(tr.to_world(local.reshape(m.n_frames, -1)), m.matrix(), atol=1e-9)
+    with pytest.raises(MocapValueError, match="positions must be"):
+        tr.to_local(m.positions[1:])
     # the same motion elsewhere has the same local positions; facing another way too, up
     # to the per-coordinate running median of the root track (not rotation-equivariant)
     shifted = m.with_positions(m.positions + np.array([300.0, 0, -50.0]))
-    np.testing.assert_allclose(to_body_frame(shifted)[0], local, atol=1e-9)
+    np.testing.assert_allclose(heading_frame(shifted).to_local(shifted.positions), local, atol=1e-9)
     th = 1.1
     R = np.array([[np.cos(th), 0, np.sin(th)], [0, 1, 0], [-np.sin(th), 0, np.cos(th)]])
-    local2, _ = to_body_frame(m.with_positions(m.positions @ R.T))
+    turned = m.with_positions(m.positions @ R.T)
+    local2 = heading_frame(turned).to_local(turned.positions)
     np.testing.assert_allclose(local2, local, atol=0.1)
     assert np.abs(local2 - local).mean() < 0.01
     # lateral axis: left hip on +Z (first horizontal axis after Y), hips level in X
@@ -236,7 +240,8 @@ def test_body_frame_round_trip_exact_and_invariant():
     assert np.all(local[:, li, 2] - local[:, ri, 2] > 15)
     # missing joints stay NaN and the frame is still estimated
     gappy = m.with_observed(np.random.default_rng(0).random(m.observed.shape) > 0.3)
-    lg, trg = to_body_frame(gappy)
+    trg = heading_frame(gappy)
+    lg = trg.to_local(gappy.positions)
     assert np.array_equal(np.isnan(lg).any(axis=2), ~gappy.observed)
     assert np.isfinite(trg.origin).all() and np.isfinite(trg.rotation).all()
 
@@ -257,9 +262,35 @@ def test_find_hips_and_mirror_by_name():
     assert [sk.names[i] for i in perm] == ["Hips", "RHipJoint", "RightUpLeg", "RightLeg", "LHipJoint",
                                            "LeftUpLeg", "LeftLeg", "Spine"]
     m = walker()
-    local, _ = to_body_frame(m)
+    local = heading_frame(m).to_local(m.positions)
     p = mirror_permutation(m.skeleton)
     np.testing.assert_allclose(mirror_local(mirror_local(local, p, 1), p, 1), local)
+
+
+def test_marker_set_without_hierarchy_gets_the_same_frames():
+    """One joint rule for both frames: the same clip as a flat marker set (TRC/C3D: no
+    parents, zero offsets) finds the same hips and neck, so it gets the same frames."""
+    from mocapkit.frames import frame_joints, pelvis_neck_frame
+
+    names = ("root", "lhipjoint", "lfemur", "rhipjoint", "rfemur", "lowerback", "upperneck", "head")
+    P0 = np.array([[0, 90, 0], [0, 88, 9], [0, 50, 9], [0, 88, -9], [0, 50, -9], [0, 110, 0],
+                   [0, 150, 0], [0, 165, 0]], float)
+    sk = Skeleton.from_positions(names, (-1, 0, 1, 0, 3, 0, 5, 6), P0)
+    flat = Skeleton(names, -np.ones(len(names), int), np.zeros((len(names), 3)))
+    assert find_hips(flat) == find_hips(sk) == (1, 3)
+    assert frame_joints(flat) == frame_joints(sk)
+    rng = np.random.default_rng(3)
+    th = np.linspace(0, 2, 90)
+    R = np.zeros((90, 3, 3))
+    R[:, 1, 1] = 1
+    R[:, 0, 0], R[:, 0, 2], R[:, 2, 0], R[:, 2, 2] = np.cos(th), np.sin(th), -np.sin(th), np.cos(th)
+    W = np.einsum("tij,kj->tki", R, P0) + rng.normal(0, 0.3, (90, len(names), 3))
+    m, mf = Motion(W, sk, 30.0), Motion(W, flat, 30.0)
+    a, b = heading_frame(m), heading_frame(mf)
+    np.testing.assert_array_equal(a.rotation, b.rotation)
+    assert np.ptp(np.unwrap(a.heading(1))) > 1.5          # the heading follows the turn
+    np.testing.assert_array_equal(pelvis_neck_frame(W, flat, 30.0).rotation,
+                                  pelvis_neck_frame(W, sk, 30.0).rotation)
 
 
 # ---------------------------------------------------------------------------------------
@@ -332,7 +363,7 @@ def test_denoiser_errors(trained):
 # real data
 # ---------------------------------------------------------------------------------------
 def test_real_walk_position_and_angle_space(shared_data):
-    pytest.importorskip("mocapkit.io.asfamc")
+    pytest.importorskip("mocapkit.io.amc")
     from mocapkit import corrupt, io, metrics
     from mocapkit.denoise.bases import angle_channels, decimate
 

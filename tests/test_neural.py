@@ -11,6 +11,7 @@ import pytest
 
 from mocapkit import Motion, Skeleton, corrupt, denoise
 from mocapkit.errors import MissingDependencyError, MocapValueError, TrainingMismatchWarning
+from mocapkit.frames import mirror_permutation
 from mocapkit.neural import clips as C
 from mocapkit.neural import pretrained_path
 
@@ -121,7 +122,7 @@ def test_base_smooth_removes_a_spike_and_keeps_a_line():
 
 
 def test_mirror_permutation_swaps_left_and_right():
-    perm = C.mirror_permutation(C.CMU_21)
+    perm = mirror_permutation(C.CMU_21)
     names = [C.CMU_21[i] for i in perm]
     assert names[C.CMU_21.index("lhumerus")] == "rhumerus" and names[C.CMU_21.index("rfoot")] == "lfoot"
     assert names[C.CMU_21.index("lowerback")] == "lowerback" and names[0] == "root"

@@ -44,7 +44,7 @@ def test_clean_clip_comes_back_within_half_a_cm(net, walk):
         warnings.simplefilter("error", TrainingMismatchWarning)     # and no mismatch warning
         out = net.denoise(walk)
     assert metrics.rmse(walk, out) < 0.5
-    assert not net.training_match_["mismatch"]
+    assert not out.source["training_match"]["mismatch"]
 
 
 def test_error_grows_with_noise_and_stays_below_it(net, walk):

@@ -199,7 +199,7 @@ def test_cli_index_search_classify(shared_data, tmp_path, capsys):
 # ----------------------------------------------------------------- MiniRocket classifier
 from mocapkit.motion import Motion  # noqa: E402
 from mocapkit.recognition import rocket as rk  # noqa: E402
-from mocapkit.recognition.classifier import load_model, train_classifier  # noqa: E402
+from mocapkit.recognition import load_model, train_classifier  # noqa: E402
 from mocapkit.skeleton import Skeleton  # noqa: E402
 
 

@@ -1,7 +1,7 @@
 """Non-convergence reporting of the iterative solvers (issue 10).
 
 svt / rpca / slra (mocapkit.solvers.lowrank), lou-chai (mocapkit.solvers.robust_bases) and the
-thesis solvers tsmc / trnn (mocapkit.solvers.completion) record ``convergence_`` on the
+thesis solvers tsmc / trnn (mocapkit.solvers.completion) record ``source["convergence"]`` on the
 Denoiser and emit exactly one ConvergenceWarning per denoise() call when they stop at max_iter.
 Measured status at default settings: docs/results/reliability.md (benchmarks/reliability_memory.py).
 """
@@ -17,7 +17,9 @@ from mocapkit import cli, corrupt, datasets, denoise
 from mocapkit import io as mio
 from mocapkit.denoise.base import report_convergence
 from mocapkit.errors import ConvergenceWarning
+from mocapkit.solvers import completion as cp
 from mocapkit.solvers import lowrank as lr
+from mocapkit.solvers.info import SolveInfo
 
 ITERATIVE = ["svt", "rpca", "slra", "tsmc", "trnn", "lou-chai"]
 # default settings on the bundled clips (1 cm noise, 5 % missing): these converge ...
@@ -69,7 +71,7 @@ def test_max_iter_1_warns_once_and_records(clip, lou_chai_model, name):
     msg = str(conv[0].message)
     assert msg.startswith(f"{name}: ") and "not converged after 1 iterations" in msg
     assert "max_iter" in msg and "tol" in msg
-    s = d.convergence_
+    s = d.last_report_["convergence"]
     assert s["method"] == name and s["converged"] is False
     assert s["iterations"] == 1 and s["max_iter"] == 1 and s["n_not_converged"] >= 1
     # one iteration is not a solution, but never garbage: an estimate far from the data
@@ -90,7 +92,7 @@ def test_defaults_converge_without_warning(clip, name):
     d = denoise.get(name)
     _, conv = _run(d, _noisy(clip))
     assert conv == []
-    s = d.convergence_
+    s = d.last_report_["convergence"]
     assert s["converged"] is True and s["n_not_converged"] == 0
     assert 1 <= s["iterations"] < s["max_iter"] and s["residual"] < s["tol"]
 
@@ -102,8 +104,8 @@ def test_defaults_known_non_convergence_is_reported(clip, lou_chai_model, name):
     # lou-chai: the paper's fixed 10-20 iterations are the method (more iterations raise the
     # error, see LouChai's docstring) -> recorded, warned only with warn_convergence=True
     assert len(conv) == (0 if name == "lou-chai" else 1)
-    assert d.convergence_["converged"] is False
-    assert d.convergence_["iterations"] == d.convergence_["max_iter"]
+    assert d.last_report_["convergence"]["converged"] is False
+    assert d.last_report_["convergence"]["iterations"] == d.last_report_["convergence"]["max_iter"]
     if name == "lou-chai":
         _, conv = _run(_method(name, lou_chai_model, warn_convergence=True), _noisy(clip))
         assert len(conv) == 1
@@ -112,7 +114,7 @@ def test_defaults_known_non_convergence_is_reported(clip, lou_chai_model, name):
 def test_svt_fully_observed_is_closed_form(clip):
     d = denoise.get("svt")
     _, conv = _run(d, _noisy(clip, missing=0.0))
-    assert conv == [] and d.convergence_["converged"] is True and d.convergence_["iterations"] == 0
+    assert conv == [] and d.last_report_["convergence"]["converged"] is True and d.last_report_["convergence"]["iterations"] == 0
 
 
 def test_reporting_does_not_change_results(clip):
@@ -121,18 +123,18 @@ def test_reporting_does_not_change_results(clip):
     A0, E0 = lr.slra(X, 50, mask=M, tol=1e-5)
     A1, E1, info = lr.slra(X, 50, mask=M, tol=1e-5, return_info=True)
     np.testing.assert_array_equal(A0, A1)
-    assert (info["residual"][info["converged"]] < 1e-5).all()
+    assert (info.residual[info.converged] < 1e-5).all()
     out = denoise.get("slra", segment=50, tol=1e-5, missing="free").denoise(m)
     np.testing.assert_array_equal(out.matrix(), A0)
     B0, _ = lr.rpca_ialm(X, mask=M, max_iter=3)
     B1, _, inf1 = lr.rpca_ialm(X, mask=M, max_iter=3, return_info=True)
     np.testing.assert_array_equal(B0, B1)
-    assert inf1["converged"] is False and inf1["residual"] >= 1e-7
+    assert inf1.converged is False and inf1.residual >= 1e-7
     # the residual reported is the real one: ||D - A - E|| / ||D|| on observed entries
     B2, E2, inf2 = lr.rpca_ialm(X, mask=M, tol=1e-3, return_info=True)
     D = np.where(M, X, 0.0)
     rel = np.linalg.norm(np.where(M, D - B2 - E2, 0.0)) / np.linalg.norm(D)
-    assert inf2["converged"] and rel < 1e-3 and inf2["residual"] < 1e-3
+    assert inf2.converged and rel < 1e-3 and inf2.residual < 1e-3
 
 
 def test_vectorised_summary_reports_worst_segment():
@@ -142,20 +144,58 @@ def test_vectorised_summary_reports_worst_segment():
     d = Dummy()
     with pytest.warns(ConvergenceWarning, match=r"slra: 2 of 3 segments not converged after 10 "
                                                 r"iterations \(max_iter=10; .*3\.00e-05"):
-        s = report_convergence(d, iterations=[4, 10, 10], converged=[True, False, False],
-                               residual=[1e-8, 3e-5, 2e-5], tol=1e-7, max_iter=10)
-    assert s == d.convergence_
+        s = report_convergence(d, SolveInfo([4, 10, 10], [True, False, False], [1e-8, 3e-5, 2e-5],
+                                            "relative residual"), tol=1e-7, max_iter=10)
+    assert s == d.last_report_["convergence"]
     assert s["n_solves"] == 3 and s["n_not_converged"] == 2 and s["residual"] == 3e-5
     assert s["iterations"] == 10 and s["converged"] is False
 
 
-def test_convergence_summary_survives_save_load(clip, tmp_path):
+def test_list_of_solves_is_one_summary():
+    """A list of SolveInfo (Lou-Chai phases, Xiao's ADMM solves) is summarised as one batch."""
+    class Dummy:
+        name = "demo"
+
+    infos = [SolveInfo(3, True, 1e-6, "relative change of J"),
+             SolveInfo(np.array([5, 9]), np.array([False, True]), np.array([2e-3, 1e-7]),
+                       "relative change of J")]
+    with pytest.warns(ConvergenceWarning, match=r"demo: 1 of 3 phases not converged after 5 "
+                                                r"iterations .*final relative change of J 2\.00e-03"):
+        s = report_convergence(Dummy(), infos, tol=1e-4, max_iter=9, unit="phase")
+    assert s["n_solves"] == 3 and s["iterations"] == 9 and s["residual"] == 2e-3
+    assert s["criterion"] == "relative change of J"
+
+
+@pytest.mark.parametrize("solve", [
+    lambda X: cp.tsmc(X, max_iter=1, return_info=True),
+    lambda X: cp.trnn(X, max_iter=1, return_info=True),
+    lambda X: cp.lds_em_complete(X, np.random.default_rng(0).random(X.shape) > 0.2, k=4,
+                                 max_iter=1, return_info=True)])
+def test_solver_warning_is_one_convergence_warning(solve):
+    """The solvers' own warning (one path, mocapkit.solvers.info.warn_not_converged) is a
+    ConvergenceWarning -- not a RuntimeWarning, which means a numpy problem -- naming the
+    iterations, max_iter and the criterion with its final value, at the caller's line."""
+    X = np.sin(np.arange(60)[:, None] / 7.0 + np.arange(6)) * 10
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        _, info = solve(X)
+    assert len(caught) == 1 and caught[0].category is ConvergenceWarning, caught
+    assert not issubclass(caught[0].category, RuntimeWarning)
+    msg = str(caught[0].message)
+    assert "not converged after 1 iterations (max_iter=1;" in msg
+    assert f"final {info.criterion} {info.residual:.2e}" in msg and not info.converged
+    assert caught[0].filename == __file__              # points at the caller
+
+
+def test_convergence_summary_on_the_result_never_saved(clip, tmp_path):
     d = denoise.get("slra", max_iter=2)
     with pytest.warns(ConvergenceWarning):
-        d.denoise(_noisy(clip.slice(0, 60)))
+        out = d.denoise(_noisy(clip.slice(0, 60)))
+    assert out.source["convergence"] == d.last_report_["convergence"]
+    assert out.source["convergence"]["converged"] is False
     d.save(tmp_path / "m.npz")
     back = denoise.Denoiser.load(tmp_path / "m.npz")
-    assert back.convergence_ == d.convergence_
+    assert not hasattr(back, "last_report_") and not hasattr(back, "convergence_")
 
 
 def test_cli_shows_one_line_warning(tmp_path, capsys):

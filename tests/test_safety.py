@@ -23,7 +23,7 @@ import pytest
 
 import mocapkit.io as mio
 from mocapkit import denoise
-from mocapkit.errors import MocapValueError
+from mocapkit.errors import ConvergenceWarning, MocapValueError
 from mocapkit.io import _atomic, amc, asf, bvh, c3d, kinect, trc
 from mocapkit.motion import Motion
 
@@ -246,20 +246,21 @@ def test_scale_equivariance_documented(noisy_clip):
 @pytest.mark.parametrize("name", ["tsmc", "trnn", "dynammo"])
 def test_non_convergence_warns_and_records_iterations(noisy_clip, name):
     d = denoise.get(name, max_iter=1)
-    with pytest.warns(RuntimeWarning, match="not converged after 1 iterations"):
+    with pytest.warns(ConvergenceWarning, match="not converged after 1 iterations"):
         out = d.denoise(noisy_clip)
     info = out.source["solver"]
     assert info["method"] == name
-    assert info["iterations"] == 1 and info["converged"] is False
+    assert info["n_iter"] == 1 and info["converged"] is False
     assert np.isfinite(out.positions).all()
 
 
 def test_converged_solver_records_iterations(noisy_clip):
     with warnings.catch_warnings():
-        warnings.simplefilter("error", RuntimeWarning)       # no spurious non-convergence warning
+        warnings.simplefilter("error", RuntimeWarning)       # no numpy warning and
+        warnings.simplefilter("error", ConvergenceWarning)   # no spurious non-convergence one
         out = denoise.get("dynammo", max_iter=200, tol=1e-2).denoise(noisy_clip)
     assert out.source["solver"]["converged"] is True
-    assert 1 <= out.source["solver"]["iterations"] < 200
+    assert 1 <= out.source["solver"]["n_iter"] < 200
 
 
 # ---------------------------------------------------------------------------------------

@@ -14,6 +14,8 @@ import numpy as np
 import pytest
 
 from mocapkit import signal
+from mocapkit.signal import rts
+from mocapkit.signal.rts import _dense_posterior
 from mocapkit.solvers import completion as cp
 from mocapkit.solvers import lowrank as lr
 
@@ -55,7 +57,7 @@ def test_batched_ialm_equals_per_matrix_reference(shape):
     A, E, info = lr.rpca_ialm(D, lam, return_info=True)
     for i in range(len(D)):
         Ar, Er, it = ref_ialm(D[i], lam)
-        assert info["iterations"][i] == it          # each matrix stops at its own tol
+        assert info.n_iter[i] == it                 # each matrix stops at its own tol
         assert np.linalg.norm(A[i] - Ar) <= 1e-6 * np.linalg.norm(Ar)
         assert np.linalg.norm(E[i] - Er) <= 1e-6 * max(np.linalg.norm(Er), 1.0)
     if min(m, n) >= 60:                            # exact recovery regime: the known answer
@@ -68,7 +70,7 @@ def test_chunk_size_does_not_change_results(monkeypatch):
     A0, _, i0 = lr.slra(D, segment=30, return_info=True)
     monkeypatch.setattr(lr, "CHUNK_ELEMENTS", 30 * 20)          # one segment per chunk
     A1, _, i1 = lr.slra(D, segment=30, return_info=True)
-    np.testing.assert_array_equal(i0["iterations"], i1["iterations"])
+    np.testing.assert_array_equal(i0.n_iter, i1.n_iter)
     np.testing.assert_allclose(A0, A1, rtol=0, atol=1e-12 * np.abs(A0).max())
 
 
@@ -79,7 +81,7 @@ def test_overlapping_slra_equals_loop_over_segments():
     X = np.sin(t * rng.uniform(0.5, 3, n) + rng.uniform(0, 6, n)) * 10
     X[rng.random(X.shape) < 0.03] += 20.0
     A, _, info = lr.slra(X, segment=24, overlap=12, tol=1e-7, return_info=True)
-    starts, stops = info["starts"], info["stops"]
+    starts, stops = info.extra["starts"], info.extra["stops"]
     acc, wsum = np.zeros_like(X), np.zeros(T)
     for a, b, w in zip(starts, stops, lr._blend_weights(starts, stops)):
         L = b - a
@@ -109,7 +111,7 @@ def test_svt_iteration_equals_textbook_loop():
             c = 0.0 if ny <= -s else (ny + s) / (2 * ny)
             y, s = c * y, c * ny
         Y = P(y)
-    assert info["iterations"] == iters
+    assert info.n_iter == iters
     assert np.linalg.norm(A - Ar) <= 1e-8 * np.linalg.norm(Ar)
 
 
@@ -136,14 +138,14 @@ def test_rts_recomputed_covariances_do_not_change_results(monkeypatch, gate):
     F, Q = signal.cv_model(0.01, 50.0)
     kw = dict(F=F, Q=Q, R=0.09, gate=gate, gate_groups=np.arange(B) // 3)
     x0, u0 = signal.rts_smoother(Y, **kw)
-    monkeypatch.setattr(signal, "_RTS_BLOCK", 10)          # recompute covariances per block
-    monkeypatch.setattr(signal, "_RTS_STORE_BYTES", 0)
+    monkeypatch.setattr(rts, "_RTS_BLOCK", 10)          # recompute covariances per block
+    monkeypatch.setattr(rts, "_RTS_STORE_BYTES", 0)
     x1, u1 = signal.rts_smoother(Y, **kw)
     np.testing.assert_array_equal(u0, u1)
     np.testing.assert_array_equal(x0, x1)
     if gate is None:                                # the smoother = the dense posterior mean
         y = np.nan_to_num(Y[:60, :1])
-        dense = signal._dense_posterior(y, np.isfinite(Y[:60, :1]), F=F, Q=Q, R=0.09,
+        dense = _dense_posterior(y, np.isfinite(Y[:60, :1]), F=F, Q=Q, R=0.09,
                                         H=np.eye(1, 2), x0=np.zeros(2), P0=1e8 * np.eye(2))
         xs = signal.rts_smoother(Y[:60, :1], F=F, Q=Q, R=0.09)[0]
         np.testing.assert_allclose(xs[:, 0, :], dense[0], rtol=1e-6, atol=1e-6)

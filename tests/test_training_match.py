@@ -36,7 +36,7 @@ def test_threshold_on_known_changes(clip):
     inp = _noisy(clip, 1.0)
     d = _Stub()
     info, w = _caught(lambda: check_training_match(d, inp, clip))     # perfect denoiser
-    assert w == [] and info["mismatch"] is False and d.training_match_ is info
+    assert w == [] and info["mismatch"] is False and d.last_report_["training_match"] is info
     assert 0.8 < info["noise_cm"] < 1.2                   # robust estimate of the 1 cm noise
     assert 0.55 < info["median_change_cm"] < 0.8          # median |N(0, 1)| = 0.674
     moved = clip.with_positions(clip.positions + np.array([3.0, -3.0, 3.0]))
@@ -50,11 +50,11 @@ def test_threshold_on_known_changes(clip):
 def test_lou_chai_self_vs_other_behaviour(clip):
     inp = _noisy(clip, 0.1)
     own = denoise.get("lou-chai").fit([clip])
-    _, w = _caught(lambda: own.denoise(inp))
-    assert w == [] and own.training_match_["mismatch"] is False
+    out, w = _caught(lambda: own.denoise(inp))
+    assert w == [] and out.source["training_match"]["mismatch"] is False
     other = denoise.get("lou-chai").fit([mio.read(datasets.bundled(c + ".amc")) for c in ("16_15", "07_05")])
-    _, w = _caught(lambda: other.denoise(inp))
-    assert len(w) == 1 and other.training_match_["median_change_cm"] > 2.0
+    out, w = _caught(lambda: other.denoise(inp))
+    assert len(w) == 1 and out.source["training_match"]["median_change_cm"] > 2.0
 
 
 def test_cli_prints_one_line(tmp_path, capsys, clip):

@@ -5,10 +5,11 @@ import pytest
 
 from mocapkit import Motion, Skeleton, denoise
 from mocapkit.denoise.base import Denoiser
-from mocapkit.denoise.sparse import XiaoSparse, detect_noise, lagged_windows, overlap_mean
+from mocapkit.denoise.sparse import XiaoSparse, detect_noise
+from mocapkit.windows import lagged, overlap_mean
 from mocapkit.denoise.wavelet import wavelet_shrink
 from mocapkit.errors import MocapValueError, NotFittedError
-from mocapkit.localframe import estimate_frame, frame_joints, to_global, to_local
+from mocapkit.frames import frame_joints, pelvis_neck_frame
 from mocapkit.solvers.ksvd import batch_omp, ksvd
 from mocapkit.solvers.sparse_coding import (dictionary_svd, l1l1_admm, l1l1_objective, lasso_admm,
                                             lasso_fista, lasso_objective)
@@ -206,13 +207,14 @@ def test_truncated_svd_solves_the_truncated_problem(rng):
 def test_local_frame_round_trip_and_definition():
     m = synth_motion()
     for smooth in (False, True):
-        f = estimate_frame(m.positions, SKEL, m.fps, smooth=smooth)
-        L = to_local(m.positions, f)
-        np.testing.assert_allclose(to_global(L, f), m.positions, atol=1e-10)
-        np.testing.assert_allclose(np.einsum("tji,tjk->tik", f.R, f.R), np.broadcast_to(np.eye(3), f.R.shape), atol=1e-12)
-        np.testing.assert_allclose(np.linalg.det(f.R), 1.0, atol=1e-12)
-    f = estimate_frame(m.positions, SKEL, m.fps, smooth=False)
-    L = to_local(m.positions, f)
+        f = pelvis_neck_frame(m.positions, SKEL, m.fps, smooth=smooth)
+        L = f.to_local(m.positions)
+        np.testing.assert_allclose(f.to_world(L), m.positions, atol=1e-10)
+        R = f.rotation
+        np.testing.assert_allclose(np.einsum("tji,tjk->tik", R, R), np.broadcast_to(np.eye(3), R.shape), atol=1e-12)
+        np.testing.assert_allclose(np.linalg.det(R), 1.0, atol=1e-12)
+    f = pelvis_neck_frame(m.positions, SKEL, m.fps, smooth=False)
+    L = f.to_local(m.positions)
     ix = frame_joints(SKEL)
     assert ix["lfemur"] == NAMES.index("lhipjoint") and ix["upperneck"] == NAMES.index("upperneck")
     np.testing.assert_allclose(L[:, ix["root"]], 0.0, atol=1e-10)                  # root at origin
@@ -243,21 +245,21 @@ def test_robust_frame_ignores_spikes():
     P = np.array(m.positions)
     P[100, NAMES.index("lhipjoint")] += 60.0                                       # one huge spike
     P[101, NAMES.index("upperneck")] -= 40.0
-    f0 = estimate_frame(m.positions, SKEL, m.fps)
-    f1 = estimate_frame(P, SKEL, m.fps)
-    raw = estimate_frame(P, SKEL, m.fps, smooth=False)
-    assert np.abs(raw.R[100] - f0.R[100]).max() > 0.3
-    assert np.abs(f1.R - f0.R).max() < 0.01 and np.abs(f1.origin - f0.origin).max() < 0.01
+    f0 = pelvis_neck_frame(m.positions, SKEL, m.fps)
+    f1 = pelvis_neck_frame(P, SKEL, m.fps)
+    raw = pelvis_neck_frame(P, SKEL, m.fps, smooth=False)
+    assert np.abs(raw.rotation[100] - f0.rotation[100]).max() > 0.3
+    assert np.abs(f1.rotation - f0.rotation).max() < 0.01 and np.abs(f1.origin - f0.origin).max() < 0.01
 
 
 def test_windows_and_overlap_mean_are_inverse(rng):
     X = rng.standard_normal((37, 6))
-    Z = lagged_windows(X, 5)
+    Z = lagged(X, 5)
     assert Z.shape == (33, 30)
     np.testing.assert_array_equal(Z[3], X[3:8].ravel())
     np.testing.assert_allclose(overlap_mean(Z, 37, 5), X, atol=1e-12)
     with pytest.raises(MocapValueError):
-        lagged_windows(X[:3], 5)
+        lagged(X[:3], 5)
 
 
 def test_poselets_shared_joints_are_averaged(monkeypatch):
@@ -269,14 +271,14 @@ def test_poselets_shared_joints_are_averaged(monkeypatch):
     # with the mean of their offsets
     monkeypatch.setattr(XiaoSparse, "_code_part", lambda self, i, X, kind, lam: X + 10.0 * (i + 1))
     out = model.denoise(m)
-    f = estimate_frame(m.positions, SKEL, m.fps, median_s=0.2, sigma_s=0.1)
-    L = to_local(m.positions, f)
+    f = pelvis_neck_frame(m.positions, SKEL, m.fps, median_s=0.2, sigma_s=0.1)
+    L = f.to_local(m.positions)
     expect = np.zeros(len(NAMES))
     for j in range(len(NAMES)):
         owners = [i for i, k in enumerate(parts) if j in parts[k]]
         expect[j] = np.mean([10.0 * (i + 1) for i in owners])
     assert expect[NAMES.index("thorax")] == 20.0 and expect[NAMES.index("root")] == 10.0 * (1 + 4 + 5) / 3
-    np.testing.assert_allclose(to_local(out.positions, f), L + expect[None, :, None], atol=1e-9)
+    np.testing.assert_allclose(f.to_local(out.positions), L + expect[None, :, None], atol=1e-9)
 
 
 # ---------------------------------------------------------------------------------------
@@ -383,7 +385,7 @@ def test_wavelet_denoiser_fills_gaps():
 # real data
 # ---------------------------------------------------------------------------------------
 def test_real_dance_clip(shared_data):
-    pytest.importorskip("mocapkit.io.asfamc")
+    pytest.importorskip("mocapkit.io.amc")
     from mocapkit import corrupt, io, metrics
 
     train = [io.read(shared_data / "cmu" / "asfamc" / "05" / f"05_0{i}.amc") for i in (2, 7)]
@@ -421,5 +423,5 @@ def test_over_relaxation_converges_faster_and_is_validated(rng):
             lasso_admm(Z, D, 0.5, relax=bad)
         with pytest.raises(MocapValueError):
             l1l1_admm(Z, D, 0.5, relax=bad)
-    with pytest.raises(MocapValueError):
-        XiaoSparse(relax=2.5)._validate()
+    with pytest.raises(MocapValueError, match=r"xiao-sparse: parameter l1_stride must be an integer >= 1, got 0"):
+        XiaoSparse(l1_stride=0).fit([])         # parameters are checked before anything else

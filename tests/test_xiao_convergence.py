@@ -4,7 +4,8 @@ import warnings
 import numpy as np
 import pytest
 
-from mocapkit.denoise.sparse import XiaoSparse, lagged_windows, overlap_mean, window_starts
+from mocapkit.denoise.sparse import XiaoSparse
+from mocapkit.windows import lagged, overlap_mean, window_starts
 from mocapkit.errors import ConvergenceWarning
 from mocapkit.solvers.sparse_coding import l1l1_admm, lasso_admm
 
@@ -21,21 +22,22 @@ def test_admm_reports_non_convergence_after_one_iteration(rng):
     D, Z = _problem(rng)
     W, info = lasso_admm(Z, D, 0.5, n_iter=1, tol=1e-8, return_info=True)
     assert W.shape == (6, 20)
-    assert info["n_iter"] == 1 and info["max_iter"] == 1 and not info["converged"]
-    assert info["primal"] > 1e-8 or info["dual"] > 1e-8
+    assert info.n_iter == 1 and info.extra["max_iter"] == 1 and not info.converged
+    assert info.extra["primal"] > 1e-8 or info.extra["dual"] > 1e-8
+    assert info.residual == max(info.extra["primal"], info.extra["dual"])
     W, E, info = l1l1_admm(Z, D, 0.5, n_iter=1, tol=1e-8, return_residual=True, return_info=True)
-    assert E.shape == Z.shape and info["n_iter"] == 1 and not info["converged"]
-    assert max(info["primal"], info["dual"]) > 1e-8
+    assert E.shape == Z.shape and info.n_iter == 1 and not info.converged
+    assert info.residual == max(info.extra["primal"], info.extra["dual"]) > 1e-8
 
 
 def test_admm_reports_convergence_when_residuals_are_small(rng):
     D, Z = _problem(rng)
     W, info = lasso_admm(Z, D, 0.5, n_iter=20000, tol=1e-6, return_info=True)
-    assert info["converged"] and info["n_iter"] < 20000
-    assert info["primal"] <= 1e-6 and info["dual"] <= 1e-6
+    assert info.converged and info.n_iter < 20000
+    assert info.extra["primal"] <= 1e-6 and info.extra["dual"] <= 1e-6
     np.testing.assert_array_equal(W, lasso_admm(Z, D, 0.5, n_iter=20000, tol=1e-6))
     W, info = l1l1_admm(Z, D, 0.5, n_iter=30000, tol=1e-7, return_info=True)
-    assert info["converged"] and info["n_iter"] < 30000 and max(info["primal"], info["dual"]) <= 1e-7
+    assert info.converged and info.n_iter < 30000 and info.residual <= 1e-7
 
 
 @pytest.fixture(scope="module")
@@ -52,8 +54,8 @@ def test_denoiser_summary_and_warning(model):
     try:
         with pytest.warns(ConvergenceWarning, match=r"ADMM solves not converged after 1 iterations.*"
                                                     r"raise code_iter \(now 1\) / admm_iter"):
-            model.denoise(spiky)
-        c = model.convergence_
+            out = model.denoise(spiky)
+        c = out.source["convergence"]
         assert c["converged"] is False and c["n_solves"] == 2 * len(model.parts_)
         assert c["n_not_converged"] == c["n_solves"] and c["iterations"] == 1
         assert c["l1l1_iterations"] == 1 and c["lasso_iterations"] == 1
@@ -62,8 +64,8 @@ def test_denoiser_summary_and_warning(model):
         model.set_params(warn_convergence=False)
         with warnings.catch_warnings():
             warnings.simplefilter("error", ConvergenceWarning)
-            model.denoise(spiky)                      # summary only, no warning
-        assert model.convergence_["converged"] is False
+            out = model.denoise(spiky)                # summary only, no warning
+        assert out.source["convergence"]["converged"] is False and "convergence_" not in vars(model)
     finally:
         model.set_params(noise="auto", admm_iter=24, code_iter=12, warn_convergence=False)
 
@@ -73,9 +75,9 @@ def test_strided_windows_cover_every_frame_and_average(rng):
     st = window_starts(T, M, 3)
     assert st[0] == 0 and st[-1] == T - M and np.all(np.diff(st) > 0)
     X = rng.standard_normal((T, 4))
-    np.testing.assert_allclose(overlap_mean(lagged_windows(X, M)[st], T, M, st), X)
+    np.testing.assert_allclose(overlap_mean(lagged(X, M)[st], T, M, st), X)
     # frame t is the mean of its copies in the coded windows only
-    R = lagged_windows(X, M)[st] + rng.standard_normal((len(st), 4 * M))
+    R = lagged(X, M)[st] + rng.standard_normal((len(st), 4 * M))
     got = overlap_mean(R, T, M, st)
     t = 9
     copies = [R[k].reshape(M, 4)[t - s] for k, s in enumerate(st) if s <= t < s + M]

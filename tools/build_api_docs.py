@@ -10,11 +10,13 @@ import importlib
 import inspect
 from pathlib import Path
 
-MODULES = ["mocapkit.motion", "mocapkit.skeleton", "mocapkit.io", "mocapkit.corrupt", "mocapkit.metrics",
-           "mocapkit.signal", "mocapkit.detect", "mocapkit.denoise.base", "mocapkit.batch",
+MODULES = ["mocapkit.motion", "mocapkit.skeleton", "mocapkit.frames", "mocapkit.io", "mocapkit.corrupt", "mocapkit.metrics",
+           "mocapkit.signal", "mocapkit.signal.filters", "mocapkit.signal.noise",
+           "mocapkit.signal.statespace", "mocapkit.signal.rts", "mocapkit.gaps", "mocapkit.windows",
+           "mocapkit.detect", "mocapkit.denoise.base", "mocapkit.denoise.constraints", "mocapkit.batch",
            "mocapkit.bench.core", "mocapkit.viz.report", "mocapkit.viz.plots", "mocapkit.datasets",
            "mocapkit.retrieval", "mocapkit.recognition", "mocapkit.diagnose", "mocapkit.shipped",
-           "mocapkit.solvers.gcv_spline", "mocapkit.solvers.mssa"]
+           "mocapkit.solvers.info", "mocapkit.solvers.gcv_spline", "mocapkit.solvers.mssa"]
 
 
 def _doc(obj) -> str:

@@ -1,15 +1,32 @@
 """Denoising, outlier removal and gap filling methods behind one interface.
 
->>> from mocapkit import denoise
->>> sorted(denoise.available())          # doctest: +SKIP
->>> clean = denoise.get("gaussian", sigma_frames=2).denoise(noisy)   # doctest: +SKIP
+Examples
+--------
+>>> from mocapkit import corrupt, datasets, denoise, io, metrics
+>>> "kalman-cv" in denoise.available() and "auto" in denoise.available()
+True
+>>> clip = io.read(datasets.bundled("16_15.amc")).slice(120, 360)
+>>> noisy, _ = corrupt.combine(clip, "gaussian:sigma_cm=2", seed=0)
+>>> out = denoise.get("gaussian", sigma_frames=2).denoise(noisy)
+>>> round(metrics.rmse(clip, noisy), 1), metrics.rmse(clip, out) < metrics.rmse(clip, noisy)   # cm
+(2.0, True)
+>>> denoise.get("gaussian", sigma_frames=-1)
+Traceback (most recent call last):
+    ...
+mocapkit.errors.MocapValueError: gaussian: parameter sigma_frames must be a number > 0 or None, got -1 (checked in get())
 
 One module per family; each registers its classes with ``@register``. The list below
-is the only place a family is wired in.
+is the only place a family is wired in. The registry is the only place callers (CLI,
+batch, benchmarks) learn about a method: its parameters and what they allow
+(``_parameter_constraints``, :mod:`mocapkit.denoise.constraints`), its model file formats
+(:func:`~mocapkit.denoise.base.register_model_format`) and its trainer
+(:meth:`~mocapkit.denoise.base.Denoiser.train_files`).
 """
 from __future__ import annotations
 
 import importlib
+
+import numpy as np
 
 from .base import Denoiser, available, get, register  # noqa: F401
 
@@ -28,12 +45,14 @@ def default(**params):
 
 
 def default_for(motion):
-    """The method used when none is named, chosen for ``motion``: ``fill-auto`` for marker
-    captures (fill the gaps, keep the measured samples), :func:`default` for skeleton data
-    (see :func:`mocapkit.denoise.fill_auto.default_for`)."""
-    from .fill_auto import default_for as _default_for
+    """The method mocapkit uses when none is named, chosen for ``motion``: ``fill-auto`` for
+    marker captures (C3D/TRC, or any motion whose joints have no hierarchy) -- fill the
+    gaps, leave the measured samples as they are -- and :func:`default` (``auto``) for
+    skeleton data."""
+    markers = motion.source.get("format") in ("c3d", "trc") or bool(
+        np.all(np.asarray(motion.skeleton.parents) < 0) and motion.n_joints > 1)
+    return get("fill-auto") if markers else default()
 
-    return _default_for(motion)
 
 _FAMILIES = ("filters", "fill", "kalman", "lowrank", "bases", "sparse", "wavelet", "psc", "completion", "neural", "fill_auto",
              "mssa", "auto")
@@ -49,4 +68,3 @@ def _import_families() -> None:
 
 
 _import_families()
-_load_families = True

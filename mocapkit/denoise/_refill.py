@@ -6,14 +6,17 @@ Used by :mod:`mocapkit.denoise.psc` (Ch. 3) and :mod:`mocapkit.denoise.completio
 """
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
 import numpy as np
 
+from .. import gaps
 from ..detect import trust_data
 from ..errors import MocapValueError
-from ..motion import Motion, fill_gaps_linear
+from ..motion import Motion
 from ..solvers.evidence import far_from_data
+from ..solvers.info import SolveInfo
 from .base import Denoiser, report_convergence
 
 
@@ -42,7 +45,7 @@ def output(motion: Motion, A: np.ndarray, known: np.ndarray, keep: bool,
     X = motion.matrix()
     km = np.repeat(known, 3, axis=1)
     if not np.isfinite(A).all():                    # defensive: never return NaN
-        lin = fill_gaps_linear(X, km)
+        lin = gaps.fill(X, km, never_observed=0.0)
         bad = ~np.isfinite(A)
         A[bad] = lin[bad]
     if keep:
@@ -52,7 +55,7 @@ def output(motion: Motion, A: np.ndarray, known: np.ndarray, keep: bool,
 
 
 def unusable_guard(method: str, A: np.ndarray, X: np.ndarray, km: np.ndarray,
-                    lin: np.ndarray, info: dict[str, Any]) -> tuple[np.ndarray, dict[str, Any]]:
+                    lin: np.ndarray, info: SolveInfo) -> tuple[np.ndarray, SolveInfo]:
     """Replace a stopped-early ALM iterate that is nowhere near the data.
 
     The thesis' ALM starts with a tiny penalty (eta0 = 1e-5) and its iterates only approach
@@ -60,13 +63,14 @@ def unusable_guard(method: str, A: np.ndarray, X: np.ndarray, km: np.ndarray,
     the origin (80 cm RMSE on a CMU walk), which the gap policy cannot catch on measured
     samples.  When the solver did not converge and the estimate is far from the measured
     samples (:func:`mocapkit.solvers.evidence.far_from_data`), the measured samples are
-    kept and the gaps linearly interpolated, with a :class:`~mocapkit.errors.MocapWarning`.
+    kept and the gaps linearly interpolated, with a :class:`~mocapkit.errors.MocapWarning`
+    (the returned info then has ``extra["fallback"] = "linear"``).
     """
     far, resid, spread = far_from_data(A, X, km)
     if far:
-        _warn_unusable(method, info["iterations"], resid, spread)
+        _warn_unusable(method, int(info.n_iter), resid, spread)
         A = np.where(km, X, lin)
-        info = {**info, "fallback": "linear"}
+        info = dataclasses.replace(info, extra={**info.extra, "fallback": "linear"})
     return A, info
 
 
@@ -81,14 +85,16 @@ def _warn_unusable(method: str, iterations: int, resid: float, spread: float) ->
                   MocapWarning, stacklevel=5)
 
 
-def record(den: Denoiser, info: dict[str, Any], key: str) -> None:
-    """``den.convergence_`` from a solver's info dict (the solver itself already warned)."""
-    report_convergence(den, iterations=info["iterations"], converged=info["converged"],
-                       residual=info[key], tol=float(den.tol), max_iter=int(den.max_iter),
-                       criterion="max relative residual / change" if key == "criterion"
-                       else "relative change of the filled values", warn=False)
+def record(den: Denoiser, info: SolveInfo) -> None:
+    """Record the convergence summary of ``den``'s run (the result's
+    ``source["convergence"]``) from the solver's report (the solver itself already warned)."""
+    report_convergence(den, info, tol=float(den.tol), max_iter=int(den.max_iter), warn=False)
 
 
-def solver_info(name: str, info: dict[str, Any]) -> dict[str, Any]:
+def solver_info(name: str, info: SolveInfo) -> dict[str, Any]:
+    """``source["solver"]`` of the output: the method, ``n_iter``, ``converged``,
+    ``residual``, ``criterion`` and the scalar extras of the solver's report."""
+    fields = {"n_iter": info.n_iter, "converged": info.converged, "residual": info.residual,
+              "criterion": info.criterion, **info.extra}
     return {"method": name, **{k: (v.item() if isinstance(v, np.generic) else v)
-                               for k, v in info.items() if np.isscalar(v)}}
+                               for k, v in fields.items() if np.isscalar(v)}}

@@ -46,6 +46,7 @@ from ..motion import Motion
 from ..solvers.gcv_spline import cutoff_hz, gcv_smooth
 from ..solvers.mssa import mssa_denoise, sure
 from .base import Denoiser, get, register
+from .constraints import Interval, Real
 from .fill_auto import DEFAULT_CANDIDATES
 
 __all__ = ["Auto", "FILL_CANDIDATES"]
@@ -78,6 +79,9 @@ class Auto(Denoiser):
     keeps_observed = False
     fill_evidence = "markers"
 
+    _parameter_constraints = {"min_noise_cm": [Interval(Real, 0, None)], "spike_rate": [Interval(Real, 0, 1)],
+                              "long_gap_s": [Interval(Real, 0, None)]}
+
     def __init__(self, min_noise_cm: float = 0.25, spike_rate: float = SPIKE_RATE,
                  long_gap_s: float = 0.1):
         self.min_noise_cm = min_noise_cm
@@ -85,9 +89,9 @@ class Auto(Denoiser):
         self.long_gap_s = long_gap_s
 
     def denoise(self, motion: Motion) -> Motion:
-        from threadpoolctl import threadpool_limits
+        from ..solvers._linalg import blas_limit
 
-        with threadpool_limits(1):          # many small solves: one BLAS thread is fastest
+        with blas_limit():          # many small solves: one BLAS thread is fastest
             return self._denoise(motion)
 
     def _denoise(self, motion: Motion) -> Motion:

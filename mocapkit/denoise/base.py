@@ -20,9 +20,15 @@ and is returned missing, and the result goes through :func:`mocapkit.gaps.apply_
 (fills without evidence or far outside the capture volume are left missing, fills are
 flagged in ``Motion.filled`` and summarised in ``source['gap_report']``).
 
+Parameters are declared in ``_parameter_constraints`` (:mod:`mocapkit.denoise.constraints`)
+and checked once, by the base class, in :func:`get`, :meth:`Denoiser.set_params` and before
+``fit`` and ``denoise``. Diagnostics of a run (solver convergence, training match) go to the
+returned Motion's ``source`` and to ``last_report_``, which :meth:`Denoiser.save` never writes.
+
 Models are saved as ``.npz`` (see :meth:`Denoiser.save`): a JSON header with the method
-name, its parameters and the format version, plus every fitted array attribute.
-Neural methods override save/load to use torch state dicts.
+name, its parameters and the format version, plus every fitted array attribute. Other
+formats register a loader per file suffix (:func:`register_model_format`; the neural
+family's ``.pt`` / ``.onnx``), which :meth:`Denoiser.load` dispatches on.
 """
 from __future__ import annotations
 
@@ -31,16 +37,28 @@ import functools
 import inspect
 import json
 import os
-from typing import Any, ClassVar, Iterable, Sequence
+from pathlib import Path
+from typing import Any, Callable, ClassVar, Iterable, Sequence
 
 import numpy as np
 
 from ..errors import MocapFormatError, MocapValueError, NotFittedError
 from ..motion import Motion
+from . import constraints
 
 MODEL_FORMAT_VERSION = 1
 
 _REGISTRY: dict[str, type["Denoiser"]] = {}
+
+#: loaders of the model file formats other than .npz, by lower-case suffix
+_MODEL_LOADERS: dict[str, Callable[[str | os.PathLike, type], "Denoiser"]] = {}
+
+
+def register_model_format(suffixes: Sequence[str], loader: Callable[[str | os.PathLike, type], "Denoiser"]) -> None:
+    """Make :meth:`Denoiser.load` read files ending in ``suffixes`` (e.g. ``(".pt", ".onnx")``)
+    with ``loader(path, cls)``, which returns the Denoiser (an instance of ``cls``)."""
+    for suf in suffixes:
+        _MODEL_LOADERS[suf.lower()] = loader
 
 
 def register(cls: type["Denoiser"]) -> type["Denoiser"]:
@@ -53,10 +71,14 @@ def register(cls: type["Denoiser"]) -> type["Denoiser"]:
     return cls
 
 
-def available() -> dict[str, type["Denoiser"]]:
-    """Registered methods by name (sorted)."""
-    from . import _load_families  # noqa: F401  (ensures every family module is imported)
+def model_suffixes() -> tuple[str, ...]:
+    """File suffixes of the model formats other than .npz (:func:`register_model_format`)."""
+    return tuple(sorted(_MODEL_LOADERS))
 
+
+def available() -> dict[str, type["Denoiser"]]:
+    """Registered methods by name (sorted). Every family module is imported with the
+    package (``mocapkit.denoise``), which Python imports before this module."""
     return dict(sorted(_REGISTRY.items()))
 
 
@@ -71,7 +93,19 @@ def get(name: str, **params: Any) -> "Denoiser":
     if bad:
         raise MocapValueError(
             f"method {name!r} has no parameter(s) {bad}; it accepts: {', '.join(accepted) or 'none'}")
-    return cls(**params)
+    obj = cls(**params)
+    obj._validate_params("get()")
+    return obj
+
+
+def params_from_text(name: str, params: dict[str, Any], cls: type["Denoiser"] | None = None) -> dict[str, Any]:
+    """``params`` of method ``name`` (or of the class ``cls`` of a loaded model) as parsed from
+    text (CLI ``--param``, batch) converted to the declared kinds: ``3.0`` -> 3 for an
+    integer parameter, 2 -> 2.0 for a real one, lists -> tuples of floats
+    (:func:`mocapkit.denoise.constraints.coerce`). Not checked here: :func:`get` and
+    :meth:`Denoiser.set_params` check them (and report unknown methods and names)."""
+    cls = cls or available().get(name)
+    return params if cls is None else cls.coerce_params(params)
 
 
 #: whole steps (cm) by which the base class moves an input towards the origin, and the
@@ -107,10 +141,10 @@ def _prepare(motion: Motion) -> tuple[Motion, np.ndarray]:
     P = motion.positions - off
     obs = motion.observed
     if never.any() and obs.any():
-        from ..gaps import fill_linear, frame_centroid
+        from ..gaps import fill, frame_centroid
 
         c, n = frame_centroid(P, obs)
-        c = fill_linear(c, (n > 0)[:, None].repeat(3, axis=1))
+        c = fill(c, (n > 0)[:, None].repeat(3, axis=1))
         P = P.copy()
         P[:, never] = c[:, None, :]
         obs = obs | never[None, :]
@@ -129,6 +163,8 @@ def _guard(fn):
                                   f"(e.g. mocapkit.io.read(path)), got {type(motion).__name__}")
         from ..gaps import apply_policy
 
+        self._validate_params("denoise()")
+        self.last_report_ = {}
         work, off = _prepare(motion)
         token = _INSIDE.set(1)
         try:
@@ -143,19 +179,35 @@ def _guard(fn):
             if self.keeps_observed:         # bit-identical measured samples, whatever the shift
                 Q[motion.observed] = motion.positions[motion.observed]
             raw = raw.with_positions(Q, raw.observed)
-        return apply_policy(motion, raw, evidence=self.fill_evidence, method=self.name)
+        out = apply_policy(motion, raw, evidence=self.fill_evidence, method=self.name)
+        return out.with_source(**self.last_report_) if self.last_report_ else out
 
     denoise._gap_policy_guard = True
     return denoise
+
+
+def _checked_fit(fn):
+    """Wrap a subclass's ``fit`` so that its parameters are checked first (once)."""
+    @functools.wraps(fn)
+    def fit(self, *args, **kwargs):
+        self._validate_params("fit()")
+        return fn(self, *args, **kwargs)
+
+    fit._params_checked = True
+    return fit
 
 
 class Denoiser:
     """Base class of every denoising / gap-filling method.
 
     Subclasses set ``name``, ``description`` (one line, shown by ``mocapkit methods``),
-    ``needs_training``, ``fill_evidence`` and implement :meth:`denoise` (and :meth:`fit`
-    if data-driven). ``denoise`` may fill every missing sample; the base class keeps only
-    what the gap policy allows (module docstring).
+    ``needs_training``, ``fill_evidence``, ``_parameter_constraints`` (every constructor
+    parameter, :mod:`mocapkit.denoise.constraints`) and implement :meth:`denoise` (and
+    :meth:`fit` if data-driven). ``denoise`` may fill every missing sample; the base class
+    keeps only what the gap policy allows (module docstring). Parameters are checked by
+    the base class before ``fit`` and ``denoise`` run; rules between parameters go in
+    :meth:`_check_combination`. A result's run diagnostics (``source["convergence"]``,
+    ``source["training_match"]``) are also in ``last_report_``, which is never saved.
     """
 
     name: ClassVar[str] = ""
@@ -165,11 +217,18 @@ class Denoiser:
     #: per channel) or "markers" (other markers observed in the same frame)
     fill_evidence: ClassVar[str] = "interp"
 
+    #: constraints of every constructor parameter (:mod:`mocapkit.denoise.constraints`):
+    #: name -> list of constraints, any one of which a value must satisfy
+    _parameter_constraints: ClassVar[dict[str, list]] = {}
+
     def __init_subclass__(cls, **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)
         fn = cls.__dict__.get("denoise")
         if fn is not None and not getattr(fn, "_gap_policy_guard", False):
             cls.denoise = _guard(fn)
+        fit = cls.__dict__.get("fit")
+        if fit is not None and not getattr(fit, "_params_checked", False):
+            cls.fit = _checked_fit(fit)
     #: whether observed, trusted entries are returned unchanged (property tests check it)
     keeps_observed: ClassVar[bool] = False
 
@@ -195,8 +254,48 @@ class Denoiser:
         for k, v in params.items():
             if k not in self._param_names():
                 raise MocapValueError(f"method {self.name!r} has no parameter {k!r}")
+        self.check_params(params, "set_params()")
+        for k, v in params.items():
             setattr(self, k, v)
         return self
+
+    @classmethod
+    def check_params(cls, params: dict[str, Any], where: str = "") -> None:
+        """Raise MocapValueError naming the method, the parameter, its value and what is
+        allowed when a value of ``params`` breaks ``_parameter_constraints``."""
+        constraints.check(cls.name, cls._parameter_constraints, params, where)
+
+    @classmethod
+    def coerce_params(cls, params: dict[str, Any]) -> dict[str, Any]:
+        """``params`` as parsed from text (CLI) converted to the declared kinds
+        (:func:`mocapkit.denoise.constraints.coerce`), not checked."""
+        return constraints.coerce(cls._parameter_constraints, params)
+
+    def _validate_params(self, where: str) -> None:
+        """Every parameter against its constraints, then the rules between parameters."""
+        self.check_params(self.get_params(), where)
+        self._check_combination()
+
+    def _check_combination(self) -> None:
+        """Rules that involve several parameters (MocapValueError); none by default."""
+
+    @classmethod
+    def _upgrade_params(cls, params: dict[str, Any]) -> dict[str, Any]:
+        """Parameters read from a model file written by an older version, in today's
+        spelling (identity unless a method renamed a parameter)."""
+        return params
+
+    # -- training from files (CLI ``mocapkit train``) ----------------------------------------
+    #: files ``train`` writes next to the model (suffixes appended to the output path)
+    training_side_files: ClassVar[tuple[str, ...]] = ()
+
+    @classmethod
+    def train_files(cls, sources: Sequence[str], output: str | os.PathLike, *, params: dict[str, Any],
+                    resume: bool, progress: bool, exclude: Sequence[str]) -> bool:
+        """Train from motion files or folders with the method's own trainer and write the
+        model to ``output``. Returns False when the method has none: the caller then reads
+        the clips, calls :meth:`fit` and :meth:`save`."""
+        return False
 
     def __repr__(self) -> str:
         args = ", ".join(f"{k}={v!r}" for k, v in self.get_params().items())
@@ -215,8 +314,15 @@ class Denoiser:
 
     # -- fitted state ------------------------------------------------------------------------
     def _fitted_attrs(self) -> dict[str, Any]:
+        """Fitted state: trailing-underscore attributes, except the diagnostics of the last
+        run (``last_report_``), which are never saved."""
         return {k: v for k, v in vars(self).items()
-                if k.endswith("_") and not k.startswith("_")}
+                if k.endswith("_") and not k.startswith("_") and k != "last_report_"}
+
+    def report(self, **items: Any) -> None:
+        """Record diagnostics of the current run (JSON-able values) in ``last_report_``;
+        the outermost ``denoise`` copies them to its result's ``source``."""
+        self.__dict__.setdefault("last_report_", {}).update(items)
 
     def is_fitted(self) -> bool:
         return (not self.needs_training) or bool(self._fitted_attrs())
@@ -257,11 +363,11 @@ class Denoiser:
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> "Denoiser":
-        """Load a model saved by :meth:`save`. ``Denoiser.load`` picks the right class."""
-        if str(path).lower().endswith((".pt", ".onnx")):   # models of the neural family
-            from .neural import load_model
-
-            return load_model(path, cls)
+        """Load a model saved by :meth:`save`. ``Denoiser.load`` picks the right class;
+        files of a registered format (:func:`register_model_format`) go to its loader."""
+        loader = _MODEL_LOADERS.get(Path(path).suffix.lower())
+        if loader is not None:
+            return loader(path, cls)
         try:
             with np.load(path, allow_pickle=False) as z:
                 header = json.loads(str(z["__header__"]))
@@ -278,7 +384,7 @@ class Denoiser:
         target = methods[name]
         if cls is not Denoiser and not issubclass(target, cls):
             raise MocapFormatError(path, f"model is for method {name!r}, not {cls.name!r}")
-        obj = target(**header["params"])
+        obj = target(**target._upgrade_params(header["params"]))
         state = header.get("state", {})
         for k, v in state.items():
             if isinstance(v, dict) and "__array_list__" in v:
@@ -301,15 +407,19 @@ def _jsonable(obj: Any) -> Any:
     return obj
 
 
-def report_convergence(den: Denoiser, *, iterations: Any, converged: Any, residual: Any,
-                       tol: float, max_iter: int, criterion: str = "relative residual",
+def report_convergence(den: Denoiser, info: Any, *, tol: float, max_iter: int,
                        unit: str = "segment", warn: bool = True, stacklevel: int = 3,
                        extra: dict[str, Any] | None = None, detail: str = "",
                        param: str | None = None) -> dict[str, Any]:
-    """Record an iterative solve in ``den.convergence_`` and warn once if it stopped early.
+    """Record an iterative solve in ``den.last_report_["convergence"]`` (the guard of
+    ``denoise`` copies it to the result's ``source["convergence"]``) and warn once if it
+    stopped early.
 
-    ``iterations``, ``converged``, ``residual`` are scalars or one value per independent
-    solve (SLRA segments, Lou-Chai phases).  The summary keeps the worst solve: the largest
+    ``info`` is the solver's :class:`~mocapkit.solvers.info.SolveInfo` -- scalars, or one
+    value per independent solve (SLRA segments) -- or a sequence of them (Lou-Chai phases,
+    Xiao's ADMM solves); its ``criterion`` names the residual in the summary and the
+    warning (several distinct ones are joined by " / ").  ``tol`` and ``max_iter`` are the
+    method's stopping settings.  The summary keeps the worst solve: the largest
     iteration count and the largest final residual among the solves that did not converge
     (or among all when every one did), plus how many did not converge.  Only JSON numbers
     and strings, so :meth:`Denoiser.save` can store it.  One :class:`ConvergenceWarning`
@@ -321,10 +431,16 @@ def report_convergence(den: Denoiser, *, iterations: Any, converged: Any, residu
     import warnings
 
     from ..errors import ConvergenceWarning
+    from ..solvers.info import SolveInfo
 
-    it = np.atleast_1d(np.asarray(iterations, dtype=int))
-    cv = np.atleast_1d(np.asarray(converged, dtype=bool))
-    rs = np.atleast_1d(np.asarray(residual, dtype=float))
+    infos = [info] if isinstance(info, SolveInfo) else list(info)
+
+    def per_solve(field: str, dtype: type) -> np.ndarray:
+        return np.concatenate([np.atleast_1d(np.asarray(getattr(i, field), dtype=dtype))
+                               for i in infos] or [np.zeros(0, dtype=dtype)])
+
+    it, cv, rs = per_solve("n_iter", int), per_solve("converged", bool), per_solve("residual", float)
+    criterion = " / ".join(dict.fromkeys(i.criterion for i in infos)) or "relative residual"
     bad = ~cv
     pick = bad if bad.any() else np.ones_like(cv)
     worst = float(np.max(rs[pick])) if rs.size else 0.0
@@ -332,7 +448,7 @@ def report_convergence(den: Denoiser, *, iterations: Any, converged: Any, residu
                "max_iter": int(max_iter), "residual": worst, "tol": float(tol),
                "criterion": criterion, "n_solves": int(cv.size), "n_not_converged": int(bad.sum()),
                **(extra or {})}
-    den.convergence_ = summary
+    den.__dict__.setdefault("last_report_", {})["convergence"] = summary
     if warn and bad.any():
         what = (f"{int(bad.sum())} of {cv.size} {unit}s not converged after"
                 if cv.size > 1 else "not converged after")
@@ -357,7 +473,7 @@ def check_training_match(den: "Denoiser", inp: Motion, out: Motion, *, warn: boo
     0.67 sigma for Gaussian noise; outliers are a minority and do not move the median).
     When the median |out - in| over the observed coordinates exceeds
     ``max(MISMATCH_NOISE_FACTOR * sigma, MISMATCH_FLOOR_CM)`` -- sigma the robust noise
-    level of the input (:func:`mocapkit.solvers.lowrank.noise_level` with ``robust=True``, cm) --
+    level of the input (:func:`mocapkit.signal.estimate_noise`, ``pool="all"``, cm) --
     the learnt model is replacing the motion rather than cleaning it, typically because
     it was trained on another behaviour.  Measured with ``lou-chai`` on the bundled CMU
     clips 16_15, 07_05, 09_06, 131_07 (1 cm noise + 5 % missing, 0.1 cm noise, 20 %
@@ -366,23 +482,23 @@ def check_training_match(den: "Denoiser", inp: Motion, out: Motion, *, warn: boo
     (RMSE 3.5-15 cm) and 10 of the 12 cases warn -- not 16_15 and 07_05 with 1 cm noise
     (RMSE 3.6 / 4.3 cm, median change 1.4 / 1.85 cm under the 2 cm threshold).
 
-    Records ``den.training_match_`` = {median_change_cm, noise_cm, threshold_cm,
-    mismatch} and, when ``mismatch`` and ``warn``, emits one TrainingMismatchWarning.
+    Records ``den.last_report_["training_match"]`` (the result's
+    ``source["training_match"]``) = {median_change_cm, noise_cm, threshold_cm, mismatch} and, when ``mismatch`` and ``warn``, emits one TrainingMismatchWarning.
     """
     import warnings
 
     from ..errors import TrainingMismatchWarning
 
-    from ..solvers.lowrank import noise_level
+    from ..signal import estimate_noise
 
     X, ok = inp.matrix(), inp.matrix_mask()
     d = np.abs(out.matrix() - X)[ok]
-    sigma = noise_level(X, ok, robust=True)
+    sigma = estimate_noise(X, ok, pool="all", fallback=0.0)
     med = float(np.median(d)) if d.size else 0.0
     thr = max(MISMATCH_NOISE_FACTOR * sigma, MISMATCH_FLOOR_CM)
     info = {"median_change_cm": med, "noise_cm": sigma, "threshold_cm": thr,
             "mismatch": bool(med > thr)}
-    den.training_match_ = info
+    den.__dict__.setdefault("last_report_", {})["training_match"] = info
     if warn and info["mismatch"]:
         warnings.warn(
             f"{den.name}: the result moves the observed markers by {med:.2f} cm (median) while "

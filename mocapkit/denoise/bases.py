@@ -11,12 +11,15 @@ from typing import Any, Sequence
 import numpy as np
 
 from .. import signal
-from ..bodyframe import BodyTransform, body_transform, mirror_local, mirror_permutation, up_axis_of
+from ..frames import Frame, heading_frame, mirror_local, mirror_permutation, up_axis_of
 from ..errors import MocapValueError
 from ..motion import Motion
 from ..solvers import robust_bases as rb
 from ..solvers.evidence import evidence_blend
 from .base import Denoiser, check_training_match, register, report_convergence
+from .constraints import Integral, Interval, Options, Real, center_as_string
+
+_POSITIVE = Interval(Real, 0, None, closed="neither")
 
 __all__ = ["LouChai", "angle_channels", "angle_fk", "decimate"]
 
@@ -94,7 +97,7 @@ def angle_fk(motion: Motion, values: np.ndarray) -> np.ndarray:
     channels ``values`` (T, C) (same layout as :func:`angle_channels`), through the
     reader's own forward kinematics.
 
-    Uses the readers' FK internals (``asfamc._Compiled`` / ``asfamc.forward_kinematics``,
+    Uses the readers' FK internals (``_kinematics._Compiled`` / ``_kinematics.forward_kinematics``,
     ``bvh._meta_to_nodes`` / ``bvh.forward_kinematics``): the readers expose no public
     "FK of new channel values" function yet.
     """
@@ -102,11 +105,11 @@ def angle_fk(motion: Motion, values: np.ndarray) -> np.ndarray:
     fmt = src.get("format")
     values = np.asarray(values, dtype=float)
     if fmt in ("amc", "asf"):
-        from ..io import asfamc
+        from ..io import _kinematics
 
-        comp = asfamc._Compiled(src["asf"])
+        comp = _kinematics._Compiled(src["asf"])
         rad = src.get("amc", {}).get("angle") == "rad"
-        return asfamc.forward_kinematics(comp, values, rad, float(src["units"]["cm_per_unit"]))
+        return _kinematics.forward_kinematics(comp, values, rad, float(src["units"]["cm_per_unit"]))
     if fmt == "bvh":
         from ..io import bvh
 
@@ -207,7 +210,7 @@ class LouChai(Denoiser):
     Representation (decisions; METHODS.md Sec. 1):
 
     * ``space='position'`` (default): joint positions in the body-centred frame
-      (:mod:`mocapkit.bodyframe`: smoothed root subtracted, smoothed heading from the
+      (:func:`mocapkit.frames.heading_frame`: smoothed root subtracted, smoothed heading from the
       hips rotated out; ``frame='global'`` skips it -- measured useless), scaled to a
       170 cm skeleton (``normalize``), so that the clips of different subjects share one
       model (the paper's "large walking database" setting; one model per skeleton would
@@ -251,7 +254,7 @@ class LouChai(Denoiser):
     lam : weight of the bases term (paper: 0.1; exact objective, see above).
     p : Welsch scale (paper: 3), cm or degrees (above); ``float('inf')`` = least squares.
     max_iter, tol : outer iterations (paper: 10-20) and relative cost change to stop.
-        ``denoise`` records ``convergence_``. The paper runs a fixed 10-20 iterations and
+        ``denoise`` records ``source["convergence"]`` on its result. The paper runs a fixed 10-20 iterations and
         that early stop is part of the method: on the bundled CMU clips (1 cm noise, 5 %
         missing) the defaults stop at a relative change of J of 3e-3..1e-2, tol 1e-4 is
         reached only after ~210-330 iterations (docs/results/reliability.md), and running
@@ -265,7 +268,9 @@ class LouChai(Denoiser):
     frame : ``'body'`` or ``'global'`` (position space).
     smooth_s : time scale (s) of the body-frame smoothing (0.5).
     normalize : scale body-frame positions by 170 cm / skeleton height.
-    center : subtract the training mean of each channel.
+    center : ``'mean'`` (default) subtracts the training mean of each channel, ``'none'``
+        does not (the spelling of the low-rank family's ``center``; model files that
+        stored ``True`` / ``False`` load as ``'mean'`` / ``'none'``).
     mirror : also train on mirrored clips (position space).
     method : ``'auto'`` | ``'direct'`` | ``'fft'`` | ``'fft32'`` implementation of the
         coefficient and overlap-add step (the same map;
@@ -291,11 +296,24 @@ class LouChai(Denoiser):
     #: within 0.8 cm RMSE (CMU 16_15): the bases term projects out what the few training
     #: windows did not contain
     clean_tolerance_cm = 1.5
+    _parameter_constraints = {
+        "window": [Interval(Integral, 1, None)], "energy": [Interval(Real, 0, 1, closed="right")],
+        "n_bases": [Interval(Integral, 1, None), None], "lam": [_POSITIVE], "p": [_POSITIVE],
+        "max_iter": [Interval(Integral, 1, None)], "tol": [Interval(Real, 0, None)],
+        "space": [Options("position", "angle")], "fps": [_POSITIVE, None],
+        "frame": [Options("body", "global")], "smooth_s": [Interval(Real, 0, None)],
+        "normalize": [bool], "center": [Options("mean", "none")], "mirror": [bool],
+        "method": [Options("auto", "direct", "fft", "fft32")], "warn_convergence": [bool]}
+
+    @classmethod
+    def _upgrade_params(cls, params: dict[str, Any]) -> dict[str, Any]:
+        """``center`` was a bool before it took the low-rank family's spelling."""
+        return center_as_string(params)
 
     def __init__(self, window: int = 20, energy: float = 0.99, n_bases: int | None = None,
                  lam: float = 0.1, p: float = 3.0, max_iter: int = 20, tol: float = 1e-4,
                  space: str = "position", fps: float | None = 30.0, frame: str = "body",
-                 smooth_s: float = 0.5, normalize: bool = True, center: bool = True,
+                 smooth_s: float = 0.5, normalize: bool = True, center: str = "mean",
                  mirror: bool = False, method: str = "auto", warn_convergence: bool = False):
         self.window = window
         self.energy = energy
@@ -318,24 +336,6 @@ class LouChai(Denoiser):
     def quick_params(cls) -> dict[str, Any]:
         return {"window": 10, "max_iter": 10}
 
-    # -- parameter checks ------------------------------------------------------------------
-    def _check_params(self) -> None:
-        if self.space not in ("position", "angle"):
-            raise MocapValueError(f"lou-chai: space must be 'position' or 'angle', got {self.space!r}")
-        if self.frame not in ("body", "global"):
-            raise MocapValueError(f"lou-chai: frame must be 'body' or 'global', got {self.frame!r}")
-        w = self.window
-        if isinstance(w, bool) or not isinstance(w, (int, np.integer)) or w < 1:
-            raise MocapValueError(f"lou-chai: window must be a positive integer number of frames, got {w!r}")
-        if self.fps is not None and not (np.isfinite(float(self.fps)) and float(self.fps) > 0):
-            raise MocapValueError(f"lou-chai: fps must be positive or None, got {self.fps!r}")
-        for k in ("lam", "p"):
-            v = float(getattr(self, k))
-            if not v > 0:
-                raise MocapValueError(f"lou-chai: {k} must be positive, got {getattr(self, k)!r}")
-        if float(self.smooth_s) < 0:
-            raise MocapValueError(f"lou-chai: smooth_s must be >= 0 seconds, got {self.smooth_s!r}")
-
     # -- rate handling -------------------------------------------------------------------
     @staticmethod
     def _ratio(fps_in: float, fps_model: float) -> int | None:
@@ -355,11 +355,9 @@ class LouChai(Denoiser):
         """(Y (T, L) uncentred, mask (T, L), context for :meth:`_from_array`)."""
         if self.space == "position":
             if self.frame == "body":
-                tr = body_transform(motion, smooth_s=float(self.smooth_s), up_axis=up)
+                tr = heading_frame(motion, smooth_s=float(self.smooth_s), up_axis=up)
             else:
-                T = motion.n_frames
-                tr = BodyTransform(np.zeros((T, 3)), np.broadcast_to(np.eye(3), (T, 3, 3)).copy(), up,
-                                   np.zeros(T))
+                tr = Frame.identity(np.zeros((motion.n_frames, 3)))
             s = REFERENCE_HEIGHT_CM / _skeleton_height(motion, up) if self.normalize else 1.0
             local = tr.to_local(motion.positions) * s
             return (local.reshape(motion.n_frames, -1), motion.matrix_mask(), (tr, s))
@@ -396,7 +394,6 @@ class LouChai(Denoiser):
 
     # -- training ----------------------------------------------------------------------------
     def fit(self, motions: Sequence[Motion]) -> "LouChai":
-        self._check_params()
         motions = list(motions)
         if not motions:
             raise MocapValueError("lou-chai: fit() needs at least one clean training motion")
@@ -446,7 +443,7 @@ class LouChai(Denoiser):
             raise MocapValueError(
                 f"lou-chai: training clips are shorter than the window (M = {M} frames at "
                 f"{model_fps:g} fps); give longer clips or a smaller window")
-        mean = np.concatenate(arrays).mean(axis=0) if self.center else np.zeros(L)
+        mean = np.concatenate(arrays).mean(axis=0) if self.center == "mean" else np.zeros(L)
         E, ev, S = rb.learn_bases([a - mean for a in arrays], M, energy=self.energy, n_bases=self.n_bases)
         self.bases_ = E
         self.eigvals_ = ev
@@ -484,8 +481,8 @@ class LouChai(Denoiser):
                                method=self.method, cache=self._cache, return_info=True)
         Z, info = out
         log = getattr(self, "_conv_log", None)
-        if log is not None:                     # collected by denoise() (convergence_)
-            log.append((int(info["n_iter"]), bool(info["converged"]), float(info["residual"])))
+        if log is not None:                     # collected by denoise() (source['convergence'])
+            log.append(info)
         Z = Z[:T] + np.asarray(self.mean_)
         return (Z, info) if return_info else Z
 
@@ -496,10 +493,10 @@ class LouChai(Denoiser):
         return self._from_array(motion, self._solve(Y, mask), ctx)
 
     def denoise(self, motion: Motion) -> Motion:
-        """Robust filtering of ``motion``; records ``convergence_`` and, with
+        """Robust filtering of ``motion``; records ``source["convergence"]`` on the result and, with
         ``warn_convergence``, warns (ConvergenceWarning) once if an outer iteration hit
         ``max_iter`` before the relative change of J fell to ``tol``. Records
-        ``training_match_`` and warns (TrainingMismatchWarning) when the result moved the
+        ``source["training_match"]`` and warns (TrainingMismatchWarning) when the result moved the
         observed markers far beyond their noise level
         (:func:`~mocapkit.denoise.base.check_training_match`)."""
         self._conv_log = []
@@ -510,21 +507,18 @@ class LouChai(Denoiser):
             self._conv_log = None
         X, M = motion.matrix(), motion.matrix_mask()
         if not M.all():          # frames with few observed markers: interpolation in time
-            from ..motion import fill_gaps_linear
+            from .. import gaps
 
-            out = out.with_matrix(evidence_blend(out.matrix(), fill_gaps_linear(X, M), M,
+            out = out.with_matrix(evidence_blend(out.matrix(), gaps.fill(X, M, never_observed=0.0), M,
                                                  motion.observed))
         if log:
-            it, cv, rs = zip(*log)
-            report_convergence(self, iterations=it, converged=cv, residual=rs, tol=float(self.tol),
-                               max_iter=int(self.max_iter), criterion="relative change of J",
+            report_convergence(self, log, tol=float(self.tol), max_iter=int(self.max_iter),
                                unit="phase", warn=bool(self.warn_convergence))
         check_training_match(self, motion, out)
         return out
 
     def _denoise_all(self, motion: Motion) -> Motion:
         self._check_fitted()
-        self._check_params()
         if self.space != self.space_:
             raise MocapValueError(f"lou-chai: the model was trained in space={self.space_!r}, "
                                   f"not {self.space!r}")

@@ -7,7 +7,7 @@
 
 The maths lives in :mod:`mocapkit.solvers.completion`; these classes handle Motions and
 masks.  Solver diagnostics (iterations, convergence) go to ``out.source["solver"]`` and to
-the method's ``convergence_`` summary (see :func:`mocapkit.denoise.base.report_convergence`);
+the result's ``source["convergence"]`` summary (see :func:`mocapkit.denoise.base.report_convergence`);
 a solver that stops before converging also warns once per ``denoise()`` call
 (:class:`mocapkit.errors.ConvergenceWarning`).
 
@@ -22,11 +22,19 @@ from typing import Any
 
 import numpy as np
 
-from ..motion import Motion, fill_gaps_linear
+from .. import gaps
+from ..io.units import CMU_CM_PER_UNIT
+from ..motion import Motion
 from ..solvers import completion as _cp
 from ..solvers.evidence import evidence_blend
+from ..solvers.info import SolveInfo
 from ._refill import check_motion, known_mask, output, record, solver_info, unusable_guard
 from .base import Denoiser, register
+from .constraints import Integral, Interval, Options, Real
+
+_POSITIVE = Interval(Real, 0, None, closed="neither")
+_NONNEG = Interval(Real, 0, None)
+_ABOVE_1 = Interval(Real, 1, None, closed="neither")      # ALM penalty growth factors
 
 __all__ = ["TSMC", "TrNN", "DynaMMo"]
 
@@ -34,10 +42,6 @@ __all__ = ["TSMC", "TrNN", "DynaMMo"]
 # --------------------------------------------------------------------------------------
 # low-rank completion (Ch. 4)
 # --------------------------------------------------------------------------------------
-CMU_UNIT_CM = 5.6444
-"""1 CMU ASF length unit in cm ((1/0.45) inch)."""
-
-
 class _MatrixCompletion(Denoiser):
     """Shared Motion handling of tsmc / trnn: (T, 3J) matrix + mask in, estimate out.
 
@@ -60,8 +64,12 @@ class _MatrixCompletion(Denoiser):
     keeps_observed = False
     fill_evidence = "markers"
     clean_tolerance_cm = 1.0
+    #: the constraints tsmc and trnn share
+    _SHARED = {"tol": [_POSITIVE], "max_iter": [Interval(Integral, 1, None)], "detect": [bool],
+               "threshold_cm": [_POSITIVE], "keep_observed": [bool], "unit_cm": [_POSITIVE],
+               "mstep": [Options("dct", "banded")], "seed": [Interval(Integral, 0, None)]}
 
-    def _solve(self, X: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, dict[str, Any]]:
+    def _solve(self, X: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, SolveInfo]:
         raise NotImplementedError
 
     def denoise(self, motion: Motion) -> Motion:
@@ -70,13 +78,11 @@ class _MatrixCompletion(Denoiser):
         X = motion.matrix()
         km = np.repeat(known, 3, axis=1)
         unit = float(self.unit_cm)
-        if not np.isfinite(unit) or unit <= 0:
-            raise MocapValueError(f"{self.name}: unit_cm must be a positive number, got {self.unit_cm!r}")
         A, info = self._solve(X / unit, km)
-        record(self, info, "criterion")
+        record(self, info)
         A *= unit
-        lin = fill_gaps_linear(X, km)
-        if not info["converged"]:
+        lin = gaps.fill(X, km, never_observed=0.0)
+        if not info.converged:
             A, info = unusable_guard(self.name, A, X, km, lin, info)
         if not km.all():                 # frames with few markers: interpolation in time
             A = evidence_blend(A, lin, km, known)
@@ -108,11 +114,15 @@ class TSMC(_MatrixCompletion):
     name = "tsmc"
     description = "thesis bilinear low-rank + sparse error + 2nd-difference smoothness (TSMC model, ALM)"
 
+    _parameter_constraints = {**_MatrixCompletion._SHARED, "alpha": [_POSITIVE], "beta": [_NONNEG],
+                              "lam1": [_POSITIVE], "lam2": [_POSITIVE], "gamma": [_ABOVE_1],
+                              "lam_max": [_POSITIVE], "rank": [Interval(Integral, 1, None), Options("lsj"), None]}
+
     def __init__(self, alpha: float = 1.0, beta: float = 100.0, lam1: float = 1e-5,
                  lam2: float = 1e-5, gamma: float = 1.4, lam_max: float = 1e10,
                  rank: int | str | None = None, tol: float = 1e-4, max_iter: int = 500,
                  detect: bool = False, threshold_cm: float = 6.0, keep_observed: bool = False,
-                 unit_cm: float = CMU_UNIT_CM, mstep: str = "dct", seed: int = 0):
+                 unit_cm: float = CMU_CM_PER_UNIT, mstep: str = "dct", seed: int = 0):
         self.unit_cm = unit_cm
         self.mstep = mstep
         self.alpha = alpha
@@ -158,11 +168,16 @@ class TrNN(_MatrixCompletion):
     name = "trnn"
     description = "thesis truncated nuclear norm + sparse error + smoothness, single-loop ALM with DCT M-step"
 
+    _parameter_constraints = {**_MatrixCompletion._SHARED, "r": [Interval(Integral, 0, None)],
+                              "d": [Interval(Integral, 1, None), Options("lsj"), None],
+                              "lam": [_POSITIVE, None], "mu": [_NONNEG], "rho": [_ABOVE_1],
+                              "eta": [_POSITIVE], "eta_max": [_POSITIVE]}
+
     def __init__(self, r: int = 15, d: int | str | None = None, lam: float | None = None,
                  mu: float = 100.0, rho: float = 1.4, eta: float = 1e-5, eta_max: float = 1e6,
                  tol: float = 1e-4, max_iter: int = 500, detect: bool = False,
                  threshold_cm: float = 6.0, keep_observed: bool = False,
-                 unit_cm: float = CMU_UNIT_CM, mstep: str = "dct", seed: int = 0):
+                 unit_cm: float = CMU_CM_PER_UNIT, mstep: str = "dct", seed: int = 0):
         self.unit_cm = unit_cm
         self.mstep = mstep
         self.r = r
@@ -214,6 +229,10 @@ class DynaMMo(Denoiser):
     keeps_observed = True
     clean_tolerance_cm = 1.0
 
+    _parameter_constraints = {"k": [Interval(Integral, 1, None)], "max_iter": [Interval(Integral, 1, None)],
+                              "tol": [_POSITIVE], "estep": [Options("fill", "observed")], "detect": [bool],
+                              "threshold_cm": [_POSITIVE]}
+
     def __init__(self, k: int = 48, max_iter: int = 100, tol: float = 1e-4, estep: str = "fill",
                  detect: bool = False, threshold_cm: float = 6.0):
         self.estep = estep
@@ -235,5 +254,5 @@ class DynaMMo(Denoiser):
         A, info = _cp.lds_em_complete(X, km, k=int(self.k), max_iter=int(self.max_iter),
                                       tol=float(self.tol), estep=str(self.estep),
                                       return_info=True)
-        record(self, info, "change")
+        record(self, info)
         return output(motion, A, known, True, solver_info(self.name, info))

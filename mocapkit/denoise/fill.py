@@ -35,9 +35,10 @@ import numpy as np
 from ..errors import MocapValueError
 from ..gaps import find_gaps
 from ..motion import Motion
-from ..rigid import find_clusters, parse_clusters, rigid_fill
+from ..rigid import REFERENCES, find_clusters, parse_clusters, rigid_fill
 from ..solvers.pca_fill import pca_fill
 from .base import Denoiser, register
+from .constraints import Integral, Interval, Options, Real
 
 __all__ = ["FillRigid", "FillPattern", "FillPCA", "pattern_fill", "rigid_fill", "pca_fill",
            "discover_clusters"]
@@ -168,7 +169,7 @@ class FillRigid(Denoiser):
         m = io.read("../shared/data/markers/kineticstoolkit/kinematics_basket_sprint.c3d")
         fr = denoise.get("fill-rigid")
         out = fr.denoise(m)
-        print(fr.clusters_)                      # the clusters found, as marker names
+        print(out.source["clusters"])            # the clusters found, as marker names
         print(out.source["gap_report"]["filled"], out.source["gap_report"]["left_missing"])
         head = denoise.get("fill-rigid", clusters=[["ArmL:Marker1", "ArmL:Marker2",
                                                      "ArmL:Marker3", "ArmL:Marker4"]])
@@ -182,6 +183,10 @@ class FillRigid(Denoiser):
     fill_evidence = "markers"
     clean_tolerance_cm = 1e-9
 
+    _parameter_constraints = {"clusters": [object], "max_std_cm": [Interval(Real, 0, None, closed="neither")],
+                              "min_common_s": [Interval(Real, 0, None)], "reference": [Options(*REFERENCES)],
+                              "min_donors": [Interval(Integral, 3, None)]}   # a rigid fit needs 3 points
+
     def __init__(self, clusters: Any = None, max_std_cm: float = 1.0, min_common_s: float = 0.5,
                  reference: str = "ends", min_donors: int = 3):
         self.clusters = clusters
@@ -192,15 +197,12 @@ class FillRigid(Denoiser):
 
     def denoise(self, motion: Motion) -> Motion:
         _check(motion, self.name)
-        if not float(self.max_std_cm) > 0:
-            raise MocapValueError(f"{self.name}: max_std_cm must be positive, got {self.max_std_cm!r}")
-        if int(self.min_donors) < 3:
-            raise MocapValueError(f"{self.name}: min_donors must be >= 3 (a rigid fit needs 3 points)")
         if motion.observed.all():
             return motion
         cl = discover_clusters(motion, self.clusters, max_std_cm=self.max_std_cm,
                                min_common_s=self.min_common_s)
-        self.clusters_ = [[motion.skeleton.names[i] for i in c] for c in cl]
+        # a diagnostic of this run (the result's source["clusters"]), not fitted state
+        self.report(clusters=[[motion.skeleton.names[i] for i in c] for c in cl])
         X, f = rigid_fill(motion.positions, motion.observed, cl, reference=self.reference,
                           min_donors=int(self.min_donors))
         return _result(motion, X, f)
@@ -241,13 +243,13 @@ class FillPattern(Denoiser):
     fill_evidence = "markers"
     clean_tolerance_cm = 1e-9
 
+    _parameter_constraints = {"window_s": [Interval(Real, 0, None, closed="neither")]}
+
     def __init__(self, window_s: float = 1.0):
         self.window_s = window_s
 
     def denoise(self, motion: Motion) -> Motion:
         _check(motion, self.name)
-        if not float(self.window_s) > 0:
-            raise MocapValueError(f"{self.name}: window_s must be positive seconds, got {self.window_s!r}")
         if motion.observed.all():
             return motion
         X, f = pattern_fill(motion.positions, motion.observed,
@@ -310,6 +312,13 @@ class FillPCA(Denoiser):
     keeps_observed = True
     fill_evidence = "markers"
     clean_tolerance_cm = 1e-9
+
+    _parameter_constraints = {"sigma_cm": [Interval(Real, 0, None, closed="neither")],
+                              "min_cum_sv": [Interval(Real, 0, 1, closed="right")],
+                              "mm_weight": [Interval(Real, 0, None)],
+                              "frame": [Options("heading", "translation", "world")],
+                              "min_frames": [Interval(Integral, 1, None)], "min_donors": [Interval(Integral, 1, None)],
+                              "end_correction": [bool]}
 
     def __init__(self, sigma_cm: float = 20.0, min_cum_sv: float = 0.99, mm_weight: float = 0.02,
                  frame: str = "heading", min_frames: int = 30, min_donors: int = 3,

@@ -28,7 +28,7 @@ file, so (decision, METHODS.md §6 "self-validation"):
    by 1 / error^2) was measured on real-gaps and did not pay (worst case 1.49 vs 1.44 x the
    best peer), so it is not offered.
    Fills whose scores differ by less than the capture's noise level (the package's one
-   robust estimate, :func:`mocapkit.solvers.lowrank.noise_level`) are tied, and a tie goes
+   robust estimate, :func:`mocapkit.signal.estimate_noise`) are tied, and a tie goes
    to the smooth interpolation: below the noise no score is evidence. A gap whose best
    validated error exceeds ``max_error_cm`` is left missing: no fill is trusted there.
 
@@ -40,10 +40,17 @@ RMSE of the fill (the validated errors of the chosen candidates, weighted by gap
 
 Example
 -------
->>> from mocapkit import datasets, denoise, corrupt          # doctest: +SKIP
->>> noisy, _ = corrupt.combine(datasets.load("16_15"), [("block_gaps", {"n_markers": 4, "length": 60})], seed=0)
+Four joints lose 60 frames each; fill-auto fills what it validated and leaves the rest
+missing (here one gap, reported in ``source["fill_auto"]["left_gaps"]``):
+
+>>> from mocapkit import corrupt, datasets, denoise, io
+>>> clean = io.read(datasets.bundled("16_15.amc")).slice(0, 300)
+>>> noisy, _ = corrupt.combine(clean, [("block_gaps", {"n_markers": 4, "length": 60})], seed=0)
 >>> out = denoise.get("fill-auto").denoise(noisy)
->>> out.source["fill_auto"]["estimated_rmse_cm"]
+>>> int((~noisy.observed).sum()), int((~out.observed).sum())     # samples missing before / after
+(240, 60)
+>>> round(out.source["fill_auto"]["estimated_rmse_cm"], 1)        # validated on the clip itself
+1.7
 """
 from __future__ import annotations
 
@@ -55,6 +62,7 @@ from ..errors import MocapValueError
 from ..gaps import Gap, current_policy, find_gaps, supported
 from ..motion import Motion
 from .base import Denoiser, available, get, register
+from .constraints import Interval, Options, Real
 
 #: fills that follow a trajectory's shape in time (besides interpolation): validated on
 #: the gap's own frames in neighbouring markers too (round 3)
@@ -236,6 +244,11 @@ class FillAuto(Denoiser):
     fill_evidence = "markers"
     clean_tolerance_cm = 1e-9
 
+    # candidates are checked against the registry when used (_methods)
+    _parameter_constraints = {"candidates": [str, list, tuple],
+                              "max_error_cm": [Interval(Real, 0, None, closed="neither"), None],
+                              "rounds": [Options(1, 2)], "prior_frames": [Interval(Real, 0, None)]}
+
     def __init__(self, candidates: Sequence[str] = DEFAULT_CANDIDATES,
                  max_error_cm: float | None = 5.0, rounds: int = 2, prior_frames: float = 20.0):
         self.candidates = candidates
@@ -257,16 +270,12 @@ class FillAuto(Denoiser):
         return [(n, get(n)) for n in names]
 
     def denoise(self, motion: Motion) -> Motion:
-        from threadpoolctl import threadpool_limits
+        from ..solvers._linalg import blas_limit
 
-        with threadpool_limits(1):          # many small decompositions: one thread is fastest
+        with blas_limit():          # many small decompositions: one thread is fastest
             return self._denoise(motion)
 
     def _denoise(self, motion: Motion) -> Motion:
-        if self.max_error_cm is not None and not float(self.max_error_cm) > 0:
-            raise MocapValueError(f"fill-auto: max_error_cm must be positive, got {self.max_error_cm!r}")
-        if int(self.rounds) not in (1, 2):
-            raise MocapValueError(f"fill-auto: rounds must be 1 or 2, got {self.rounds!r}")
         obs = motion.observed
         gaps = [g for g in find_gaps(obs) if g.kind != "never"]
         if not gaps:
@@ -300,11 +309,11 @@ class FillAuto(Denoiser):
 
     def _assemble(self, motion: Motion, gaps: Sequence[Gap], methods, fills, err: np.ndarray) -> Motion:
         """Each gap from its best-validated candidate (next best per frame where it has none)."""
-        from ..solvers.lowrank import noise_level
+        from ..signal import estimate_noise
 
         Y = np.array(motion.positions)
         names = [n for n, _ in methods]
-        noise = noise_level(motion.matrix(), motion.matrix_mask(), robust=True)      # cm
+        noise = estimate_noise(motion.matrix(), motion.matrix_mask(), pool="all", fallback=0.0)      # cm
         codes = np.full(motion.observed.shape, -1, dtype=np.int8)
         chosen = dict.fromkeys(names, 0)
         est_sq, est_n, left_gaps, unvalidated = 0.0, 0, 0, 0
@@ -356,14 +365,3 @@ class FillAuto(Denoiser):
         }
         return Motion(Y, motion.skeleton, motion.fps, np.isfinite(Y).all(axis=2), src, motion.filled)
 
-
-def default_for(motion: Motion) -> Denoiser:
-    """The method mocapkit uses when none is named: ``fill-auto`` for marker captures
-    (C3D/TRC, or any motion whose joints have no hierarchy) -- fill the gaps, leave the
-    measured samples as they are -- and the package default (:data:`DEFAULT_METHOD`) for
-    skeleton data."""
-    from . import default
-
-    markers = motion.source.get("format") in ("c3d", "trc") or bool(
-        np.all(np.asarray(motion.skeleton.parents) < 0) and motion.n_joints > 1)
-    return get("fill-auto") if markers else default()

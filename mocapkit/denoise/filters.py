@@ -6,7 +6,7 @@ Every method here treats each coordinate (x, y, z of each joint; the columns of
 array functions of :mod:`mocapkit.signal`, which hold the maths and are tested alone.
 
 Missing data: smoothing filters first fill gaps by a cubic spline through each channel's
-observed samples (:func:`mocapkit.signal.fill_gaps`, ends held at the nearest observed
+observed samples (:func:`mocapkit.gaps.fill`, ends held at the nearest observed
 value), then filter. A joint that is never observed in the clip cannot be filled by a
 per-channel method: :class:`~mocapkit.errors.MocapValueError` names it (use a data-driven
 method such as ``kalman-learned`` or ``lou-chai``, or drop it with ``Motion.select``).
@@ -18,15 +18,15 @@ alone works in Hz and uses ``motion.fps``.
 from __future__ import annotations
 
 import math
-from typing import Any
 
 import numpy as np
 
-from .. import signal
+from .. import gaps, signal
 from ..errors import MocapValueError
 from ..motion import Motion
 from ..solvers.gcv_spline import cutoff_hz, gcv_smooth
 from .base import Denoiser, register
+from .constraints import Integral, Interval, Odd, Options, Real
 
 __all__ = ["GaussianFilter", "SplineFill", "LinearFill", "ButterworthFilter",
            "SavgolFilter", "MedianFilter", "HampelFilter", "GCVSpline", "gcv_summary", "require_observed_joints",
@@ -45,19 +45,15 @@ def require_observed_joints(motion: Motion, method: str) -> None:
 
 
 def filled_matrix(motion: Motion, method: str, kind: str = "cubic", ends: str = "nearest") -> np.ndarray:
-    """(T, 3J) matrix of ``motion`` with gaps filled by :func:`mocapkit.signal.fill_gaps`."""
+    """(T, 3J) matrix of ``motion`` with gaps filled by :func:`mocapkit.gaps.fill`."""
     require_observed_joints(motion, method)
-    return signal.fill_gaps(motion.matrix(), motion.matrix_mask(), kind=kind, ends=ends)
+    return gaps.fill(motion.matrix(), motion.matrix_mask(), kind=kind, ends=ends)
 
 
-def _odd_int(v: Any, what: str, minimum: int = 1) -> int:
-    try:
-        i = int(v)
-    except (TypeError, ValueError):
-        raise MocapValueError(f"{what} must be an odd integer number of frames, got {v!r}") from None
-    if i != v or i < minimum or i % 2 == 0:
-        raise MocapValueError(f"{what} must be an odd integer >= {minimum} (frames), got {v!r}")
-    return i
+#: end handling of :func:`mocapkit.signal.gaussian`: 'odd' or a scipy.ndimage mode
+_GAUSSIAN_MODES = Options("odd", "reflect", "nearest", "mirror", "constant", "wrap",
+                          "grid-mirror", "grid-constant", "grid-wrap")
+_POSITIVE = Interval(Real, 0, None, closed="neither")
 
 
 # ---------------------------------------------------------------------------------------
@@ -90,6 +86,8 @@ class GaussianFilter(Denoiser):
     description = "per-channel Gaussian smoothing (Lou & Chai baseline, window 11 frames); gaps spline-filled first"
     needs_training = False
     keeps_observed = False
+    _parameter_constraints = {"window": [Odd(3), None], "sigma_frames": [_POSITIVE, None],
+                              "median": [Options(0), Odd(1)], "mode": [_GAUSSIAN_MODES]}
 
     def __init__(self, window: int | None = None, sigma_frames: float | None = None,
                  median: int = 0, mode: str = "odd"):
@@ -104,18 +102,16 @@ class GaussianFilter(Denoiser):
             return 2.0, 5
         if self.sigma_frames is not None:
             s = float(self.sigma_frames)
-            if not (np.isfinite(s) and s > 0):
-                raise MocapValueError(f"gaussian: sigma_frames must be positive, got {self.sigma_frames!r}")
         if self.window is None:
             return s, int(math.ceil(4 * s))
-        w = _odd_int(self.window, "gaussian: window", 3)
+        w = int(self.window)
         return ((w - 1) / 5.0 if self.sigma_frames is None else s), (w - 1) // 2
 
     def denoise(self, motion: Motion) -> Motion:
         sigma, radius = self.kernel()
         X = filled_matrix(motion, self.name)
         if self.median:
-            X = signal.median(X, window=_odd_int(self.median, "gaussian: median", 1))
+            X = signal.median(X, window=int(self.median))
         return motion.with_matrix(signal.gaussian(X, sigma=sigma, radius=radius, mode=self.mode))
 
 
@@ -124,7 +120,7 @@ class SplineFill(Denoiser):
     """Cubic-spline gap filling per channel; observed entries are returned bit-identical.
 
     Each channel is interpolated by a not-a-knot cubic spline through its observed
-    frames (:func:`mocapkit.signal.fill_gaps`). Gaps before the first / after the last
+    frames (:func:`mocapkit.gaps.fill`). Gaps before the first / after the last
     observed frame are filled according to ``ends``: ``'nearest'`` (default) holds the
     end value -- safe for long end gaps; ``'linear'`` continues the spline's end slope.
     No denoising: observed values, noisy or not, are kept. A joint never observed in the
@@ -137,6 +133,7 @@ class SplineFill(Denoiser):
     keeps_observed = True
     clean_tolerance_cm = 1e-9
     _kind = "cubic"
+    _parameter_constraints = {"ends": [Options("nearest", "linear")]}
 
     def __init__(self, ends: str = "nearest"):
         self.ends = ends
@@ -177,6 +174,8 @@ class ButterworthFilter(Denoiser):
     needs_training = False
     keeps_observed = False
 
+    _parameter_constraints = {"cutoff_hz": [_POSITIVE], "order": [Interval(Integral, 1, None)]}
+
     def __init__(self, cutoff_hz: float = 6.0, order: int = 4):
         self.cutoff_hz = cutoff_hz
         self.order = order
@@ -202,6 +201,8 @@ class SavgolFilter(Denoiser):
     needs_training = False
     keeps_observed = False
 
+    _parameter_constraints = {"window": [Odd(1)], "polyorder": [Interval(Integral, 0, None)]}
+
     def __init__(self, window: int = 11, polyorder: int = 3):
         self.window = window
         self.polyorder = polyorder
@@ -222,12 +223,14 @@ class MedianFilter(Denoiser):
     needs_training = False
     keeps_observed = False
 
+    _parameter_constraints = {"window": [Odd(1)]}
+
     def __init__(self, window: int = 5):
         self.window = window
 
     def denoise(self, motion: Motion) -> Motion:
         X = filled_matrix(motion, self.name)
-        return motion.with_matrix(signal.median(X, window=_odd_int(self.window, "median: window")))
+        return motion.with_matrix(signal.median(X, window=int(self.window)))
 
 
 @register
@@ -262,6 +265,9 @@ class GCVSpline(Denoiser):
     description = "automatic smoothing spline per channel, smoothing chosen by GCV (Woltring); robust option"
     needs_training = False
     keeps_observed = False
+
+    _parameter_constraints = {"order": [Options(1, 2, 3)], "robust": [bool],
+                              "min_scale_cm": [Interval(Real, 0, None)]}
 
     def __init__(self, order: int = 2, robust: bool = False, min_scale_cm: float = 1.0):
         self.order = order
@@ -339,6 +345,10 @@ class HampelFilter(Denoiser):
     needs_training = False
     keeps_observed = False
 
+    _parameter_constraints = {"window": [Odd(3)], "n_sigmas": [_POSITIVE],
+                              "scale": [Options("both", "global", "local")], "joint_test": [bool],
+                              "min_sigma_cm": [Interval(Real, 0, None)]}
+
     def __init__(self, window: int = 7, n_sigmas: float = 3.0, scale: str = "both",
                  joint_test: bool = True, min_sigma_cm: float = 0.5):
         self.window = window
@@ -354,12 +364,8 @@ class HampelFilter(Denoiser):
         if T < 3:
             return np.zeros((T, J), dtype=bool)
         ns = float(self.n_sigmas)
-        if not ns > 0:
-            raise MocapValueError(f"hampel: n_sigmas must be positive, got {self.n_sigmas!r}")
-        if self.scale not in ("both", "global", "local"):
-            raise MocapValueError(f"hampel: scale must be 'both', 'global' or 'local', got {self.scale!r}")
         _, res, sig = signal.hampel_residuals(
-            X, window=_odd_int(self.window, "hampel: window", 3), scale=self.scale,
+            X, window=int(self.window), scale=self.scale,
             min_sigma=self.min_sigma_cm, exclude_center=True)
         sigmas = list(sig) if self.scale == "both" else [sig]
         levels = [ns, max(ns - 1.0, 0.5)] if self.scale == "both" else [ns]

@@ -18,7 +18,7 @@ solve take 55 s (measured on a 39-marker C3D).
 Noise levels (documented decisions; every one is a parameter)
 --------------------------------------------------------------
 * measurement noise sigma (cm): by default estimated from the clip as the median over
-  channels of ``1.4826 MAD(Δ²y) / √6`` (:func:`mocapkit.signal.estimate_noise_sigma`),
+  channels of ``1.4826 MAD(Δ²y) / √6`` (:func:`mocapkit.signal.estimate_noise`),
   floored at 0.01 cm. At 30-120 fps human motion contributes little to second
   differences, so this tracks the actual noise level (2 cm noise -> ~2 cm), and the
   MAD ignores a minority of spikes.
@@ -37,43 +37,35 @@ import numpy as np
 
 from .. import signal
 from ..errors import MocapValueError
+from ..frames import Frame, heading_frame, up_axis_of
 from ..motion import Motion
 from ..solvers import _linalg
-from ..solvers.completion import _one_blas_thread
 from ..solvers.evidence import evidence_blend
 from .base import Denoiser, register, training_matrices
+from .constraints import Integral, Interval, Options, Real
 from .filters import require_observed_joints
 
 __all__ = ["KalmanCV", "KalmanIdentity", "KalmanLearned"]
+
+_POSITIVE = Interval(Real, 0, None, closed="neither")
 
 _MIN_NOISE_CM = 0.01
 
 
 def _noise_sigma(X: np.ndarray, M: np.ndarray, given) -> float:
-    """Measurement sigma in cm: ``given`` or the pooled robust estimate (module doc)."""
+    """Measurement sigma in cm: ``given`` (> 0, checked by the method's constraints) or the
+    pooled robust estimate (module doc)."""
     if given is not None:
-        s = float(given)
-        if not (np.isfinite(s) and s > 0):
-            raise MocapValueError(f"measurement_sigma_cm must be a positive number of cm, got {given!r}")
-        return s
-    # per-channel estimate in blocks of 16 channels: the same numbers, 1/6 of the memory
-    # (the estimator holds ~4 arrays of the block's size)
-    est = np.concatenate([signal.estimate_noise_sigma(X[:, j:j + 16], M[:, j:j + 16])
-                          for j in range(0, X.shape[1], 16)])
-    est = est[np.isfinite(est)]
-    return max(float(np.median(est)) if est.size else 1.0, _MIN_NOISE_CM)
+        return float(given)
+    return max(signal.estimate_noise(X, M, pool="median", fallback=1.0), _MIN_NOISE_CM)
 
 
 def _process_noise(method: str, X, M, dt: float, sigma: float, order: int,
                    process_noise, cutoff_hz):
-    """q (scalar or per channel) from an explicit value, a cutoff, or robust ML."""
-    if process_noise is not None and cutoff_hz is not None:
-        raise MocapValueError(f"{method}: give process_noise or cutoff_hz, not both")
+    """q (scalar or per channel) from an explicit value (> 0, and not with ``cutoff_hz``:
+    the method's constraints), a cutoff, or robust ML."""
     if process_noise is not None:
-        q = float(process_noise)
-        if not (np.isfinite(q) and q > 0):
-            raise MocapValueError(f"{method}: process_noise must be positive, got {process_noise!r}")
-        return q
+        return float(process_noise)
     if cutoff_hz is not None:
         f = float(cutoff_hz)
         if not (np.isfinite(f) and 0 < f < 0.5 / dt):
@@ -130,6 +122,15 @@ class KalmanCV(Denoiser):
     needs_training = False
     keeps_observed = False
 
+    # order 2: constant velocity, 3: constant acceleration
+    _parameter_constraints = {"order": [Options(2, 3)], "measurement_sigma_cm": [_POSITIVE, None],
+                              "process_noise": [_POSITIVE, None], "cutoff_hz": [_POSITIVE, None],
+                              "gate": [_POSITIVE, None], "gate_max_run": [Interval(Integral, 0, None)]}
+
+    def _check_combination(self) -> None:
+        if self.process_noise is not None and self.cutoff_hz is not None:
+            raise MocapValueError(f"{self.name}: give process_noise or cutoff_hz, not both")
+
     def __init__(self, order: int = 2, measurement_sigma_cm: float | None = None,
                  process_noise: float | None = None, cutoff_hz: float | None = None,
                  gate: float | None = None, gate_max_run: int = 3):
@@ -140,11 +141,8 @@ class KalmanCV(Denoiser):
         self.gate = gate
         self.gate_max_run = gate_max_run
 
-    @_one_blas_thread
+    @_linalg.one_blas_thread
     def denoise(self, motion: Motion) -> Motion:
-        if self.order not in (2, 3):
-            raise MocapValueError(f"kalman-cv: order must be 2 (constant velocity) or 3 "
-                                  f"(constant acceleration), got {self.order!r}")
         require_observed_joints(motion, self.name)
         X, M = motion.matrix(), motion.matrix_mask()
         T, C = X.shape
@@ -156,8 +154,6 @@ class KalmanCV(Denoiser):
         x0 = np.zeros((C, n))
         x0[:, 0] = _first_values(X, M)
         P0 = np.diag([1e4, 1e6, 1e8][:n])
-        if self.gate is not None and not float(self.gate) > 0:
-            raise MocapValueError(f"kalman-cv: gate must be a positive number of sigmas, got {self.gate!r}")
         xs, used = signal.rts_smoother(X, M, F=F, Q=Q, R=sigma ** 2, x0=x0, P0=P0,
                                        gate=self.gate, gate_groups=np.arange(C) // 3,
                                        gate_max_run=self.gate_max_run)
@@ -189,13 +185,16 @@ class KalmanIdentity(Denoiser):
     needs_training = False
     keeps_observed = False
 
+    _parameter_constraints = {"process_sigma_cm": [_POSITIVE, None], "cutoff_hz": [_POSITIVE, None],
+                              "measurement_sigma_cm": [_POSITIVE, None]}
+
     def __init__(self, process_sigma_cm: float | None = None, cutoff_hz: float | None = None,
                  measurement_sigma_cm: float | None = None):
         self.process_sigma_cm = process_sigma_cm
         self.cutoff_hz = cutoff_hz
         self.measurement_sigma_cm = measurement_sigma_cm
 
-    @_one_blas_thread
+    @_linalg.one_blas_thread
     def denoise(self, motion: Motion) -> Motion:
         require_observed_joints(motion, self.name)
         X, M = motion.matrix(), motion.matrix_mask()
@@ -203,8 +202,6 @@ class KalmanIdentity(Denoiser):
         dt = 1.0 / motion.fps
         if self.process_sigma_cm is not None:
             s = float(self.process_sigma_cm)
-            if not (np.isfinite(s) and s > 0):
-                raise MocapValueError(f"kalman-identity: process_sigma_cm must be positive, got {self.process_sigma_cm!r}")
             q = s * s
         else:   # continuous density (cm²/s) -> per-frame variance
             q = _process_noise(self.name, X, M, dt, sigma, 1, None, self.cutoff_hz) * dt
@@ -215,16 +212,6 @@ class KalmanIdentity(Denoiser):
 
 
 # ---------------------------------------------------------------------------------------
-class _GlobalFrame:
-    """Identity 'body frame' (``frame='global'``)."""
-
-    def to_local(self, P):
-        return np.asarray(P, dtype=float)
-
-    def to_world(self, Z):
-        return np.asarray(Z, dtype=float)
-
-
 @register
 class KalmanLearned(Denoiser):
     """Data-driven Kalman filter (Lou & Chai 2010, seed 001, Sec. 6.2: a Kalman filter
@@ -232,7 +219,7 @@ class KalmanLearned(Denoiser):
     smoother.
 
     Representation (decisions): each frame's joint positions are expressed in the
-    body-centred frame of :mod:`mocapkit.bodyframe` (smoothed root as origin, smoothed
+    body-centred frame of :func:`mocapkit.frames.heading_frame` (smoothed root as origin, smoothed
     heading rotated out, time scale ``smooth_s``; ``frame='global'`` keeps world
     coordinates) and flattened to z (3J). PCA on the training frames gives the mean mu
     and an orthonormal basis U (3J x k); latent s = Uᵀ (z - mu). ``energy`` (default 1.0)
@@ -288,6 +275,12 @@ class KalmanLearned(Denoiser):
     needs_training = True
     keeps_observed = False
 
+    _parameter_constraints = {"order": [Options(1, 2)], "energy": [Interval(Real, 0, 1, closed="right")],
+                              "n_components": [Interval(Integral, 1, None), None],   # <= 3J: in fit
+                              "ridge": [Interval(Real, 0, None)], "q_scale": [_POSITIVE],
+                              "frame": [Options("body", "global")], "smooth_s": [Interval(Real, 0, None)],
+                              "measurement_sigma_cm": [_POSITIVE, None]}
+
     def __init__(self, order: int = 1, energy: float = 1.0, n_components: int | None = None,
                  ridge: float = 1.0, q_scale: float = 3.0, frame: str = "body",
                  smooth_s: float = 0.5, measurement_sigma_cm: float | None = None):
@@ -307,22 +300,14 @@ class KalmanLearned(Denoiser):
     # -- coordinates ------------------------------------------------------------------
     def _transform(self, motion: Motion, up_axis: int | None):
         if self.frame == "global":
-            return _GlobalFrame()
-        if self.frame != "body":
-            raise MocapValueError(f"kalman-learned: frame must be 'body' or 'global', got {self.frame!r}")
-        from ..bodyframe import body_transform
-
-        return body_transform(motion, smooth_s=self.smooth_s, up_axis=up_axis)
+            return Frame.identity(np.zeros((motion.n_frames, 3)))
+        return heading_frame(motion, smooth_s=self.smooth_s, up_axis=up_axis)
 
     # -- training -----------------------------------------------------------------------
-    @_one_blas_thread
+    @_linalg.one_blas_thread
     def fit(self, motions: Sequence[Motion]) -> "KalmanLearned":
-        from ..bodyframe import up_axis_of
-
         motions = list(motions)
         training_matrices(motions)                      # validates: non-empty, complete
-        if self.order not in (1, 2):
-            raise MocapValueError(f"kalman-learned: order must be 1 or 2, got {self.order!r}")
         first = motions[0]
         for m in motions[1:]:
             if m.skeleton.names != first.skeleton.names:
@@ -346,8 +331,6 @@ class KalmanLearned(Denoiser):
                 raise MocapValueError(f"kalman-learned: n_components must be in 1..{D}, got {self.n_components!r}")
         else:
             e = float(self.energy)
-            if not 0 < e <= 1:
-                raise MocapValueError(f"kalman-learned: energy must be in (0, 1], got {self.energy!r}")
             rank = int(max(1, (evals > max(tot, 1e-300) * 1e-10).sum()))
             k = rank if (e >= 1 or tot <= 0) else min(rank, int(np.searchsorted(np.cumsum(evals) / tot, e) + 1))
         U = np.ascontiguousarray(evecs[:, :k])       # contiguous: same BLAS path after load()
@@ -425,7 +408,7 @@ class KalmanLearned(Denoiser):
         return A, mu - A @ mu + U @ self.b_
 
     # -- denoising ------------------------------------------------------------------------
-    @_one_blas_thread
+    @_linalg.one_blas_thread
     def denoise(self, motion: Motion) -> Motion:
         self._check_fitted()
         if list(motion.skeleton.names) != list(self.joint_names_):
@@ -453,8 +436,6 @@ class KalmanLearned(Denoiser):
         if order > 1:
             F[k:, :-k] = np.eye(n - k)
         qs = float(self.q_scale)
-        if not (np.isfinite(qs) and qs > 0):
-            raise MocapValueError(f"kalman-learned: q_scale must be positive, got {self.q_scale!r}")
         Qf = np.zeros((n, n))
         Qf[:k, :k] = qs * np.asarray(self.Q_)
         if order > 1:                                   # keep the lag block invertible
@@ -472,8 +453,8 @@ class KalmanLearned(Denoiser):
         Zhat = np.where(M, Zhat + (Dres / Rdiag) * (np.where(M, Z, 0.0) - Zhat), Zhat)
         out = motion.with_positions(tr.to_world(Zhat.reshape(T, J, 3)))
         if not M.all():          # frames with few observed markers: interpolation in time
-            from ..motion import fill_gaps_linear
+            from .. import gaps
 
-            out = out.with_matrix(evidence_blend(out.matrix(), fill_gaps_linear(X, M), M,
+            out = out.with_matrix(evidence_blend(out.matrix(), gaps.fill(X, M, never_observed=0.0), M,
                                                  motion.observed))
         return out

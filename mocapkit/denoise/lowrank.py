@@ -17,7 +17,7 @@ Decisions (measured, see docs/results/lowrank.md):
   unchanged and only fills the missing ones (gap filling without denoising).
 * Channels that are never observed in a solve window (one SLRA segment) cannot be
   recovered from the low-rank model (it returns 0 there); they take the per-channel
-  linear interpolation in time (:func:`mocapkit.motion.fill_gaps_linear`) instead.  A
+  linear interpolation in time (:func:`mocapkit.gaps.fill`) instead.  A
   joint never observed in the whole clip is handled by the base class (a placeholder the
   solver may use, returned missing).
 * Missing entries (issue 18).  With Lin et al.'s masked constraint (``missing="free"``:
@@ -34,7 +34,7 @@ Decisions (measured, see docs/results/lowrank.md):
   Without missing entries the two are the same (the SLRA paper's protocol).  Then (every missing mode, and svt) frames with too few observed
   markers take the linear fill (:func:`mocapkit.solvers.evidence.evidence_blend`).
 * Convergence (issue 10): svt, rpca and slra store a summary of their iterative solve in
-  ``convergence_`` (converged, iterations, max_iter, final residual vs tol; for slra the
+  ``source["convergence"]`` of the result (converged, iterations, max_iter, final residual vs tol; for slra the
   worst segment and how many missed tol) and emit one
   :class:`~mocapkit.errors.ConvergenceWarning` per ``denoise()`` call that stops at
   ``max_iter`` (:func:`mocapkit.denoise.base.report_convergence`).  Measured (docs/results/reliability.md): at
@@ -49,13 +49,23 @@ from typing import Any
 
 import numpy as np
 
+from .. import gaps
 from ..errors import MocapValueError, MocapWarning
-from ..motion import Motion, fill_gaps_linear
+from ..motion import Motion
+from ..signal import estimate_noise
 from ..solvers import lowrank as _lr
 from ..solvers.evidence import evidence_blend, far_from_data
 from .base import Denoiser, register, report_convergence
+from .constraints import Integral, Interval, Options, Real
 
+#: per-column centring before the solve (``center``; "none" is the papers')
 _CENTERS = ("none", "mean", "median")
+_INT1 = Interval(Integral, 1, None)
+_POSITIVE = Interval(Real, 0, None, closed="neither")
+#: the constraints the four methods share
+_COMMON = {"center": [Options(*_CENTERS)], "keep_observed": [bool], "max_iter": [_INT1]}
+_ROBUST = {**_COMMON, "tol": [_POSITIVE], "lam": [_POSITIVE, None], "rho": [Interval(Real, 1, None, closed="neither")],
+           "missing": [Options("linear", "free")]}
 
 MIN_FRAMES = 6
 """Fewest frames RPCA/SLRA accept per solve window.  On clean CMU data (131_02) RPCA of
@@ -79,23 +89,12 @@ def _inputs(motion: Motion, method: str) -> tuple[np.ndarray, np.ndarray | None,
     mask = motion.matrix_mask()
     if not mask.any():
         raise MocapValueError(f"{method}: the motion has no observed entries")
-    lin = fill_gaps_linear(X, mask)
+    lin = gaps.fill(X, mask, never_observed=0.0)
     return X, (None if mask.all() else mask), lin
-
-
-_MISSING = ("linear", "free")
-
-
-def _missing_mode(value: Any, method: str) -> str:
-    if value not in _MISSING:
-        raise MocapValueError(f"{method}: missing must be one of {_MISSING}, got {value!r}")
-    return str(value)
 
 
 def _centre(X: np.ndarray, mask: np.ndarray | None, how: str) -> np.ndarray:
     """Per-column centre (1, C) of observed entries ("none" -> zeros)."""
-    if how not in _CENTERS:
-        raise MocapValueError(f"center must be one of {_CENTERS}, got {how!r}")
     if how == "none":
         return np.zeros((1, X.shape[1]))
     Z = X if mask is None else np.where(mask, X, np.nan)
@@ -112,12 +111,12 @@ def _finish(motion: Motion, A: np.ndarray, lin: np.ndarray, mask: np.ndarray | N
 
     Frames with too few observed markers move to the linear fill
     (:func:`~mocapkit.solvers.evidence.evidence_blend`).  A solve that stopped at
-    ``max_iter`` far from the measured samples (``den.convergence_``;
+    ``max_iter`` far from the measured samples (``den.last_report_["convergence"]``;
     :func:`~mocapkit.solvers.evidence.far_from_data`: svt / rpca after 1 iteration are
     14-16 cm off on a CMU walk) is replaced by the measured samples and the linear fill,
     with a MocapWarning.  ``keep_observed``: observed entries are returned unchanged.
     """
-    conv = getattr(den, "convergence_", None) if den is not None else None
+    conv = getattr(den, "last_report_", {}).get("convergence") if den is not None else None
     if conv is not None and not conv.get("converged", True):
         X = motion.matrix()
         m = np.isfinite(X) if mask is None else mask
@@ -165,6 +164,8 @@ class TSVD(Denoiser):
     description = "truncated SVD, keep k singular values of the frames x coordinates matrix (SLRA baseline)"
     clean_tolerance_cm = 2.0
 
+    _parameter_constraints = {"k": [_INT1], **_COMMON}
+
     def __init__(self, k: int = 10, center: str = "none", max_iter: int = 100,
                  keep_observed: bool = False):
         self.k = k
@@ -186,8 +187,8 @@ class SVT(Denoiser):
     ``min tau ||A||_* + 1/2 ||A||_F^2  s.t.  ||P_Omega(A - X)||_F <= eps`` on the T x 3J
     matrix (Cai et al. eqs. 1.3 / 3.12-3.13), Omega = observed entries.  ``eps`` is the
     expected noise norm: ``noise_cm * sqrt(|Omega|)``; by default ``noise_cm`` is estimated
-    from the data (:func:`mocapkit.solvers.lowrank.noise_level`, RMS second difference /
-    sqrt 6).  Fully observed input is solved in closed form; with missing entries the SVT
+    from the data (:func:`mocapkit.signal.estimate_noise`, ``method="diff2-rms"``: RMS
+    second difference / sqrt 6).  Fully observed input is solved in closed form; with missing entries the SVT
     iteration runs (``max_iter``, ``tol``).
 
     Parameters
@@ -211,6 +212,9 @@ class SVT(Denoiser):
     def quick_params(cls) -> dict[str, Any]:
         return {"max_iter": 150}
 
+    _parameter_constraints = {"tau": [_POSITIVE, None], "delta": [_POSITIVE, None],
+                              "noise_cm": [Interval(Real, 0, None), None], "tol": [_POSITIVE], **_COMMON}
+
     def __init__(self, tau: float | None = None, delta: float | None = None,
                  noise_cm: float | None = None, center: str = "mean", tol: float = 1e-4,
                  max_iter: int = 500, keep_observed: bool = False):
@@ -225,17 +229,14 @@ class SVT(Denoiser):
     def denoise(self, motion: Motion) -> Motion:
         X, mask, lin = _inputs(motion, self.name)
         c = _centre(X, mask, self.center)
-        noise = _lr.noise_level(X, mask) if self.noise_cm is None else float(self.noise_cm)
-        if noise < 0:
-            raise MocapValueError(f"noise_cm must be >= 0, got {noise}")
+        noise = (estimate_noise(X, mask, method="diff2-rms", pool="all", fallback=0.0)
+                 if self.noise_cm is None else float(self.noise_cm))
         n_obs = X.size if mask is None else int(mask.sum())
         A, info = _lr.svt(X - c, mask, self.tau, self.delta, eps=noise * np.sqrt(n_obs),
                           tol=float(self.tol), max_iter=int(self.max_iter), return_info=True)
         A = A + c
-        fit = float(info.get("fit_ratio", 0.0))
-        report_convergence(self, iterations=info["iterations"], converged=info["converged"],
-                           residual=info["residual"], tol=float(self.tol),
-                           max_iter=int(self.max_iter), criterion=info["criterion"],
+        fit = float(info.extra.get("fit_ratio", 0.0))
+        report_convergence(self, info, tol=float(self.tol), max_iter=int(self.max_iter),
                            extra={"fit_ratio": fit},
                            detail=(f"; data fit ||P(A - X)|| / eps = {fit:.3f}, needs <= 1.001"
                                    if fit > 1.001 else ""))
@@ -267,6 +268,8 @@ class RPCA(Denoiser):
     description = "robust PCA (low rank + sparse) of the whole clip by inexact ALM (Lin-Chen-Ma)"
     clean_tolerance_cm = 2.0
 
+    _parameter_constraints = _ROBUST
+
     def __init__(self, lam: float | None = None, center: str = "none", tol: float = 1e-7,
                  max_iter: int = 500, rho: float = 1.5, missing: str = "linear",
                  keep_observed: bool = False):
@@ -280,15 +283,13 @@ class RPCA(Denoiser):
 
     def denoise(self, motion: Motion) -> Motion:
         _check_frames(motion.n_frames, self.name, "the clip")
-        mode = _missing_mode(self.missing, self.name)
+        mode = self.missing
         X, mask, lin = _inputs(motion, self.name)
         D, Dmask = (lin, None) if mode == "linear" else (X, mask)
         c = _centre(D, Dmask, self.center)
         A, _, info = _lr.rpca_ialm(D - c, self.lam, Dmask, float(self.tol), int(self.max_iter),
                                    rho=float(self.rho), return_info=True, want_E=False)
-        report_convergence(self, iterations=info["iterations"], converged=info["converged"],
-                           residual=info["residual"], tol=float(self.tol),
-                           max_iter=int(self.max_iter), criterion="relative residual ||D-A-E||/||D||")
+        report_convergence(self, info, tol=float(self.tol), max_iter=int(self.max_iter))
         A += c
         return _finish(motion, A, lin, mask, bool(self.keep_observed), den=self)
 
@@ -328,6 +329,10 @@ class SLRA(Denoiser):
     description = "segmented RPCA (SLRA, seed 004): IALM per consecutive segment, optional blended overlap"
     clean_tolerance_cm = 2.0
 
+    # overlap < segment depends on both: checked by the solver's segment layout
+    _parameter_constraints = {"segment": [_INT1], "overlap": [Interval(Integral, 0, None)],
+                              "n_segments": [_INT1, None], **_ROBUST}
+
     def __init__(self, segment: int = 200, overlap: int = 0, n_segments: int | None = None,
                  lam: float | None = None, center: str = "none", tol: float = 1e-7,
                  max_iter: int = 500, rho: float = 1.5, missing: str = "linear",
@@ -352,7 +357,7 @@ class SLRA(Denoiser):
                                            self.n_segments)
         _check_frames(int((stops - starts).min()), self.name,
                       "the clip" if len(starts) == 1 else "a segment")
-        mode = _missing_mode(self.missing, self.name)
+        mode = self.missing
         X, mask, lin = _inputs(motion, self.name)
         A, _, info = _lr.slra(lin if mode == "linear" else X, int(self.segment), int(self.overlap),
                               n_segments=self.n_segments, mask=None if mode == "linear" else mask,
@@ -360,8 +365,7 @@ class SLRA(Denoiser):
                               center=self.center, tol=float(self.tol),
                               max_iter=int(self.max_iter), rho=float(self.rho),
                               return_info=True)
-        report_convergence(self, iterations=info["iterations"], converged=info["converged"],
-                           residual=info["residual"], tol=float(self.tol),
-                           max_iter=int(self.max_iter), criterion="relative residual ||D-A-E||/||D||")
-        return _finish(motion, A, lin, mask, bool(self.keep_observed), (info["starts"], info["stops"]),
+        report_convergence(self, info, tol=float(self.tol), max_iter=int(self.max_iter))
+        return _finish(motion, A, lin, mask, bool(self.keep_observed),
+                       (info.extra["starts"], info.extra["stops"]),
                        den=self)

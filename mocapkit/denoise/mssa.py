@@ -13,11 +13,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import MocapValueError
 from ..motion import Motion
 from ..solvers.gcv_spline import gcv_smooth
 from ..solvers.mssa import mssa_denoise
 from .base import Denoiser, register
+from .constraints import Interval, Real
 from .filters import require_observed_joints
 
 __all__ = ["MSSA"]
@@ -43,14 +43,15 @@ class MSSA(Denoiser):
     needs_training = False
     keeps_observed = False
 
+    _parameter_constraints = {"window_s": [Interval(Real, 0, None, closed="neither")],
+                              "sigma_cm": [Interval(Real, 0, None), None]}
+
     def __init__(self, window_s: float = 0.13, sigma_cm: float | None = None):
         self.window_s = window_s
         self.sigma_cm = sigma_cm
 
     def denoise(self, motion: Motion) -> Motion:
         require_observed_joints(motion, self.name)
-        if not (float(self.window_s) > 0):
-            raise MocapValueError(f"mssa: window_s must be positive seconds, got {self.window_s!r}")
         X, M = motion.matrix(), motion.matrix_mask()
         fit, info = gcv_smooth(X, M, group=3)
         sigma = float(np.median(info.sigma)) if self.sigma_cm is None else float(self.sigma_cm)

@@ -12,8 +12,9 @@
     Li et al. 2019 (the paper's [13]; Table 2 row BRA(512)): the denoising autoencoder
     alone, trained with eq. (9) without the perceptual term.
 
-Other Table 2 ablations are parameters: EBD = ``bra`` with ``lambdas_denoise=(1, 0, 0,
-0)``; EBD-P = ``bra-p`` with ``lambdas_denoise=(1, 0, 0, 10)``; BRA-P(256) = ``hidden=256``.
+Other Table 2 ablations are training options: EBD = ``bra`` with
+``train_options={"lambdas_denoise": (1, 0, 0, 0)}``; EBD-P = ``bra-p`` with
+``train_options={"lambdas_denoise": (1, 0, 0, 10)}``; BRA-P(256) = ``hidden=256``.
 
 Data handling (``mocapkit.neural.clips``): 60 fps, the 21-joint CMU subset, root-local
 ground frame, mean/std normalisation, 120-frame clips overlapping by 60 with a linear
@@ -28,9 +29,13 @@ training step. ``fit(motions)`` trains a new model on clean motions with torch
 (defaults: the shipped models' settings, :data:`mocapkit.neural.train.OPERATING_POINT`
 -- residual output on a light low-pass of the input, bridged + masked input,
 augmentation, cosine learning rate -- and the paper's 300 epochs per network: hours on
-a CPU; ``residual=False, fill_input=False, mask_input=False, base_sigma=0,
-augment=False, lr_schedule='constant', grad_clip=0, reproduction='mse'`` is the paper's
-original network).
+a CPU; ``train_options=dict(residual=False, fill_input=False, mask_input=False,
+base_sigma=0, augment=False, lr_schedule='constant', grad_clip=0, reproduction='mse')``
+is the paper's original network). ``train_options`` holds every other
+:class:`~mocapkit.neural.train.TrainConfig` field (dropout, batch size, loss weights,
+learning rates and schedule, input handling, augmentation), taken over
+:data:`~mocapkit.neural.train.OPERATING_POINT`; the constructor keeps what a user sets
+for a run (model, post-processing, width, training length, seed, threads, device).
 
 ``postprocess=None`` uses the model's own setting: the shipped bra-p skips the
 perceptual post-processing D_p(E_p(.)) (measured: it adds the perceptual autoencoder's
@@ -40,7 +45,7 @@ perceptual loss; ``postprocess=True`` applies it.
 Guard rails: inputs outside 24-1000 fps, without the 21 joints, or with a body far from
 the training bodies' size get one MocapValueError; a result that moves the observed
 samples far beyond the input's estimated noise emits a TrainingMismatchWarning
-(:func:`mocapkit.denoise.base.check_training_match`, recorded in ``training_match_``).
+(:func:`mocapkit.denoise.base.check_training_match`, recorded in the result's ``source["training_match"]``).
 
 ``threads``: torch threads for training (None: every core this process may use) and
 threads for inference (None: 1).
@@ -58,12 +63,20 @@ from typing import Any, Sequence
 from ..errors import MocapFormatError, MocapValueError
 from ..motion import Motion
 from ..neural import pretrained_path, require_torch
-from .base import Denoiser, register
+from .base import Denoiser, register, register_model_format
+from . import constraints
+from .constraints import Integral, Interval, Numbers, Real
 
-_PARAMS = ("hidden", "dropout", "batch_size", "lambdas_perceptual", "lambdas_denoise", "lr_perceptual",
-           "lr_denoise", "epochs_perceptual", "epochs_denoise", "steps_perceptual", "steps_denoise",
-           "random_offsets", "seed", "threads", "device", "residual", "fill_input", "mask_input",
-           "augment", "lr_schedule", "base_sigma", "grad_clip", "reproduction", "wide_fc")
+_POSITIVE = Interval(Real, 0, None, closed="neither")
+
+#: constructor parameters that choose how a trained model runs (not training settings):
+#: every other parameter is a :class:`mocapkit.neural.train.TrainConfig` field
+_RUN_PARAMS = ("model", "postprocess", "progress", "warn", "train_options")
+#: the TrainConfig fields that were constructor parameters before ``train_options`` (model
+#: files store them flat in their ``denoiser_params``)
+_GROUPED = ("dropout", "batch_size", "lambdas_perceptual", "lambdas_denoise", "lr_perceptual", "lr_denoise",
+            "random_offsets", "residual", "fill_input", "mask_input", "augment", "lr_schedule",
+            "base_sigma", "grad_clip", "reproduction", "wide_fc")
 
 
 class _NeuralDenoiser(Denoiser):
@@ -73,52 +86,59 @@ class _NeuralDenoiser(Denoiser):
     fill_evidence = "markers"
     clean_tolerance_cm = 6.0
     _perceptual: bool = True
+    training_side_files = (".ckpt",)        # the trainer's checkpoint, next to the model
+
+    _parameter_constraints = {
+        "model": [str, os.PathLike, None], "postprocess": [bool, None],
+        "hidden": [Interval(Integral, 1, None)],
+        "epochs_perceptual": [Interval(Real, 0, None)], "epochs_denoise": [Interval(Real, 0, None)],
+        "steps_perceptual": [Interval(Integral, 0, None), None],
+        "steps_denoise": [Interval(Integral, 0, None), None],
+        "seed": [Interval(Integral, 0, None)], "threads": [Interval(Integral, 1, None), None],
+        "device": [str], "progress": [bool], "warn": [bool],
+        "train_options": [dict, None],          # field names checked by TrainConfig.from_params
+    }
+    #: the TrainConfig fields :meth:`train_files` also checks (given flat to the trainer,
+    #: ``mocapkit train --param``; the other fields are checked by TrainConfig.from_params)
+    _training_constraints = {
+        "dropout": [Interval(Real, 0, 1, closed="left")], "batch_size": [Interval(Integral, 1, None)],
+        "lambdas_perceptual": [Numbers(3)], "lambdas_denoise": [Numbers(4)],
+        "lr_perceptual": [_POSITIVE], "lr_denoise": [_POSITIVE],
+        "base_sigma": [Interval(Real, 0, None)], "grad_clip": [Interval(Real, 0, None)],
+        **{k: [bool] for k in ("random_offsets", "residual", "fill_input", "mask_input", "augment", "wide_fc")},
+    }
+
+    @classmethod
+    def _upgrade_params(cls, params: dict[str, Any]) -> dict[str, Any]:
+        """Model files store the training options flat (the constructor's old spelling)."""
+        p = dict(params)
+        grouped = {k: p.pop(k) for k in _GROUPED if k in p}
+        if grouped:
+            p["train_options"] = {**(p.get("train_options") or {}), **grouped}
+        return {k: v for k, v in p.items() if k in cls._param_names()}
 
     def __init__(self, *, model: str | None = None, postprocess: bool | None = None, hidden: int = 256,
-                 dropout: float = 0.0, batch_size: int = 16,
-                 lambdas_perceptual: Sequence[float] = (1.0, 1e-4, 1e-4),
-                 lambdas_denoise: Sequence[float] = (1.0, 1e-3, 1e-3, 10.0),
-                 lr_perceptual: float = 1e-3, lr_denoise: float = 1e-3,
                  epochs_perceptual: float = 300.0, epochs_denoise: float = 300.0,
                  steps_perceptual: int | None = None, steps_denoise: int | None = None,
-                 random_offsets: bool = True, seed: int = 0, threads: int | None = None,
-                 device: str = "cpu", progress: bool = False, residual: bool = True,
-                 fill_input: bool = True, mask_input: bool = True, augment: bool = True,
-                 lr_schedule: str = "cosine", base_sigma: float = 1.0, grad_clip: float = 1.0,
-                 reproduction: str = "rms", wide_fc: bool = True, warn: bool = True):
+                 seed: int = 0, threads: int | None = None, device: str = "cpu", progress: bool = False,
+                 warn: bool = True, train_options: dict[str, Any] | None = None):
         self.model = model
         self.postprocess = postprocess
         self.hidden = hidden
-        self.dropout = dropout
-        self.batch_size = batch_size
-        self.lambdas_perceptual = lambdas_perceptual
-        self.lambdas_denoise = lambdas_denoise
-        self.lr_perceptual = lr_perceptual
-        self.lr_denoise = lr_denoise
         self.epochs_perceptual = epochs_perceptual
         self.epochs_denoise = epochs_denoise
         self.steps_perceptual = steps_perceptual
         self.steps_denoise = steps_denoise
-        self.random_offsets = random_offsets
         self.seed = seed
         self.threads = threads
         self.device = device
         self.progress = progress
-        self.residual = residual
-        self.fill_input = fill_input
-        self.mask_input = mask_input
-        self.augment = augment
-        self.lr_schedule = lr_schedule
-        self.base_sigma = base_sigma
-        self.grad_clip = grad_clip
-        self.reproduction = reproduction
-        self.wide_fc = wide_fc
         self.warn = warn
+        self.train_options = train_options
 
     @classmethod
     def quick_params(cls) -> dict[str, Any]:
-        return {"hidden": 16, "steps_perceptual": 2, "steps_denoise": 2, "random_offsets": True,
-                "threads": 1}
+        return {"hidden": 16, "steps_perceptual": 2, "steps_denoise": 2, "threads": 1}
 
     # -- model ------------------------------------------------------------------------------
     def is_fitted(self) -> bool:
@@ -149,13 +169,14 @@ class _NeuralDenoiser(Denoiser):
     def _config(self):
         from ..neural.train import TrainConfig
 
-        from ..neural.train import NOISE_MIX_V2
+        from ..neural.train import OPERATING_POINT
 
-        p = {k: getattr(self, k) for k in _PARAMS}
+        p = {**OPERATING_POINT, **(self.train_options or {}),
+             **{k: v for k, v in self.get_params().items() if k not in _RUN_PARAMS}}
+        if not p["residual"] and "noise" not in (self.train_options or {}):
+            del p["noise"]                  # the paper's noise mix for the paper's network
         post = False if self.postprocess is None else bool(self.postprocess)
-        extra = {"noise": NOISE_MIX_V2} if self.residual else {}     # the paper's mix otherwise
-        return TrainConfig.from_params(perceptual=self._perceptual, postprocess=post and self._perceptual,
-                                       **extra, **p)
+        return TrainConfig.from_params(perceptual=self._perceptual, postprocess=post and self._perceptual, **p)
 
     def fit(self, motions: Sequence[Motion]) -> "_NeuralDenoiser":
         """Train on clean motions (each with the 21 CMU joints; any fps) with DS_syn noise."""
@@ -190,6 +211,18 @@ class _NeuralDenoiser(Denoiser):
     def load(cls, path: str | os.PathLike) -> "_NeuralDenoiser":
         return load_model(path, cls)
 
+    @classmethod
+    def train_files(cls, sources, output, *, params, resume, progress, exclude) -> bool:
+        """Train with :func:`mocapkit.neural.train.train_cli` (progress bar, checkpoint
+        ``output + '.ckpt'``, resume); ``params`` are TrainConfig fields, those that are
+        also parameters of this method checked against its constraints."""
+        from ..neural.train import train_cli
+
+        constraints.check(cls.name, {**cls._parameter_constraints, **cls._training_constraints}, params, "train")
+        train_cli(sources if len(sources) > 1 else sources[0], output, method=cls.name,
+                  resume=resume, progress=progress, exclude=exclude, **params)
+        return True
+
 
 def load_model(path: str | os.PathLike, cls: type | None = None) -> "_NeuralDenoiser":
     """Load a ``.onnx`` / ``.pt`` model written by ``bra`` / ``bra-p`` (``save``, ``train_cli``)."""
@@ -202,15 +235,19 @@ def load_model(path: str | os.PathLike, cls: type | None = None) -> "_NeuralDeno
         raise MocapFormatError(path, f"model is for unknown method {method!r}")
     if cls is not None and cls is not Denoiser and not issubclass(target, cls):
         raise MocapFormatError(path, f"model is for method {method!r}, not {getattr(cls, 'name', cls)!r}")
-    params = {k: v for k, v in b.meta.get("denoiser_params", {}).items() if k in target._param_names()}
+    params = target._upgrade_params(b.meta.get("denoiser_params", {}))
     if not params:   # written by train_cli: take the training configuration
         tp = b.meta.get("params", {})
-        params = {k: tp[k] for k in _PARAMS if k in tp}
+        params = target._upgrade_params({k: tp[k] for k in (*target._param_names(), *_GROUPED)
+                                         if k in tp and k not in _RUN_PARAMS})
         params["postprocess"] = None
     obj = target(**params)
     obj.model = os.fspath(path)
     obj.bundle_ = b
     return obj
+
+
+register_model_format((".pt", ".onnx"), load_model)
 
 
 @register

@@ -13,44 +13,41 @@ from typing import Sequence
 
 import numpy as np
 
+from .. import gaps
 from ..errors import MocapValueError
-from ..motion import Motion, fill_gaps_linear
+from ..frames import Frame, pelvis_neck_frame
+from ..motion import Motion
 from ..skeleton import BODY_PARTS
 from ..solvers import llc as _llc
-from ..solvers.completion import _one_blas_thread
+from ..solvers._linalg import one_blas_thread
+from ..windows import lagged, overlap_add
 from ._refill import check_motion, known_mask
 from .base import Denoiser, register
+from .constraints import Integral, Interval, Numbers, Real
+
+_POSITIVE = Interval(Real, 0, None, closed="neither")
 
 __all__ = ["PSC"]
 
 
 # --------------------------------------------------------------------------------------
-# local frame for PSC (thesis Sec. 3.2 = Xiao et al.'s frame, mocapkit.localframe)
+# local frame for PSC (thesis Sec. 3.2 = Xiao et al.'s frame, mocapkit.frames)
 # --------------------------------------------------------------------------------------
 def _local_frame(motion: Motion, known: np.ndarray | None = None):
     """The thesis' per-pose frame (root at 0, femur/upper-neck plane parallel to XY).
 
-    Estimated by :func:`mocapkit.localframe.estimate_frame` from the trusted samples
+    Estimated by :func:`mocapkit.frames.pelvis_neck_frame` from the trusted samples
     (robustly smoothed tracks, so outliers and gaps do not tilt it).  A skeleton without
     femurs / upper neck gets translation only (root track, gaps bridged linearly).
     """
-    from .. import localframe as lf
-
     known = motion.observed if known is None else known
     P = np.where(known[..., None], motion.positions, np.nan)
     try:
-        return lf.estimate_frame(P, motion.skeleton, motion.fps)
+        return pelvis_neck_frame(P, motion.skeleton, motion.fps)
     except MocapValueError:
         root = int(np.flatnonzero(motion.skeleton.parents < 0)[0])
-        X = fill_gaps_linear(P[:, root], np.repeat(known[:, root:root + 1], 3, axis=1))
-        return lf.LocalFrame(origin=X, R=np.broadcast_to(np.eye(3), (motion.n_frames, 3, 3)).copy())
-
-
-def _windows(A: np.ndarray, M: int) -> np.ndarray:
-    """(T, ...) -> (T - M + 1, M * prod(...)) lagged windows, stride 1 (thesis Sec. 3.2)."""
-    W = np.lib.stride_tricks.sliding_window_view(A, M, axis=0)      # (N, ..., M)
-    W = np.moveaxis(W, -1, 1)                                        # (N, M, ...)
-    return W.reshape(W.shape[0], -1)
+        X = gaps.fill(P[:, root], np.repeat(known[:, root:root + 1], 3, axis=1), never_observed=0.0)
+        return Frame.identity(X)
 
 
 def _kmeans(Y: np.ndarray, K: int, rng: np.random.Generator, n_iter: int = 5) -> np.ndarray:
@@ -92,7 +89,7 @@ class PSC(Denoiser):
     """Poselet sparse coding with LLC recovery (thesis Ch. 3; Wang et al. 2016/2017).
 
     Training (Sec. 3.2-3.3): every clean training motion goes to the thesis' local frame
-    (root at the origin, femur/upper-neck plane parallel to XY; :mod:`mocapkit.localframe`,
+    (root at the origin, femur/upper-neck plane parallel to XY; :func:`mocapkit.frames.pelvis_neck_frame`,
     estimated from robustly smoothed tracks), is split into the five body parts of
     :meth:`Skeleton.body_parts` (torso, arms, legs; shared joints in several parts) and cut
     into overlapping M-frame windows (stride 1), one vector of ``3 * joints * M`` per
@@ -149,6 +146,13 @@ class PSC(Denoiser):
     needs_training = True
     keeps_observed = True
     clean_tolerance_cm = 1.0
+    _parameter_constraints = {
+        "window": [Interval(Integral, 1, None)], "n_atoms": [Interval(Integral, 2, None)],
+        "lam": [Interval(Real, 0, None)], "n_neighbors": [Interval(Integral, 1, None)],
+        "sigma": [_POSITIVE, None], "threshold_cm": [_POSITIVE], "detect": [bool],
+        "n_iter": [Interval(Integral, 0, None)], "dict_steps": [Interval(Integral, 0, None)],
+        "tol": [Interval(Real, 0, None)], "train_missing": [Numbers(2)],
+        "max_windows": [Interval(Integral, 1, None)], "refine": [bool], "seed": [Interval(Integral, 0, None)]}
 
     def __init__(self, window: int = 10, n_atoms: int = 1024, lam: float = 10.0,
                  n_neighbors: int = 5, sigma: float | None = None, threshold_cm: float = 6.0,
@@ -175,14 +179,11 @@ class PSC(Denoiser):
         return {"n_atoms": 64, "n_iter": 2, "max_windows": 600}
 
     # -- validation -------------------------------------------------------------------------
-    def _check_params(self) -> tuple[int, int]:
-        M, K = int(self.window), int(self.n_atoms)
-        if M < 1 or K < 2:
-            raise MocapValueError(f"psc needs window >= 1 and n_atoms >= 2, got {M}, {K}")
+    def _check_combination(self) -> None:
         lo, hi = self.train_missing
         if not (0 <= lo <= hi < 1):
-            raise MocapValueError(f"train_missing must be 0 <= low <= high < 1, got {self.train_missing}")
-        return M, K
+            raise MocapValueError(f"psc: train_missing must be (low, high) with 0 <= low <= high < 1, "
+                                  f"got {self.train_missing}")
 
     def _parts(self, skeleton) -> list[tuple[str, np.ndarray]]:
         parts = skeleton.body_parts()
@@ -192,10 +193,10 @@ class PSC(Denoiser):
         return out
 
     # -- training ---------------------------------------------------------------------------
-    @_one_blas_thread
+    @one_blas_thread
     def fit(self, motions: Sequence[Motion]) -> "PSC":
         """Learn one dictionary per body part from clean motions (same skeleton)."""
-        M, K = self._check_params()
+        M, K = int(self.window), int(self.n_atoms)
         motions = list(motions)
         if not motions:
             raise MocapValueError("psc.fit() needs at least one training motion")
@@ -207,20 +208,18 @@ class PSC(Denoiser):
                 raise MocapValueError("psc.fit(): all training motions need the same joints")
             if not m.observed.all():
                 raise MocapValueError(f"training motion {m!r} has missing entries; fill them first")
-        from .. import localframe as lf
-
         locs = []
         for m in motions:
             if m.n_frames < M:
                 continue
-            locs.append(lf.to_local(m.positions, _local_frame(m)))
+            locs.append(_local_frame(m).to_local(m.positions))
         if not locs:
             raise MocapValueError(f"psc.fit(): every training motion is shorter than window={M}")
         rng = np.random.default_rng(self.seed)
         parts = self._parts(sk)
         dicts, hist = [], []
         for _, idx in parts:
-            Y = np.concatenate([_windows(L[:, idx], M) for L in locs])
+            Y = np.concatenate([lagged(L[:, idx], M) for L in locs])
             if len(Y) > int(self.max_windows):
                 Y = Y[rng.choice(len(Y), size=int(self.max_windows), replace=False)]
             D, h = self._train_part(Y, M, len(idx), min(K, len(Y)), rng)
@@ -279,11 +278,11 @@ class PSC(Denoiser):
         return best, hist
 
     # -- recovery ---------------------------------------------------------------------------
-    @_one_blas_thread
+    @one_blas_thread
     def denoise(self, motion: Motion) -> Motion:
         self._check_fitted()
         motion = check_motion(motion, self.name)
-        M, _ = self._check_params()
+        M = int(self.window)
         if list(motion.skeleton.names) != list(self.joint_names_):
             raise MocapValueError(
                 f"psc: the model was trained on joints {', '.join(self.joint_names_[:5])}...; "
@@ -292,21 +291,19 @@ class PSC(Denoiser):
         if T < M:
             raise MocapValueError(f"psc: the clip has {T} frames, fewer than the window ({M})")
         known = known_mask(motion, bool(self.detect), float(self.threshold_cm))
-        from .. import localframe as lf
-
         frame = _local_frame(motion, known)
         P = np.where(known[..., None], motion.positions, 0.0)
-        L = lf.to_local(P, frame)
-        L_lin = lf.to_local(fill_gaps_linear(motion.matrix(), np.repeat(known, 3, axis=1)
-                                             ).reshape(P.shape), frame)
+        L = frame.to_local(P)
+        L_lin = frame.to_local(gaps.fill(motion.matrix(), np.repeat(known, 3, axis=1),
+                                         never_observed=0.0).reshape(P.shape))
         acc = np.zeros_like(L)
         cnt = np.zeros(L.shape[:2])
         k = int(self.n_neighbors)
         for idx, D in zip(self.parts_, self.dictionaries_):
             idx = np.asarray(idx, dtype=np.int64)
             nj = len(idx)
-            Y = _windows(L[:, idx], M)
-            obs = _windows(np.repeat(known[:, idx, None], 3, axis=2), M)
+            Y = lagged(L[:, idx], M)
+            obs = lagged(np.repeat(known[:, idx, None], 3, axis=2), M)
             valid = obs.any(axis=1)
             if not valid.any():
                 continue
@@ -314,14 +311,8 @@ class PSC(Denoiser):
                                         sigma=self.sigma, n_neighbors=min(k, len(D)))
             R = np.zeros_like(Y)
             R[valid] = _llc.llc_reconstruct(codes, aidx, D)
-            R = R.reshape(len(Y), M, nj, 3)
-            N = len(Y)
-            part_acc = np.zeros((T, nj, 3))
-            part_cnt = np.zeros(T)
-            for f in range(M):                             # loop over window offsets, not frames
-                part_acc[f:f + N] += R[:, f] * valid[:, None, None]
-                part_cnt[f:f + N] += valid
-            acc[:, idx] += part_acc
+            part_acc, part_cnt = overlap_add(R, T, M, weights=valid)
+            acc[:, idx] += part_acc.reshape(T, nj, 3)
             cnt[:, idx] += part_cnt[:, None]
         est = np.where(cnt[..., None] > 0, acc / np.maximum(cnt, 1)[..., None], L_lin)
         if self.refine:
@@ -329,8 +320,8 @@ class PSC(Denoiser):
             # the holes, so filled samples meet the observed ones without a jump
             km = np.repeat(known, 3, axis=1)
             res = np.where(km, (L - est).reshape(T, -1), np.nan)
-            est = est + fill_gaps_linear(res, km).reshape(est.shape)
-        G = lf.to_global(est, frame)
+            est = est + gaps.fill(res, km, never_observed=0.0).reshape(est.shape)
+        G = frame.to_world(est)
         out = np.where(known[..., None], motion.positions, G)
         res = motion.with_positions(out)
         return res.with_source(solver={"method": self.name, "window": M,

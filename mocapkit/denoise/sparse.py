@@ -4,7 +4,7 @@ Xiao, Feng, Zhuang, Wu & Zhang (2015), "Sparse motion bases selection for human 
 denoising", Signal Processing 110 (seed 000).  Algorithm 1 of the paper:
 
 1. **Local frame** (Sec. 3.1.1): every pose is moved to Xiao's root-centred, body-aligned
-   frame (:mod:`mocapkit.localframe`); decision: the frame is estimated from robustly
+   frame (:func:`mocapkit.frames.pelvis_neck_frame`); decision: the frame is estimated from robustly
    smoothed tracks so outliers do not tilt it, and undone exactly at the end.
 2. **Poselets** (Sec. 3.1.2): the pose is split into the five body parts of
    :meth:`Skeleton.body_parts` (torso, arms, legs, found by joint *name*); neighbouring
@@ -41,7 +41,7 @@ Decisions where the paper is silent (each is a parameter):
   rather than the universal-threshold rule lambda ~ sigma.  So by default
   ``lam = lam_factor * sigma^2`` (``lam_factor`` = 0.1 per cm), sigma the clip's noise
   level estimated robustly in the local frame (second differences,
-  :func:`mocapkit.signal.estimate_noise_sigma`, median over channels); a numeric ``lam``
+  :func:`mocapkit.signal.estimate_noise`, median over channels); a numeric ``lam``
   overrides the rule.  lambda of eq. (5) is dimensionless (``lam_l1`` = 0.1; 0.03 is a
   little better below 20 % outliers, 0.1 clearly better above).  Both defaults are the
   values with the smallest worst-case error ratio in the ``xiao-params`` sweep on
@@ -84,9 +84,10 @@ Decisions where the paper is silent (each is a parameter):
 Fitted state (saved by :meth:`Denoiser.save`): ``dictionaries_`` (list of (d_i M, K)
 arrays), ``means_`` (list of (d_i M,) arrays), ``parts_`` (list of joint-index arrays),
 ``joint_names_``, ``part_names_``, ``train_rmse_`` (final K-SVD training RMSE per
-poselet, cm), ``train_stride_``, ``fps_``; after :meth:`denoise`, ``convergence_`` (JSON
-summary of its ADMM solves: iterations, largest final relative primal / dual residuals vs
-tol, see :meth:`XiaoSparse._report_convergence`).
+poselet, cm), ``train_stride_``, ``fps_``. A result of :meth:`denoise` carries
+``source["convergence"]`` (also in ``last_report_``, never saved): a JSON summary of its
+ADMM solves -- iterations, largest final relative primal / dual residuals vs tol, see
+:meth:`XiaoSparse._report_convergence`.
 """
 from __future__ import annotations
 
@@ -97,68 +98,29 @@ from typing import Any, Sequence
 import numpy as np
 
 from ..errors import MocapValueError
-from ..localframe import estimate_frame, to_global, to_local
+from ..frames import pelvis_neck_frame
 from ..motion import Motion
+from ..signal import estimate_noise
+from ..windows import lagged, overlap_mean, window_starts
 from .base import Denoiser, register, report_convergence, training_matrices
+from .constraints import Integral, Interval, Options, Real, center_as_string
 
-__all__ = ["XiaoSparse", "XiaoSparseFullPose", "detect_noise", "lagged_windows", "overlap_mean",
-           "window_starts"]
+__all__ = ["XiaoSparse", "XiaoSparseFullPose", "detect_noise"]
+
+_INT1 = Interval(Integral, 1, None)
+_NONNEG = Interval(Real, 0, None)
 
 NOISE_TYPES = ("auto", "gaussian", "outliers", "mixed")
 
-
-# ---------------------------------------------------------------------------------------
-# windows
-# ---------------------------------------------------------------------------------------
-def lagged_windows(X: np.ndarray, M: int) -> np.ndarray:
-    """Poselet groups of Xiao Sec. 3.1.3: (T, d) -> (S, M d), S = T - M + 1.
-
-    Row j is ``[x_j, x_{j+1}, ..., x_{j+M-1}]`` flattened frame after frame (the paper's
-    vec of the d x M block, stacking columns).
-    """
-    from numpy.lib.stride_tricks import sliding_window_view
-
-    X = np.asarray(X)
-    T, d = X.shape
-    if T < M:
-        raise MocapValueError(f"need at least {M} frames for windows of {M}, got {T}")
-    V = sliding_window_view(X, M, axis=0)            # (S, d, M)
-    return np.ascontiguousarray(V.transpose(0, 2, 1)).reshape(T - M + 1, M * d)
-
-
-def overlap_mean(R: np.ndarray, T: int, M: int, starts: np.ndarray | None = None) -> np.ndarray:
-    """Inverse of :func:`lagged_windows` by plain averaging (Alg. 1 steps 5-6).
-
-    R (S, M d) -> (T, d): each frame is the mean of its copies in all windows covering it.
-    ``starts`` (S,): first frame of every row of R (default: all windows, stride 1;
-    see :func:`window_starts`).  Loops over the M offsets (not over windows).
-    """
-    S = R.shape[0]
-    d = R.shape[1] // M
-    R3 = R.reshape(S, M, d)
-    acc = np.zeros((T, d), dtype=np.float64)
-    if starts is None:
-        for m in range(M):
-            acc[m:m + S] += R3[:, m]
-        t = np.arange(T)
-        cnt = np.minimum.reduce([t + 1, np.full(T, M), np.full(T, S), T - t])
-        return acc / cnt[:, None]
-    starts = np.asarray(starts, dtype=np.int64)
-    cnt = np.zeros(T)
-    for m in range(M):
-        acc[starts + m] += R3[:, m]           # starts are distinct: no repeated indices
-        cnt[starts + m] += 1
-    return acc / cnt[:, None]
-
-
-def window_starts(T: int, M: int, stride: int) -> np.ndarray:
-    """First frames of the windows coded with ``stride``: 0, stride, 2 stride, ... and always
-    the last window T - M, so every frame is covered."""
-    S = T - M + 1
-    st = np.arange(0, S, max(1, int(stride)), dtype=np.int64)
-    if st[-1] != S - 1:
-        st = np.append(st, S - 1)
-    return st
+#: numerics of the coding step, fixed (constructor parameters before; measured in
+#: docs/results/xiao.md): the ADMM over-relaxation alpha of both solvers (Boyd et al. 2011
+#: Sec. 3.4.3; in (0, 2), 1 = plain ADMM; same fixed points, with 1.8 the 12 / 24
+#: iterations give the errors plain ADMM reached with 20 / 30), the dictionary truncation
+#: (singular values below sqrt(RANK_TOL) s_max are dropped for coding;
+#: :mod:`mocapkit.solvers.sparse_coding`) and the working precision
+RELAX = 1.8
+RANK_TOL = 1e-6
+CODE_DTYPE = "float32"
 
 
 # ---------------------------------------------------------------------------------------
@@ -174,7 +136,7 @@ def detect_noise(X: np.ndarray, *, outlier_detect_ratio: float = 0.015, n_sigmas
     ``|r| > max(n_sigmas sigma_c, floor_cm)``.  Outliers are declared when the flagged
     fraction exceeds ``outlier_detect_ratio``.  The Gaussian noise level ``sigma`` is the
     median over channels of the second-difference estimate
-    (:func:`mocapkit.signal.estimate_noise_sigma`).
+    (:func:`mocapkit.signal.estimate_noise` with ``pool="median"``; 0 when it cannot be made).
 
     Returns dict(type=..., outlier_fraction=..., sigma_cm=...).
     """
@@ -195,7 +157,7 @@ def detect_noise(X: np.ndarray, *, outlier_detect_ratio: float = 0.015, n_sigmas
         frac = float(flags.mean())
     else:
         frac = 0.0
-    sigma = noise_sigma(X)
+    sigma = estimate_noise(X, pool="median", fallback=0.0)
     if frac > outlier_detect_ratio:
         kind = "mixed" if sigma > mixed_sigma_cm else "outliers"
     else:
@@ -203,28 +165,16 @@ def detect_noise(X: np.ndarray, *, outlier_detect_ratio: float = 0.015, n_sigmas
     return {"type": kind, "outlier_fraction": frac, "sigma_cm": sigma}
 
 
-def noise_sigma(X: np.ndarray) -> float:
-    """Robust Gaussian noise level of a (T, C) matrix: median over channels of the
-    second-difference MAD estimate (cm); 0 for clips shorter than 3 frames."""
-    from .. import signal
-
-    if X.shape[0] < 3:
-        return 0.0
-    s = signal.estimate_noise_sigma(X)
-    s = s[np.isfinite(s)]
-    return float(np.median(s)) if s.size else 0.0
-
-
 # ---------------------------------------------------------------------------------------
 # training worker (module level so process pools can pickle it)
 # ---------------------------------------------------------------------------------------
 def _train_part(Y: np.ndarray, n_atoms: int, sparsity: int, n_iter: int, center: bool,
                 seed: int) -> tuple[np.ndarray, np.ndarray, float]:
-    from threadpoolctl import threadpool_limits
+    from ..solvers._linalg import blas_limit
 
     from ..solvers.ksvd import ksvd
 
-    with threadpool_limits(1):
+    with blas_limit():
         mu = Y.mean(axis=0) if center else np.zeros(Y.shape[1])
         Yc = Y - mu
         sp = min(int(sparsity), int(n_atoms))
@@ -250,20 +200,16 @@ class XiaoSparse(Denoiser):
     lam : lambda of eq. (4) in cm; None (default) = ``lam_factor * sigma_hat**2``.
     lam_factor : per cm; multiplies the squared estimated noise sigma (default 0.1).
     lam_l1 : lambda of eq. (5), dimensionless (default 0.1).
-    center : subtract the mean training window per poselet (default True).
+    center : ``'mean'`` (default) subtracts the mean training window per poselet, ``'none'``
+        does not (the low-rank family's spelling; model files storing True / False load).
     max_train_windows : K-SVD training windows per poselet (default 8000, strided).
     n_jobs : parallel worker processes over poselets, for K-SVD training and for denoising
         (default 1; the paper's parallel mode, Sec. 3.3 / Table 2; needs ``fork``, i.e.
         POSIX -- elsewhere denoising runs serially).
     code_iter : ADMM iterations for eq. (4) (default 12).
     admm_iter : ADMM iterations for eq. (5) (default 24).
-    relax : over-relaxation alpha of both ADMM solvers, in (0, 2) (Boyd et al. 2011
-        Sec. 3.4.3; default 1.8; 1 = plain ADMM).  Same fixed points (the same eq. (4) /
-        (5) solutions), faster convergence: with 1.8, 12 / 24 iterations give the errors
-        that plain ADMM reached with 20 / 30 (dance validation, docs/results/xiao.md).
-    rank_tol : singular values of a dictionary below sqrt(rank_tol) s_max are dropped
-        for coding (default 1e-6; 0 = exact; see :mod:`mocapkit.solvers.sparse_coding`).
-    dtype : ``'float32'`` (default, faster) or ``'float64'`` for the coding step.
+    (The ADMM over-relaxation, the dictionary truncation and the float32 coding precision
+    are fixed: :data:`RELAX`, :data:`RANK_TOL`, :data:`CODE_DTYPE`.)
     smooth_frame : estimate the local frame from smoothed tracks (default True).
     frame_smooth_s : Gaussian sigma (s) of that smoothing, after a running median of
         twice that length (default 0.1 s).
@@ -275,8 +221,9 @@ class XiaoSparse(Denoiser):
     warn_convergence : emit a :class:`~mocapkit.errors.ConvergenceWarning` when an ADMM
         solve stops at its iteration cap above tol (default False: the fixed, small
         iteration budgets are a deliberate speed/accuracy trade-off, so they practically
-        never reach tol = 1e-4); the summary is always in ``convergence_``.
-    random_state : seed of K-SVD initialisation.
+        never reach tol = 1e-4); the summary is always in the result's
+        ``source["convergence"]``.
+    seed : seed of the K-SVD initialisation (poselet i uses seed + i).
     """
 
     name = "xiao-sparse"
@@ -286,14 +233,33 @@ class XiaoSparse(Denoiser):
     keeps_observed = False
     clean_tolerance_cm = 1.0
     _fullpose = False
+    _parameter_constraints = {
+        "window": [_INT1], "n_atoms": [_INT1], "sparsity": [_INT1], "n_iter": [Interval(Integral, 0, None)],
+        "noise": [Options(*NOISE_TYPES)], "lam": [_NONNEG, None], "lam_factor": [_NONNEG],
+        "lam_l1": [_NONNEG], "center": [Options("mean", "none")], "max_train_windows": [_INT1],
+        "n_jobs": [_INT1], "code_iter": [_INT1], "admm_iter": [_INT1], "smooth_frame": [bool],
+        "frame_smooth_s": [_NONNEG], "l1_stride": [_INT1], "warn_convergence": [bool],
+        "seed": [Interval(Integral, 0, None)]}
+
+    @classmethod
+    def _upgrade_params(cls, params: dict[str, Any]) -> dict[str, Any]:
+        """Model files written before ``random_state`` was spelled ``seed``, ``center`` was a
+        string and the coding numerics were fixed (they store the fixed values)."""
+        p = center_as_string(dict(params))
+        if "random_state" in p:
+            p["seed"] = p.pop("random_state")
+        for k, fixed in (("relax", RELAX), ("rank_tol", RANK_TOL), ("dtype", CODE_DTYPE)):
+            if k in p and p.pop(k) != fixed:
+                raise MocapValueError(f"{cls.name}: this model file sets {k}={params[k]!r}; "
+                                      f"this version codes with {k}={fixed!r} only")
+        return p
 
     def __init__(self, window: int = 21, n_atoms: int = 512, sparsity: int = 8, n_iter: int = 10,
                  noise: str = "auto", lam: float | None = None, lam_factor: float = 0.1,
-                 lam_l1: float = 0.1, center: bool = True, max_train_windows: int = 8000,
-                 n_jobs: int = 1, code_iter: int = 12, admm_iter: int = 24, relax: float = 1.8,
-                 rank_tol: float = 1e-6, dtype: str = "float32", smooth_frame: bool = True,
+                 lam_l1: float = 0.1, center: str = "mean", max_train_windows: int = 8000,
+                 n_jobs: int = 1, code_iter: int = 12, admm_iter: int = 24, smooth_frame: bool = True,
                  frame_smooth_s: float = 0.1, l1_stride: int = 2, warn_convergence: bool = False,
-                 random_state: int = 0):
+                 seed: int = 0):
         self.window = window
         self.n_atoms = n_atoms
         self.sparsity = sparsity
@@ -307,14 +273,11 @@ class XiaoSparse(Denoiser):
         self.n_jobs = n_jobs
         self.code_iter = code_iter
         self.admm_iter = admm_iter
-        self.relax = relax
-        self.rank_tol = rank_tol
-        self.dtype = dtype
         self.smooth_frame = smooth_frame
         self.frame_smooth_s = frame_smooth_s
         self.l1_stride = l1_stride
         self.warn_convergence = warn_convergence
-        self.random_state = random_state
+        self.seed = seed
 
     @classmethod
     def quick_params(cls) -> dict[str, Any]:
@@ -322,33 +285,6 @@ class XiaoSparse(Denoiser):
                 "max_train_windows": 2000, "n_jobs": 1}
 
     # -- helpers -------------------------------------------------------------------------
-    def _validate(self) -> None:
-        def pos_int(v, what, lo=1):
-            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
-                raise MocapValueError(f"{self.name}: {what} must be an integer >= {lo}, got {v!r}")
-        pos_int(self.window, "window")
-        pos_int(self.n_atoms, "n_atoms")
-        pos_int(self.sparsity, "sparsity")
-        pos_int(self.n_iter, "n_iter", 0)
-        pos_int(self.max_train_windows, "max_train_windows")
-        pos_int(self.n_jobs, "n_jobs")
-        pos_int(self.code_iter, "code_iter")
-        pos_int(self.admm_iter, "admm_iter")
-        pos_int(self.l1_stride, "l1_stride")
-        if self.noise not in NOISE_TYPES:
-            raise MocapValueError(f"{self.name}: noise must be one of {NOISE_TYPES}, got {self.noise!r}")
-        if self.dtype not in ("float32", "float64"):
-            raise MocapValueError(f"{self.name}: dtype must be 'float32' or 'float64', got {self.dtype!r}")
-        for what in ("lam_factor", "lam_l1", "rank_tol", "frame_smooth_s"):
-            v = getattr(self, what)
-            if not (isinstance(v, (int, float)) and np.isfinite(v) and v >= 0):
-                raise MocapValueError(f"{self.name}: {what} must be a non-negative number, got {v!r}")
-        if not (isinstance(self.relax, (int, float)) and not isinstance(self.relax, bool)
-                and 0.0 < self.relax < 2.0):
-            raise MocapValueError(f"{self.name}: relax must be a number in (0, 2), got {self.relax!r}")
-        if self.lam is not None and not (isinstance(self.lam, (int, float)) and np.isfinite(self.lam) and self.lam >= 0):
-            raise MocapValueError(f"{self.name}: lam must be None or a non-negative number (cm), got {self.lam!r}")
-
     def _part_lists(self, motion: Motion) -> tuple[list[str], list[list[int]]]:
         if self._fullpose:
             return ["pose"], [list(range(motion.n_joints))]
@@ -359,14 +295,13 @@ class XiaoSparse(Denoiser):
     def _local(self, P: np.ndarray, motion: Motion):
         """Local frame of positions P (T, J, 3) in ``motion``'s joint order, and P in it."""
         s = float(self.frame_smooth_s)
-        frame = estimate_frame(P, motion.skeleton, motion.fps, smooth=bool(self.smooth_frame),
-                               median_s=2.0 * s, sigma_s=s)
-        return frame, to_local(P, frame)
+        frame = pelvis_neck_frame(P, motion.skeleton, motion.fps, smooth=bool(self.smooth_frame),
+                                  median_s=2.0 * s, sigma_s=s)
+        return frame, frame.to_local(P)
 
     # -- training ------------------------------------------------------------------------
     def fit(self, motions: Sequence[Motion]) -> "XiaoSparse":
         """Learn one K-SVD dictionary per poselet from clean training motions (eqs. 1-2)."""
-        self._validate()
         motions = list(motions)
         training_matrices(motions)                       # checks: non-empty, fully observed
         M = int(self.window)
@@ -387,10 +322,10 @@ class XiaoSparse(Denoiser):
         stride = max(1, math.ceil(n_total / int(self.max_train_windows)))
         jobs = []
         for i, joints in enumerate(parts):
-            Y = np.concatenate([lagged_windows(L[:, joints].reshape(L.shape[0], -1), M) for L in locals_])
+            Y = np.concatenate([lagged(L[:, joints].reshape(L.shape[0], -1), M) for L in locals_])
             Y = Y[::stride]
-            jobs.append((Y, int(self.n_atoms), int(self.sparsity), int(self.n_iter), bool(self.center),
-                         int(self.random_state) + i))
+            jobs.append((Y, int(self.n_atoms), int(self.sparsity), int(self.n_iter), self.center == "mean",
+                         int(self.seed) + i))
         n_jobs = min(int(self.n_jobs), len(jobs), os.cpu_count() or 1)
         if n_jobs > 1:
             import multiprocessing as mp
@@ -417,12 +352,12 @@ class XiaoSparse(Denoiser):
     # -- denoising -----------------------------------------------------------------------
     def _solvers(self) -> list:
         """Truncated SVD of every dictionary (:func:`mocapkit.solvers.sparse_coding.dictionary_svd`
-        with ``rank_tol``), cached in memory (not saved)."""
-        key = (float(self.rank_tol), len(self.dictionaries_))
+        with :data:`RANK_TOL`), cached in memory (not saved)."""
+        key = (RANK_TOL, len(self.dictionaries_))
         if getattr(self, "_cache", None) is None or self._cache[0] != key:
             from ..solvers.sparse_coding import dictionary_svd
 
-            self._cache = (key, [dictionary_svd(D, float(self.rank_tol)) for D in self.dictionaries_])
+            self._cache = (key, [dictionary_svd(D, RANK_TOL) for D in self.dictionaries_])
         return self._cache[1]
 
     def _code_part(self, i: int, X: np.ndarray, kind: str, lam2: float) -> np.ndarray:
@@ -434,27 +369,27 @@ class XiaoSparse(Denoiser):
         sv = self._solvers()[i]
         D = self.dictionaries_[i]
         mu = np.asarray(self.means_[i], dtype=np.float64)
-        dt = np.dtype(self.dtype)
-        Z = (lagged_windows(X, M) - mu).astype(dt)
+        dt = np.dtype(CODE_DTYPE)
+        Z = (lagged(X, M) - mu).astype(dt)
         conv = self.__dict__.setdefault("_conv_log", [])
         if kind in ("outliers", "mixed"):
             st = int(self.l1_stride)
             starts = window_starts(T, M, st) if st > 1 else None
             Zs = Z if starts is None else Z[starts]
             W, info = l1l1_admm(Zs, D, float(self.lam_l1), n_iter=int(self.admm_iter), tol=1e-4,
-                                svd=sv, dtype=dt, balance_every=5, relax=float(self.relax),
+                                svd=sv, dtype=dt, balance_every=5, relax=RELAX,
                                 return_info=True)
             conv.append(("l1l1", i, info))
             X = overlap_mean(sv.reconstruct(W) + mu, T, M, starts)
             if kind == "outliers":
                 return X
-            Z = (lagged_windows(X, M) - mu).astype(dt)
+            Z = (lagged(X, M) - mu).astype(dt)
             if starts is not None:
                 Z = Z[starts]
         else:
             starts = None
         Th, info = lasso_admm(Z, D, lam2, n_iter=int(self.code_iter), tol=1e-4, svd=sv, dtype=dt,
-                              relax=float(self.relax), return_info=True)
+                              relax=RELAX, return_info=True)
         conv.append(("lasso", i, info))
         return overlap_mean(sv.reconstruct(Th) + mu, T, M, starts)
 
@@ -464,7 +399,6 @@ class XiaoSparse(Denoiser):
 
         t_start = time.perf_counter()
         self._check_fitted()
-        self._validate()
         from .filters import filled_matrix
 
         names = list(self.joint_names_)
@@ -482,7 +416,10 @@ class XiaoSparse(Denoiser):
         frame, L = self._local(P, motion)
         T, J = L.shape[0], L.shape[1]
         Lm = L.reshape(T, 3 * J)
-        info = detect_noise(Lm) if self.noise == "auto" else {"type": self.noise, "sigma_cm": noise_sigma(Lm)}
+        if self.noise == "auto":
+            info = detect_noise(Lm)
+        else:
+            info = {"type": self.noise, "sigma_cm": estimate_noise(Lm, pool="median", fallback=0.0)}
         kind = info["type"]
         lam2 = float(self.lam) if self.lam is not None else float(self.lam_factor) * info["sigma_cm"] ** 2
         acc = np.zeros((T, J, 3))
@@ -492,14 +429,14 @@ class XiaoSparse(Denoiser):
         self._conv_log = []
         jobs = [(i, L[:, joints].reshape(T, -1)) for i, joints in enumerate(parts)]
         n_workers = min(int(self.n_jobs), len(jobs))
-        from threadpoolctl import threadpool_limits
+        from ..solvers._linalg import blas_limit
 
         # One BLAS thread: the products are (S x K) x (K x r) with r ~ 100, where BLAS
         # threading gains little and, on a busy machine, oversubscription cost us 10x.
         # Parallelism comes from n_jobs: poselets coded in forked worker processes (the
         # paper's parallel mode; threads do not help: this OpenBLAS serialises calls made
         # from several threads when it is limited to one thread).
-        with threadpool_limits(1):
+        with blas_limit():
             part_s = []
             if n_workers > 1 and _can_fork():
                 coded, logs = _code_parallel(self, jobs, kind, lam2, n_workers)
@@ -515,14 +452,15 @@ class XiaoSparse(Denoiser):
             cnt[joints] += 1
         if np.any(cnt == 0):
             raise MocapValueError(f"{self.name}: some joints are in no poselet")
-        out = to_global(acc / cnt[None, :, None], frame)[:T0]
+        out = frame.to_world(acc / cnt[None, :, None])[:T0]
         self._last_info = {**info, "lam": lam2, "lam_l1": float(self.lam_l1),
                            "seconds": time.perf_counter() - t_start, "part_seconds": part_s}
         self._report_convergence()
         return motion.with_positions(out)
 
     def _report_convergence(self) -> None:
-        """Summarise the ADMM solves of the last :meth:`denoise` in ``convergence_``
+        """Summarise the ADMM solves of the last :meth:`denoise` in the result's
+        ``source["convergence"]``
         (:func:`~mocapkit.denoise.base.report_convergence`; a solve's residual is the larger
         of its final relative primal / dual residuals) and, with ``warn_convergence=True``,
         warn once when any stopped at its iteration cap above tol.  Per model (``l1l1`` /
@@ -533,17 +471,14 @@ class XiaoSparse(Denoiser):
         for model in ("l1l1", "lasso"):
             sel = [e[2] for e in log if e[0] == model]
             if sel:
-                extra[f"{model}_converged"] = all(x["converged"] for x in sel)
-                extra[f"{model}_iterations"] = max(x["n_iter"] for x in sel)
-                extra[f"{model}_primal"] = max(x["primal"] for x in sel)
-                extra[f"{model}_dual"] = max(x["dual"] for x in sel)
+                extra[f"{model}_converged"] = all(x.converged for x in sel)
+                extra[f"{model}_iterations"] = max(x.n_iter for x in sel)
+                extra[f"{model}_primal"] = max(x.extra["primal"] for x in sel)
+                extra[f"{model}_dual"] = max(x.extra["dual"] for x in sel)
         info = [e[2] for e in log]
         report_convergence(
-            self, iterations=[x["n_iter"] for x in info], converged=[x["converged"] for x in info],
-            residual=[max(x["primal"], x["dual"]) for x in info],
-            tol=max((x["tol"] for x in info), default=0.0),
-            max_iter=max((x["max_iter"] for x in info), default=0),
-            criterion="relative primal/dual residual", unit="ADMM solve",
+            self, info, tol=max((x.extra["tol"] for x in info), default=0.0),
+            max_iter=max((x.extra["max_iter"] for x in info), default=0), unit="ADMM solve",
             warn=bool(self.warn_convergence), stacklevel=4, extra=extra,
             param=f"raise code_iter (now {self.code_iter}) / admm_iter (now {self.admm_iter}) "
                   f"for a more exact solution")
@@ -566,11 +501,11 @@ def _can_fork() -> bool:
 
 
 def _code_worker(i: int, X: np.ndarray, kind: str, lam2: float) -> tuple[np.ndarray, list]:
-    from threadpoolctl import threadpool_limits
+    from ..solvers._linalg import blas_limit
 
     model = _WORKER_MODEL[0]
     model._conv_log = []
-    with threadpool_limits(1):
+    with blas_limit():
         return model._code_part(i, X, kind, lam2), model._conv_log
 
 

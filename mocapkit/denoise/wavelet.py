@@ -13,7 +13,8 @@ treated as noise.  We implement the standard form of that idea with PyWavelets:
 3. the detail coefficients are soft-thresholded (Donoho & Johnstone 1994, VisuShrink)
    at the universal threshold ``t = threshold_scale * sigma * sqrt(2 ln T)``, with the
    noise level ``sigma = median(|d_1|) / 0.6745`` estimated per channel from the finest
-   detail coefficients (robust to a minority of spikes);
+   detail coefficients (robust to a minority of spikes;
+   :func:`mocapkit.signal.estimate_noise`, ``method="wavelet-mad"``);
 4. the channel is reconstructed and cut back to T frames.
 
 Decisions (the papers give no settings): ``bior3.5``; ``level`` default
@@ -30,7 +31,9 @@ import numpy as np
 
 from ..errors import MocapValueError
 from ..motion import Motion
+from ..signal import estimate_noise
 from .base import Denoiser, register
+from .constraints import Integral, Interval, Options, Real
 
 __all__ = ["WaveletDenoiser", "wavelet_shrink"]
 
@@ -64,8 +67,7 @@ def wavelet_shrink(X: np.ndarray, *, wavelet: str = "bior3.5", level: int | None
     if lev == 0 or T < 2:
         return X.copy()
     coeffs = pywt.wavedec(X, w, mode="symmetric", level=lev, axis=0)
-    d1 = coeffs[-1]
-    sigma = np.median(np.abs(d1), axis=0) / 0.6745                   # (C,)
+    sigma = estimate_noise(X, method="wavelet-mad", wavelet=w)      # (C,) median|d1| / 0.6745
     thr = float(threshold_scale) * sigma * math.sqrt(2.0 * math.log(T))
     out = [coeffs[0]]
     for d in coeffs[1:]:
@@ -96,6 +98,10 @@ class WaveletDenoiser(Denoiser):
     needs_training = False
     keeps_observed = False
 
+    # wavelet names are checked by PyWavelets (wavelet_shrink names a few)
+    _parameter_constraints = {"wavelet": [str], "level": [Interval(Integral, 0, None), None],
+                              "threshold_scale": [Interval(Real, 0, None)], "mode": [Options("soft", "hard")]}
+
     def __init__(self, wavelet: str = "bior3.5", level: int | None = None,
                  threshold_scale: float = 1.0, mode: str = "soft"):
         self.wavelet = wavelet
@@ -106,10 +112,7 @@ class WaveletDenoiser(Denoiser):
     def denoise(self, motion: Motion) -> Motion:
         from .filters import filled_matrix
 
-        s = self.threshold_scale
-        if not (isinstance(s, (int, float)) and np.isfinite(s) and s >= 0):
-            raise MocapValueError(f"wavelet: threshold_scale must be a non-negative number, got {s!r}")
         X = filled_matrix(motion, self.name)
-        Y = wavelet_shrink(X, wavelet=self.wavelet, level=self.level, threshold_scale=float(s),
+        Y = wavelet_shrink(X, wavelet=self.wavelet, level=self.level, threshold_scale=float(self.threshold_scale),
                            mode=self.mode)
         return motion.with_matrix(Y)

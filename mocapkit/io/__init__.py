@@ -4,8 +4,8 @@
 format     extensions                  module
 =========  ==========================  =====================================================
 bvh        .bvh                        :mod:`mocapkit.io.bvh` (FK; IK on write-back)
-amc        .amc (+ .asf skeleton)      :mod:`mocapkit.io.asfamc`
-asf        .asf (rest pose, 1 frame)   :mod:`mocapkit.io.asfamc`
+amc        .amc (+ .asf skeleton)      :mod:`mocapkit.io.amc`, :mod:`mocapkit.io.asf`
+asf        .asf (rest pose, 1 frame)   :mod:`mocapkit.io.amc` (``read_asf_motion``)
 c3d        .c3d                        :mod:`mocapkit.io.c3d` (ezc3d)
 trc        .trc                        :mod:`mocapkit.io.trc`
 kinect     .txt (MSR-Action3D style)   :mod:`mocapkit.io.kinect`
@@ -54,8 +54,8 @@ from ._atomic import atomic_write, check_output_path
 # format -> (module, extensions)
 FORMATS: dict[str, tuple[str, tuple[str, ...]]] = {
     "bvh": ("bvh", (".bvh",)),
-    "amc": ("asfamc", (".amc",)),
-    "asf": ("asfamc", (".asf",)),
+    "amc": ("amc", (".amc",)),
+    "asf": ("amc", (".asf",)),
     "c3d": ("c3d", (".c3d",)),
     "trc": ("trc", (".trc",)),
     "kinect": ("kinect", (".txt",)),
@@ -137,7 +137,29 @@ def read(path: str | os.PathLike, format: str | None = None, **options: Any) -> 
     ----------
     path : file to read.
     format : one of ``FORMATS`` keys; default from the extension.
-    **options : format-specific options (e.g. ``skeleton=`` for AMC, ``units=`` for BVH).
+    **options : format-specific options (e.g. ``skeleton=`` for AMC, ``units=`` for BVH);
+        ``sidecar=False`` ignores a filled-flag sidecar (module docstring).
+
+    Returns
+    -------
+    Motion with positions (T, J, 3) in cm, NaN where ``observed`` is False; what the file
+    said (units, header, raw channels) is in ``motion.source``.
+
+    Raises
+    ------
+    MocapFormatError naming the file, line and what was expected; MocapValueError for an
+    unknown format or a bad option.
+
+    Examples
+    --------
+    The bundled CMU walk (an AMC; its ASF skeleton is found beside it):
+
+    >>> from mocapkit import datasets, io
+    >>> walk = io.read(datasets.bundled("16_15.amc"))
+    >>> walk.n_frames, walk.n_joints, walk.fps
+    (471, 31, 120.0)
+    >>> walk.skeleton.names[:3], round(walk.source["units"]["cm_per_unit"], 6)
+    (('root', 'lhipjoint', 'lfemur'), 5.644444)
     """
     p = Path(path)
     fmt = format or detect_format(p)
@@ -161,7 +183,39 @@ def write(motion: Motion, path: str | os.PathLike, format: str | None = None, *,
           overwrite: bool = False, **options: Any) -> Path:
     """Write ``motion`` to ``path`` atomically; refuses to overwrite the motion's source file.
 
-    Returns the path written.
+    Parameters
+    ----------
+    motion : the Motion to write (positions in cm).
+    path : output file; its extension chooses the format unless ``format`` is given.
+    format : one of ``FORMATS`` keys.
+    overwrite : replace an existing output (never the motion's own source files).
+    **options : format-specific options (e.g. ``units=`` for TRC/BVH, ``write_asf=`` for AMC).
+
+    Returns
+    -------
+    The path written. Filled flags go to a sidecar beside it (module docstring).
+
+    Examples
+    --------
+    An AMC whose positions are unchanged is written with its stored joint angles and
+    re-reads exactly; its ASF skeleton is written beside it:
+
+    >>> import tempfile
+    >>> from pathlib import Path
+    >>> import numpy as np
+    >>> from mocapkit import datasets, io
+    >>> walk = io.read(datasets.bundled("16_15.amc")).slice(0, 10)
+    >>> with tempfile.TemporaryDirectory() as d:
+    ...     out = io.write(walk, Path(d) / "walk.amc")
+    ...     files = sorted(p.name for p in Path(d).iterdir())
+    ...     back = io.read(out)
+    ...     trc = io.read(io.write(walk, Path(d) / "walk.trc"))     # markers, mm, 6 decimals
+    >>> files
+    ['walk.amc', 'walk.asf']
+    >>> bool(np.array_equal(back.positions, walk.positions))
+    True
+    >>> bool(np.abs(trc.positions - walk.positions).max() < 1e-6)
+    True
     """
     p = Path(path)
     fmt = format or detect_format(p)

@@ -1,8 +1,69 @@
 """Acclaim kinematics: the compiled skeleton, forward kinematics and the write-back IK.
 
-Split out of :mod:`mocapkit.io.asfamc` (which re-exports every name and documents the
-conventions). Rotation helpers are shared with the BVH module
-(:mod:`mocapkit.io._rotations`).
+Rotation helpers are shared with the BVH module (:mod:`mocapkit.io._rotations`); the
+file formats are :mod:`mocapkit.io.asf` and :mod:`mocapkit.io.amc`.
+
+Forward kinematics (the Acclaim convention, vectorised over frames)
+-------------------------------------------------------------------
+For each bone ``b`` with parent ``p`` (``p`` = root for the top bones)::
+
+    C_b = R(axis_b)                                   # rotation of the bone's 'axis'
+    M_b = R(dof values of the frame)                  # zeros for absent dofs
+    L_b = L_p · C_b · M_b · C_b^-1                    # global rotation of the bone
+    end_b = end_p + L_b · (direction_b · length_b)    # bone vector in the global rest frame
+
+``R(angles)`` applies the elementary rotations in the order of the bone's ``axis`` string
+(``XYZ``: first about X, then Y, then Z, i.e. ``R = Rz · Ry · Rx`` for column vectors);
+the three angles of ``axis`` are listed in that same order. The root uses
+``L_root = C_root · M_root · C_root^-1`` with ``C_root`` from ``orientation`` and the
+root ``axis`` order; the root joint sits at the AMC root translation (the AMC gives an
+absolute position; the ASF ``position`` is the rest position used by
+:func:`mocapkit.io.amc.read_asf_motion`). The loop runs over bones only.
+
+Joints of the returned Motion: ``root`` plus the end point of every bone, named by the
+bone (31 joints for CMU, 31 for HDM05); parents follow the ``:hierarchy``; rest offsets
+are ``direction · length`` in cm.
+
+Inverse kinematics (the AMC write-back)
+---------------------------------------
+:func:`inverse_kinematics` recovers the dofs from target positions per bone, top-down
+and vectorised over frames:
+
+1. every rotating node (root, and each bone with rotational dofs) starts from its
+   stored local rotation (when ``per_frame['dofs']`` still aligns with the frames) or
+   from the rest pose;
+2. its global rotation is corrected by the *minimal* rotation that maps its predicted
+   bone vector onto the vector from the already-solved parent end point to its target
+   end point; bones without dofs hanging from it (CMU ``lhipjoint``/``rhipjoint`` on the
+   root) are fitted together with it (Kabsch when several vectors: a scaled Newton
+   polar iteration, SVD only for ill-conditioned frames); the free twist of a 3-dof bone
+   about its own axis comes in closed form from a one-dof child (knee, elbow): the
+   twist that puts the child's target on the cone its hinge allows
+   (``A + B cos t + C sin t = cos g``; of the two roots the one whose hinge angle is
+   inside the ASF limits, then the one nearer the twist its children predicted with
+   their stored rotations give); other children: that least-squares twist;
+3. the local rotation ``M = C^-1 · L_p^T · L_b · C`` is converted to the bone's Euler
+   angles (the branch and 360° turn nearest to the start value). Bones with fewer than
+   3 rotational dofs get the closest representable rotation, in closed form: one dof,
+   the exact single-axis optimum; two dofs, the two exact solutions for the bone vector
+   (its first rotation keeps the vector's component along the first axis, the second
+   must produce the target's component along the second axis) and the start branch,
+   polished by a few 2x2 Gauss-Newton steps when dof-less descendants or low-weight
+   children also count; the other angles zero;
+4. a Levenberg-Marquardt polish of all dofs of a frame at once (analytic Jacobian, at
+   most 12 iterations, a step kept only if it lowers that frame's squared position
+   error) runs only on the frames the closed-form pass leaves more than
+   ``min(0.001 cm + 3 x the frame's largest bone-length error of the targets, 0.5 cm)``
+   off: the error a target set no pose can reach explains is not chased.
+
+The root translation is taken from the root target. Missing (NaN) targets keep the
+start rotation (write a fully observed motion: fill gaps first). Speed and accuracy
+against the previous IK (scan + golden-section partial fits and LM on every frame) on
+real CMU clips are in ``docs/results/io_speed.md`` (``benchmarks/io_speed.py``): on
+kalman-cv output the same max/mean error at several times the speed; poses the
+skeleton can reach (stored angles + N(0, 2°)) come back to ~0.001 cm; without stored
+dofs clean positions come back within ~0.15 cm (the previous IK: up to 9 cm on 131_02);
+noisy positions give the skeleton's least-squares fit, as before.
 """
 from __future__ import annotations
 
@@ -21,15 +82,27 @@ _CHILD_W = 0.3          # sqrt of the weight of predicted child vectors in the p
 # ======================================================================================
 # compiled skeleton: joint order, matrices, dof layout
 # ======================================================================================
-def _axis_rot(axis: int, ang: np.ndarray) -> np.ndarray:
-    """Rotation matrices (..., 3, 3) about axis 0/1/2 by ``ang`` radians (column vectors)."""
-    return axis_rotation(axis, ang)
-
-
 def _euler_matrix(order: str, angles_xyz: np.ndarray) -> np.ndarray:
     """R for angles given per axis (…, 3) as (x, y, z) radians, applied in ``order`` (first letter first)."""
     axes = ["XYZ".index(c) for c in reversed(order)]
     return rot.euler_to_matrix(axes, np.asarray(angles_xyz, float)[..., axes])
+
+
+def _parents_first(bones: list[dict], parent: dict[str, str]) -> list[str]:
+    """Bone names in a stable topological order of the bonedata order (parents first)."""
+    placed = {"root"}
+    order: list[str] = []
+    pending = [b["name"] for b in bones]
+    while pending:
+        nxt = [n for n in pending if parent[n] in placed]
+        if not nxt:                      # read_asf guarantees this cannot happen
+            raise MocapValueError("ASF hierarchy is cyclic")
+        for n in pending:
+            if parent[n] in placed:
+                placed.add(n)
+                order.append(n)
+        pending = [n for n in pending if n not in placed]
+    return order
 
 
 class _Compiled:
@@ -38,23 +111,8 @@ class _Compiled:
     def __init__(self, asf: dict):
         self.asf = asf
         bones = asf["bones"]
-        parent = {}
-        for par, children in asf["hierarchy"]:
-            for c in children:
-                parent[c] = par
-        # stable topological order of the bonedata order (parents first)
-        placed = {"root"}
-        order: list[str] = []
-        pending = [b["name"] for b in bones]
-        while pending:
-            nxt = [n for n in pending if parent[n] in placed]
-            if not nxt:                      # read_asf guarantees this cannot happen
-                raise MocapValueError("ASF hierarchy is cyclic")
-            for n in pending:
-                if parent[n] in placed:
-                    placed.add(n)
-                    order.append(n)
-            pending = [n for n in pending if n not in placed]
+        parent = {c: par for par, children in asf["hierarchy"] for c in children}
+        order = _parents_first(bones, parent)
         self.bone_order = order
         self.names = ("root",) + tuple(order)
         jidx = {n: i for i, n in enumerate(self.names)}
@@ -64,10 +122,19 @@ class _Compiled:
         r = asf["root"]
         self.root_order = list(r["order"])
         self.root_axis = r["axis"]
-        ang = np.asarray(r["orientation"], float)
-        ang_xyz = self._to_xyz(ang, self.root_axis)
+        ang_xyz = self._to_xyz(np.asarray(r["orientation"], float), self.root_axis)
         self.C_root = _euler_matrix(self.root_axis, self._rad(ang_xyz))
-        # dof layout (columns of per_frame['dofs']): root channels, then bones in ASF order
+        self._dof_layout(bones)
+        self._bone_frames(bones)
+        self.children = {n: [] for n in self.names}
+        for n in order:
+            self.children[parent[n]].append(n)
+        self.parent = parent
+        self.joint_index = jidx
+        self._ik_tables()
+
+    def _dof_layout(self, bones: list[dict]) -> None:
+        """Columns of ``per_frame['dofs']``: the root channels, then the bones in ASF order."""
         names: list[str] = [f"root.{c}" for c in self.root_order]
         self.dof_cols: dict[str, list[int]] = {"root": list(range(len(self.root_order)))}
         for b in bones:
@@ -76,11 +143,11 @@ class _Compiled:
             self.dof_cols[b["name"]] = list(range(k0, len(names)))
         self.dof_names = names
         self.n_dofs = len(names)
-        # per bone: rest vector (file units), C, Cinv, order, dof axis indices
-        self.vec = {}
-        self.C = {}
-        self.order = {}
-        self.dof_axes = {}
+        self.bone_dofs = {b["name"]: list(b["dof"]) for b in bones}
+
+    def _bone_frames(self, bones: list[dict]) -> None:
+        """Per bone: rest vector (file units), its ``axis`` rotation C, order, dof axis indices."""
+        self.vec, self.C, self.order, self.dof_axes = {}, {}, {}, {}
         for b in bones:
             n = b["name"]
             self.vec[n] = np.asarray(b["direction"], float) * float(b["length"])
@@ -88,16 +155,14 @@ class _Compiled:
             self.C[n] = _euler_matrix(b["axis_order"], self._rad(ax))
             self.order[n] = b["axis_order"]
             self.dof_axes[n] = ["xyz".index(d[1]) for d in b["dof"]]
-        self.bone_dofs = {b["name"]: list(b["dof"]) for b in bones}
         self.C_is_identity = {n: bool(np.array_equal(C, np.eye(3))) for n, C in self.C.items()}
         self.C_root_is_identity = bool(np.array_equal(self.C_root, np.eye(3)))
-        self.children = {n: [] for n in self.names}
-        for n in order:
-            self.children[parent[n]].append(n)
-        self.parent = parent
-        self.joint_index = jidx
-        # IK tables: dof-less bones rigid with each node, first dof-carrying bones below it
-        # (with the dof-less path to them), joints moved by each node, twist regulariser
+
+    def _ik_tables(self) -> None:
+        """IK tables: the dof-less bones rigid with each node, the first dof-carrying bones
+        below it (with the dof-less path to them), the joints each node moves, whether a
+        bone lies near one of its dof axes, and the twist regulariser."""
+        jidx = self.joint_index
         self.dofless_desc: dict[str, list[str]] = {}
         self.dof_children: dict[str, list[tuple[str, list[str]]]] = {}
         self.subtree: dict[str, np.ndarray] = {}
@@ -119,13 +184,13 @@ class _Compiled:
                 stack.extend(self.children[c])
             self.subtree[n] = np.array(sorted(sub))
         self.axis_aligned = {}
-        for n in order:
+        for n in self.bone_order:
             u = self.C[n].T @ self.vec[n]
             nu = np.linalg.norm(u)
             self.axis_aligned[n] = bool(nu > 0 and any(np.linalg.norm(np.cross(np.eye(3)[a], u)) < 0.3 * nu
                                                        for a in self.dof_axes[n]))
         self.twist_reg = {n: 0.05 * sum(float(self.vec[c] @ self.vec[c]) for c, _ in self.dof_children[n])
-                          for n in order}
+                          for n in self.bone_order}
 
     @staticmethod
     def _to_xyz(vals: np.ndarray, order: str) -> np.ndarray:
@@ -148,24 +213,14 @@ class _Compiled:
         """(translation (T,3) file units, rotation angles (T,3) xyz radians) from root columns."""
         T = dofs.shape[0]
         tr = np.zeros((T, 3))
-        rot = np.zeros((T, 3))
+        ang = np.zeros((T, 3))
         for k, ch in enumerate(self.root_order):
             a = "XYZ".index(ch[1])
             if ch[0] == "T":
                 tr[:, a] = dofs[:, k]
             else:
-                rot[:, a] = dofs[:, k] if angle_rad else np.deg2rad(dofs[:, k])
-        return tr, rot
-
-
-def _rot_t(axis: int, ang: np.ndarray) -> np.ndarray:
-    """Rotation about axis 0/1/2 by ``ang`` (T,) radians, in the (3, 3, T) layout."""
-    return rot.rot_t(axis, ang)
-
-
-def _mm_t(A: np.ndarray, B: np.ndarray) -> np.ndarray:
-    """Product of stacks of 3x3 matrices in the (3, 3, T) layout (either may be a plain 3x3)."""
-    return rot.mm_t(A, B)
+                ang[:, a] = dofs[:, k] if angle_rad else np.deg2rad(dofs[:, k])
+        return tr, ang
 
 
 def forward_kinematics(comp: _Compiled, dofs: np.ndarray, angle_rad: bool, f: float,
@@ -184,22 +239,22 @@ def forward_kinematics(comp: _Compiled, dofs: np.ndarray, angle_rad: bool, f: fl
     # root: L = C_root · M_root · C_root^T, M from the root rotation channels (axis order)
     M = None
     tr = np.zeros((3, T))
-    rot = {}
+    rot_ang = {}
     for k, ch in enumerate(comp.root_order):
         a = "XYZ".index(ch[1])
         if ch[0] == "T":
             tr[a] = dofs[:, k]
         else:
-            rot[a] = conv(dofs[:, k])
+            rot_ang[a] = conv(dofs[:, k])
     for letter in comp.root_axis:
         a = "XYZ".index(letter)
-        if a in rot:
-            Ra = _rot_t(a, rot[a])
-            M = Ra if M is None else _mm_t(Ra, M)
+        if a in rot_ang:
+            Ra = rot.rot_t(a, rot_ang[a])
+            M = Ra if M is None else rot.mm_t(Ra, M)
     if M is None:
         M = np.broadcast_to(np.eye(3)[:, :, None], (3, 3, T))
     Cr = comp.C_root
-    L = {"root": M if comp.C_root_is_identity else _mm_t(_mm_t(Cr, M), Cr.T)}
+    L = {"root": M if comp.C_root_is_identity else rot.mm_t(rot.mm_t(Cr, M), Cr.T)}
     P[:, 0] = tr
     for j, n in enumerate(comp.bone_order, start=1):
         Lp = L[comp.parent[n]]
@@ -211,10 +266,10 @@ def forward_kinematics(comp: _Compiled, dofs: np.ndarray, angle_rad: bool, f: fl
             for letter in comp.order[n]:
                 a = "XYZ".index(letter)
                 if a in axes:
-                    Ra = _rot_t(a, d[:, axes.index(a)])
-                    M = Ra if M is None else _mm_t(Ra, M)
+                    Ra = rot.rot_t(a, d[:, axes.index(a)])
+                    M = Ra if M is None else rot.mm_t(Ra, M)
             C = comp.C[n]
-            Lb = _mm_t(Lp, M if comp.C_is_identity[n] else _mm_t(_mm_t(C, M), C.T))
+            Lb = rot.mm_t(Lp, M if comp.C_is_identity[n] else rot.mm_t(rot.mm_t(C, M), C.T))
         else:
             Lb = Lp
         L[n] = Lb
@@ -229,22 +284,6 @@ def forward_kinematics(comp: _Compiled, dofs: np.ndarray, angle_rad: bool, f: fl
 # ======================================================================================
 # inverse kinematics: helpers (the rotation maths is shared: mocapkit.io._rotations)
 # ======================================================================================
-def _min_rotation(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Shortest-arc rotations (T, 3, 3) taking directions a (T, 3) onto b (T, 3)."""
-    return rot.min_rotation(a, b)
-
-
-def _kabsch(U: np.ndarray, W: np.ndarray) -> np.ndarray:
-    """Rotations R (T, 3, 3) minimising sum_i |R u_i - w_i|^2 for U, W (T, n, 3)."""
-    return rot.kabsch(U, W)[0]
-
-
-def _axis_angle_fit(axis: np.ndarray, U: np.ndarray, W: np.ndarray, reg: float | np.ndarray = 0.0) -> np.ndarray:
-    """Angle about unit ``axis`` (T, 3) best rotating vectors U onto W (T, n, 3), least squares
-    (:func:`mocapkit.io._rotations.twist_angle`)."""
-    return rot.twist_angle(axis, U, W, reg)
-
-
 def _euler_from(M: np.ndarray, order: str) -> list[np.ndarray]:
     """Both Euler solutions, as (x, y, z) angles in radians, of M = R(angles) for ``order``
     (Acclaim order: first letter applied first, i.e. the axis sequence reversed)."""
@@ -257,15 +296,11 @@ def _euler_from(M: np.ndarray, order: str) -> list[np.ndarray]:
     return out
 
 
-def _wrap_near(ang: np.ndarray, ref: np.ndarray) -> np.ndarray:
-    return rot.wrap_near(ang, ref)
-
-
 def _angles_near(cands: list[np.ndarray], ref: np.ndarray) -> np.ndarray:
     """Of the candidate (T, 3) angle sets, each wrapped by 2π turns nearest ``ref``, the closest."""
     best, best_d = None, None
     for c in cands:
-        w = _wrap_near(c, ref)
+        w = rot.wrap_near(c, ref)
         d = np.sum((w - ref) ** 2, axis=1)
         if best is None:
             best, best_d = w, d
@@ -282,7 +317,7 @@ def _after_rot(order: str, ang: np.ndarray, a: int) -> np.ndarray:
     k = order.index("XYZ"[a])
     for letter in order[k + 1:]:
         b = "XYZ".index(letter)
-        R = _axis_rot(b, ang[..., b]) @ R
+        R = axis_rotation(b, ang[..., b]) @ R
     return R
 
 
@@ -291,7 +326,8 @@ def _fit_partial(order: str, axes: list[int], U: np.ndarray, W: np.ndarray, ang:
     """Angles of the present ``axes`` minimising Σ_i |M(ang) u_i - w_i|² (other angles zero).
 
     U (n, 3) or (T, n, 3) rest vectors and W (T, n, 3) targets, both in the bone's local
-    (C) frame (scale a pair by sqrt(weight) to weight it). One dof: the exact single-axis optimum (:func:`_axis_angle_fit`). Two dofs
+    (C) frame (scale a pair by sqrt(weight) to weight it). One dof: the exact single-axis
+    optimum (:func:`~mocapkit.io._rotations.twist_angle`). Two dofs
     (``M = R_q(β) R_p(α)``, p applied first): for every α the best β is exact, so the
     cost is scanned over ``scan`` values of α, then refined by ``iters`` golden-section
     steps within one scan step of the best value (global to the scan resolution, then
@@ -306,20 +342,20 @@ def _fit_partial(order: str, axes: list[int], U: np.ndarray, W: np.ndarray, ang:
     U = np.broadcast_to(U, W.shape)
     if len(present) == 1:
         a = present[0]
-        th = _axis_angle_fit(np.broadcast_to(e[a], (T, 3)), U, W)
-        out[:, a] = _wrap_near(th, ang0[:, a])
+        th = rot.twist_angle(np.broadcast_to(e[a], (T, 3)), U, W)
+        out[:, a] = rot.wrap_near(th, ang0[:, a])
         return out
     p, q = present
     # scan α (axis p) with the best β (axis q) in closed form for each, then a golden-section
     # search on α around the best scan point
     def best_beta(alpha):                                  # alpha (..., T) -> beta, cost
         sh = alpha.shape
-        Ua = np.einsum("...tij,tnj->...tni", _axis_rot(p, alpha), U)          # (..., T, n, 3)
+        Ua = np.einsum("...tij,tnj->...tni", axis_rotation(p, alpha), U)          # (..., T, n, 3)
         Wb = np.broadcast_to(W, sh + W.shape[1:])
         m = int(np.prod(sh))
-        beta = _axis_angle_fit(np.broadcast_to(e[q], (m, 3)), Ua.reshape(m, -1, 3),
+        beta = rot.twist_angle(np.broadcast_to(e[q], (m, 3)), Ua.reshape(m, -1, 3),
                                Wb.reshape(m, -1, 3)).reshape(sh)
-        fit = np.einsum("...ij,...nj->...ni", _axis_rot(q, beta), Ua)
+        fit = np.einsum("...ij,...nj->...ni", axis_rotation(q, beta), Ua)
         return beta, np.sum((fit - Wb) ** 2, axis=(-2, -1))
 
     step = 2 * np.pi / scan
@@ -346,8 +382,8 @@ def _fit_partial(order: str, axes: list[int], U: np.ndarray, W: np.ndarray, ang:
     cur = np.zeros((T, 3))
     cur[:, p] = al[k, np.arange(T)]
     cur[:, q] = be[k, np.arange(T)]
-    out[:, p] = _wrap_near(cur[:, p], ang0[:, p])
-    out[:, q] = _wrap_near(cur[:, q], ang0[:, q])
+    out[:, p] = rot.wrap_near(cur[:, p], ang0[:, p])
+    out[:, q] = rot.wrap_near(cur[:, q], ang0[:, q])
     return out
 
 
@@ -454,7 +490,7 @@ def _ik_root(st: _IKState) -> None:
 
 def _ik_bone(st: _IKState, j: int, n: str) -> None:
     """One bone, given its parent's achieved rotation and end point (steps 1-3 of the
-    module docstring of :mod:`mocapkit.io.asfamc`)."""
+    module docstring)."""
     c = st.comp
     Lp, pj, axes = st.L[c.parent[n]], c.parent_joint[j], c.dof_axes[n]
     if not axes:
@@ -710,7 +746,7 @@ def inverse_kinematics(comp: _Compiled, target_cm: np.ndarray, f: float, angle_r
     """Dof values (T, D) (file units and angle unit) whose FK follows ``target_cm`` (T, J, 3).
 
     Stage 1: per-bone IK in closed form, top-down, vectorised over frames (module
-    docstring of :mod:`mocapkit.io.asfamc`, steps 1-3). Stage 2 (``refine`` > 0): up to
+    docstring, steps 1-3). Stage 2 (``refine`` > 0): up to
     ``refine`` Levenberg-Marquardt iterations on all dofs of a frame at once (analytic
     Jacobian), only on the frames stage 1 leaves more than
     ``min(refine_above_cm + mismatch_factor * m, refine_cap_cm)`` off, ``m`` the frame's

@@ -1,8 +1,37 @@
-"""AMC motion files: parser (bulk tokeniser + line parser), reader and writer.
+"""AMC motion files (Acclaim; CMU and HDM05 variants): parser (bulk tokeniser + line
+parser), reader and writer.
 
-Split out of :mod:`mocapkit.io.asfamc` (which re-exports every name and documents the
-format, the forward kinematics and the write-back); the skeleton side is
-:mod:`mocapkit.io.asf`, the kinematics :mod:`mocapkit.io._kinematics`.
+The skeleton side (and the unit rule) is :mod:`mocapkit.io.asf`, the forward kinematics
+and the write-back IK :mod:`mocapkit.io._kinematics`.
+
+AMC (motion)
+------------
+Header keywords (``:FULLY-SPECIFIED``, ``:DEGREES`` / ``:RADIANS``), then frames: a frame
+number line followed by one line per bone, ``name v1 v2 …`` with one value per dof in the
+ASF's ``dof`` order (``root``: one per channel of the ASF ``order``). Frame numbers must
+increase by one. In a ``:FULLY-SPECIFIED`` file every frame must list every bone that has
+dofs; otherwise a missing bone keeps its previous value (zero in the first frame).
+
+Metadata
+--------
+``motion.source``: ``path``, ``format`` (``'amc'`` / ``'asf'``), ``skeleton_path``,
+``units`` (file unit description and ``cm_per_unit``), ``asf`` (the whole parsed skeleton
+description as plain lists/dicts), ``amc`` (header lines, first frame number, bone order
+per frame, angle unit), ``dof_names`` (``'root.TX'``, ``'lfemur.rx'``, …) and
+``per_frame['dofs']``: the (T, D) dof values exactly as in the file (D = 62 for CMU).
+
+Writing (AMC)
+-------------
+:func:`write` needs a motion that carries ``source['asf']`` (read from ASF/AMC). If
+its positions still equal the forward kinematics of the stored dofs (within 1e-7 cm),
+the stored dofs are written unchanged (shortest round-trip float text), so the file
+re-reads identically. Otherwise the dofs are recovered by per-bone inverse kinematics
+(:func:`mocapkit.io._kinematics.inverse_kinematics`, described there), top-down and
+vectorised over frames.
+
+A written AMC needs its ASF: when the skeleton lookup for the output file would not
+find an identical skeleton, ``<output stem>.asf`` is written beside it
+(``write_asf=False`` to skip, or a path to choose where).
 """
 from __future__ import annotations
 

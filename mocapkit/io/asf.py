@@ -1,7 +1,30 @@
-"""ASF skeleton files: parser, writer, comparison, and the skeleton lookup for an AMC.
+"""ASF skeleton files (Acclaim; CMU and HDM05 variants): parser, writer, comparison,
+the skeleton lookup for an AMC, and the length unit.
 
-Split out of :mod:`mocapkit.io.asfamc` (which re-exports every name); the format and
-the unit rule are described there.
+The motion side is :mod:`mocapkit.io.amc`, the forward/inverse kinematics
+:mod:`mocapkit.io._kinematics`; own parser, no dependency.
+
+ASF (skeleton)
+--------------
+Sections ``:version``, ``:name``, ``:units`` (``mass``, ``length``, ``angle deg|rad``),
+``:documentation``, ``:root`` (``order`` of the AMC root channels, ``axis`` rotation
+order, ``position``, ``orientation``), ``:bonedata`` (``begin … end`` blocks with ``id``,
+``name``, ``direction`` (unit vector in the global rest frame), ``length``,
+``axis ax ay az ORDER``, ``dof`` (rotational ``rx ry rz``; translational bone dofs are
+refused), ``limits`` (one ``(lo hi)`` pair per dof, possibly over several lines)) and
+``:hierarchy`` (``begin``, ``parent child child …`` lines, ``end``). Unknown keywords
+(``bodymass``, ``cofmass``, ``:namespace`` …) are kept and ignored.
+
+Units
+-----
+``:units length s`` means that ASF/AMC lengths are *inches × s*: CMU and HDM05 both state
+``length 0.45``, so one file unit is ``1/0.45`` inch = ``2.54/0.45`` = **5.644444 cm**
+(the factor applied to bone lengths and root translations). In general the factor is
+``2.54 / s`` cm per unit (:func:`cm_per_unit`); ``mocapkit.io.read(..., units=f)``
+overrides it with ``f`` cm per unit or a unit name (:mod:`mocapkit.io.units`).
+With this factor CMU subjects stand 150-200 cm tall, and so do the HDM05 actors (see
+``docs/results/io.md``). Angles are kept in the file's unit (``:DEGREES`` in the AMC,
+else the ASF ``angle``).
 """
 from __future__ import annotations
 
@@ -16,15 +39,15 @@ import numpy as np
 from ..errors import MocapFormatError, MocapValueError
 from ._atomic import atomic_write
 from ._text import read_text as _read_text
+from .units import LENGTH_UNITS, unit_name
 
-__all__ = ["read_asf", "write_asf", "find_skeleton", "cm_per_unit", "CMU_CM_PER_UNIT"]
+__all__ = ["read_asf", "write_asf", "find_skeleton", "cm_per_unit"]
 
-#: cm per ASF length unit for ``:units length 0.45`` (CMU, HDM05): 2.54 / 0.45.
-CMU_CM_PER_UNIT = 2.54 / 0.45
 _ROT_DOFS = ("rx", "ry", "rz")
 _TRANS_DOFS = ("tx", "ty", "tz", "l")
 _ROOT_CHANNELS = ("TX", "TY", "TZ", "RX", "RY", "RZ")
 _SEARCH_PARENT_LEVELS = 2
+_ANGLE_UNITS = ("deg", "rad", "degree", "degrees", "radian", "radians")
 
 
 # ======================================================================================
@@ -69,182 +92,228 @@ def read_asf(path: str | os.PathLike) -> dict[str, Any]:
     MocapFormatError naming the line: missing/cyclic hierarchy, unknown bone in the
     hierarchy, duplicate bone names, bad numbers, missing :bonedata, translational dofs.
     """
-    text = _read_text(path)
-    lines = text.splitlines()
-    asf: dict[str, Any] = {"version": "", "name": "", "units": {"mass": 1.0, "length": 1.0, "angle": "deg"},
-                           "documentation": [], "root": None, "bones": [], "hierarchy": [], "extra": []}
-    section = None
-    bone: dict | None = None
-    bone_line = 0
-    in_limits = False
-    hier_begun = False
-    hier_ended = False
-    seen_bonedata = False
-    hier_lines: list[tuple[int, list[str]]] = []
-    bone_lines: dict[str, int] = {}
-    root = {"order": list(_ROOT_CHANNELS), "axis": "XYZ", "position": [0.0, 0.0, 0.0],
-            "orientation": [0.0, 0.0, 0.0]}
-    root_seen = False
-
+    lines = _read_text(path).splitlines()
+    parser = _AsfParser(path)
     for ln, raw in enumerate(lines, 1):
+        parser.line(ln, raw)
+    return parser.finish(len(lines))
+
+
+class _AsfParser:
+    """One pass over the lines of an ASF file: section state, the open bone block, and the
+    hierarchy lines kept for :func:`_link_hierarchy` (every error names its line)."""
+
+    def __init__(self, path):
+        self.path = path
+        self.asf: dict[str, Any] = {"version": "", "name": "",
+                                    "units": {"mass": 1.0, "length": 1.0, "angle": "deg"},
+                                    "documentation": [], "root": None, "bones": [], "hierarchy": [],
+                                    "extra": []}
+        self.root = {"order": list(_ROOT_CHANNELS), "axis": "XYZ", "position": [0.0, 0.0, 0.0],
+                     "orientation": [0.0, 0.0, 0.0]}
+        self.section: str | None = None
+        self.bone: dict | None = None           # the open 'begin ... end' block
+        self.bone_line = 0
+        self.in_limits = False                  # '(lo hi)' lines continue a 'limits' entry
+        self.hier_begun = self.hier_ended = False
+        self.seen_bonedata = self.root_seen = False
+        self.hier_lines: list[tuple[int, list[str]]] = []
+        self.bone_lines: dict[str, int] = {}    # bone name -> line of its 'begin'
+        self.body = {":units": self.units_line, ":root": self.root_line, ":bonedata": self.bone_data_line,
+                     ":hierarchy": self.hierarchy_line}
+
+    def line(self, ln: int, raw: str) -> None:
         s = raw.split("#", 1)[0].strip()
         if not s:
-            continue
+            return
         toks = s.split()
         key = toks[0].lower()
         if s.startswith(":"):
-            if bone is not None:
-                raise MocapFormatError(path, f"bone block opened at line {bone_line} has no 'end'", ln)
-            in_limits = False
-            section = key
-            rest = s[len(toks[0]):].strip()
-            if key == ":version":
-                asf["version"] = rest
-            elif key == ":name":
-                asf["name"] = rest
-            elif key == ":bonedata":
-                seen_bonedata = True
-            elif key == ":root":
-                root_seen = True
-            elif key not in (":units", ":documentation", ":hierarchy"):
-                asf["extra"].append(raw.rstrip())
-            continue
-        if section is None:
-            raise MocapFormatError(path, f"expected a ':keyword' section header, found {s!r}", ln)
-        if section == ":units":
-            if len(toks) != 2:
-                raise MocapFormatError(path, f"units line must be 'name value', found {s!r}", ln)
-            if key == "angle":
-                a = toks[1].lower()
-                if a not in ("deg", "rad", "degree", "degrees", "radian", "radians"):
-                    raise MocapFormatError(path, f"angle unit must be deg or rad, found {toks[1]!r}", ln)
-                asf["units"]["angle"] = "rad" if a.startswith("rad") else "deg"
-            elif key in ("mass", "length"):
-                v = _num(toks[1], path, ln, f"units {key}")
-                if v <= 0:
-                    raise MocapFormatError(path, f"units {key} must be positive, found {toks[1]}", ln)
-                asf["units"][key] = v
-            else:
-                asf["units"][key] = toks[1]
-        elif section == ":documentation":
-            asf["documentation"].append(raw.strip())
-        elif section == ":root":
-            if key == "order":
-                order = [t.upper() for t in toks[1:]]
-                bad = [t for t in order if t not in _ROOT_CHANNELS]
-                if bad or len(set(order)) != len(order) or not order:
-                    raise MocapFormatError(path, f"root order must list distinct channels from "
-                                           f"{' '.join(_ROOT_CHANNELS)}, found {' '.join(toks[1:])!r}", ln)
-                root["order"] = order
-            elif key == "axis":
-                if len(toks) != 2:
-                    raise MocapFormatError(path, "root axis needs one rotation order, e.g. XYZ", ln)
-                root["axis"] = _axis_order(toks[1], path, ln, "root axis")
-            elif key in ("position", "orientation"):
-                root[key] = _nums(toks[1:], 3, path, ln, f"root {key}")
-            else:
-                raise MocapFormatError(path, f"unknown :root keyword {toks[0]!r} (expected order, "
-                                       f"axis, position, orientation)", ln)
-        elif section == ":bonedata":
-            if key == "begin":
-                if bone is not None:
-                    raise MocapFormatError(path, f"'begin' inside the bone block opened at line {bone_line}", ln)
-                bone = {"id": None, "name": None, "direction": None, "length": None,
-                        "axis": [0.0, 0.0, 0.0], "axis_order": "XYZ", "dof": [], "limits": [],
-                        "extra": []}
-                bone_line = ln
-                in_limits = False
-                continue
-            if bone is None:
-                raise MocapFormatError(path, f"expected 'begin' of a bone block, found {s!r}", ln)
-            if key == "end":
-                for req in ("name", "direction", "length"):
-                    if bone[req] is None:
-                        raise MocapFormatError(path, f"bone block has no '{req}'", bone_line)
-                if bone["name"] in bone_lines or bone["name"].lower() == "root":
-                    raise MocapFormatError(path, f"duplicate bone name {bone['name']!r}", bone_line)
-                if bone["limits"] and len(bone["limits"]) != len(bone["dof"]):
-                    raise MocapFormatError(path, f"bone {bone['name']!r} has {len(bone['dof'])} dofs "
-                                           f"but {len(bone['limits'])} limits", ln)
-                bone_lines[bone["name"]] = bone_line
-                asf["bones"].append(bone)
-                bone = None
-                in_limits = False
-                continue
-            if s.startswith("("):
-                if not in_limits:
-                    raise MocapFormatError(path, f"limit {s!r} outside a 'limits' entry", ln)
-                bone["limits"].extend(_parse_limits(s, path, ln))
-                continue
-            in_limits = False
-            if key == "id":
-                bone["id"] = toks[1] if len(toks) > 1 else ""
-            elif key == "name":
-                if len(toks) != 2:
-                    raise MocapFormatError(path, f"bone name must be one word, found {s!r}", ln)
-                bone["name"] = toks[1]
-            elif key == "direction":
-                d = _nums(toks[1:], 3, path, ln, "direction")
-                if not any(abs(x) > 0 for x in d):
-                    raise MocapFormatError(path, "bone direction is the zero vector", ln)
-                bone["direction"] = d
-            elif key == "length":
-                v = _nums(toks[1:], 1, path, ln, "length")[0]
-                if v < 0:
-                    raise MocapFormatError(path, f"bone length must be >= 0, found {toks[1]}", ln)
-                bone["length"] = v
-            elif key == "axis":
-                if len(toks) != 5:
-                    raise MocapFormatError(path, "axis needs three angles and an order, e.g. "
-                                           "'axis 0 0 20 XYZ'", ln)
-                bone["axis"] = _nums(toks[1:4], 3, path, ln, "axis")
-                bone["axis_order"] = _axis_order(toks[4], path, ln, "axis order")
-            elif key == "dof":
-                dofs = [t.lower() for t in toks[1:]]
-                for d in dofs:
-                    if d in _TRANS_DOFS:
-                        raise MocapFormatError(path, f"translational dof {d!r} on a bone is not "
-                                               f"supported (only rx ry rz)", ln)
-                    if d not in _ROT_DOFS:
-                        raise MocapFormatError(path, f"unknown dof {d!r} (expected rx, ry, rz)", ln)
-                if len(set(dofs)) != len(dofs):
-                    raise MocapFormatError(path, f"repeated dof in {s!r}", ln)
-                bone["dof"] = dofs
-            elif key == "limits":
-                in_limits = True
-                rest = s[len(toks[0]):].strip()
-                if rest:
-                    bone["limits"].extend(_parse_limits(rest, path, ln))
-            else:
-                bone["extra"].append(s)
-        elif section == ":hierarchy":
-            if key == "begin":
-                hier_begun = True
-                continue
-            if key == "end":
-                hier_ended = True
-                continue
-            if not hier_begun or hier_ended:
-                raise MocapFormatError(path, f"hierarchy line outside begin/end: {s!r}", ln)
-            hier_lines.append((ln, toks))
+            self.section_header(ln, raw, s, toks, key)
+        elif self.section is None:
+            raise MocapFormatError(self.path, f"expected a ':keyword' section header, found {s!r}", ln)
+        elif self.section == ":documentation":
+            self.asf["documentation"].append(raw.strip())
+        elif self.section in self.body:
+            self.body[self.section](ln, s, toks, key)
         else:
-            asf["extra"].append(raw.rstrip())
-    if bone is not None:
-        raise MocapFormatError(path, f"bone block opened at line {bone_line} has no 'end' (truncated file?)",
-                               len(lines))
-    if not seen_bonedata:
-        raise MocapFormatError(path, "no :bonedata section (is this an ASF file?)", len(lines) or None)
-    if not root_seen:
-        raise MocapFormatError(path, "no :root section", len(lines) or None)
-    if not hier_lines:
-        raise MocapFormatError(path, "no :hierarchy (or an empty one): the bones cannot be connected",
-                               len(lines) or None)
-    if not hier_ended:
-        raise MocapFormatError(path, ":hierarchy has no 'end' (truncated file?)", len(lines))
-    asf["root"] = root
-    # -- hierarchy: each bone exactly one parent; no cycles; every bone reachable ------------
+            self.asf["extra"].append(raw.rstrip())
+
+    def section_header(self, ln: int, raw: str, s: str, toks: list[str], key: str) -> None:
+        if self.bone is not None:
+            raise MocapFormatError(self.path, f"bone block opened at line {self.bone_line} has no 'end'", ln)
+        self.in_limits = False
+        self.section = key
+        rest = s[len(toks[0]):].strip()
+        if key == ":version":
+            self.asf["version"] = rest
+        elif key == ":name":
+            self.asf["name"] = rest
+        elif key == ":bonedata":
+            self.seen_bonedata = True
+        elif key == ":root":
+            self.root_seen = True
+        elif key not in (":units", ":documentation", ":hierarchy"):
+            self.asf["extra"].append(raw.rstrip())
+
+    def units_line(self, ln: int, s: str, toks: list[str], key: str) -> None:
+        path, units = self.path, self.asf["units"]
+        if len(toks) != 2:
+            raise MocapFormatError(path, f"units line must be 'name value', found {s!r}", ln)
+        if key == "angle":
+            a = toks[1].lower()
+            if a not in _ANGLE_UNITS:
+                raise MocapFormatError(path, f"angle unit must be deg or rad, found {toks[1]!r}", ln)
+            units["angle"] = "rad" if a.startswith("rad") else "deg"
+        elif key in ("mass", "length"):
+            v = _num(toks[1], path, ln, f"units {key}")
+            if v <= 0:
+                raise MocapFormatError(path, f"units {key} must be positive, found {toks[1]}", ln)
+            units[key] = v
+        else:
+            units[key] = toks[1]
+
+    def root_line(self, ln: int, s: str, toks: list[str], key: str) -> None:
+        path, root = self.path, self.root
+        if key == "order":
+            order = [t.upper() for t in toks[1:]]
+            bad = [t for t in order if t not in _ROOT_CHANNELS]
+            if bad or len(set(order)) != len(order) or not order:
+                raise MocapFormatError(path, f"root order must list distinct channels from "
+                                       f"{' '.join(_ROOT_CHANNELS)}, found {' '.join(toks[1:])!r}", ln)
+            root["order"] = order
+        elif key == "axis":
+            if len(toks) != 2:
+                raise MocapFormatError(path, "root axis needs one rotation order, e.g. XYZ", ln)
+            root["axis"] = _axis_order(toks[1], path, ln, "root axis")
+        elif key in ("position", "orientation"):
+            root[key] = _nums(toks[1:], 3, path, ln, f"root {key}")
+        else:
+            raise MocapFormatError(path, f"unknown :root keyword {toks[0]!r} (expected order, "
+                                   f"axis, position, orientation)", ln)
+
+    def bone_data_line(self, ln: int, s: str, toks: list[str], key: str) -> None:
+        if key == "begin":
+            if self.bone is not None:
+                raise MocapFormatError(self.path, f"'begin' inside the bone block opened at line "
+                                                  f"{self.bone_line}", ln)
+            self.bone = {"id": None, "name": None, "direction": None, "length": None,
+                         "axis": [0.0, 0.0, 0.0], "axis_order": "XYZ", "dof": [], "limits": [], "extra": []}
+            self.bone_line = ln
+            self.in_limits = False
+        elif self.bone is None:
+            raise MocapFormatError(self.path, f"expected 'begin' of a bone block, found {s!r}", ln)
+        elif key == "end":
+            self.close_bone(ln)
+        elif s.startswith("("):
+            if not self.in_limits:
+                raise MocapFormatError(self.path, f"limit {s!r} outside a 'limits' entry", ln)
+            self.bone["limits"].extend(_parse_limits(s, self.path, ln))
+        else:
+            self.in_limits = _bone_field(self.bone, self.path, ln, s, toks, key)
+
+    def close_bone(self, ln: int) -> None:
+        """The 'end' of a bone block: required fields, unique name, one limit per dof."""
+        bone, path = self.bone, self.path
+        for req in ("name", "direction", "length"):
+            if bone[req] is None:
+                raise MocapFormatError(path, f"bone block has no '{req}'", self.bone_line)
+        if bone["name"] in self.bone_lines or bone["name"].lower() == "root":
+            raise MocapFormatError(path, f"duplicate bone name {bone['name']!r}", self.bone_line)
+        if bone["limits"] and len(bone["limits"]) != len(bone["dof"]):
+            raise MocapFormatError(path, f"bone {bone['name']!r} has {len(bone['dof'])} dofs "
+                                   f"but {len(bone['limits'])} limits", ln)
+        self.bone_lines[bone["name"]] = self.bone_line
+        self.asf["bones"].append(bone)
+        self.bone = None
+        self.in_limits = False
+
+    def hierarchy_line(self, ln: int, s: str, toks: list[str], key: str) -> None:
+        if key == "begin":
+            self.hier_begun = True
+        elif key == "end":
+            self.hier_ended = True
+        elif not self.hier_begun or self.hier_ended:
+            raise MocapFormatError(self.path, f"hierarchy line outside begin/end: {s!r}", ln)
+        else:
+            self.hier_lines.append((ln, toks))
+
+    def finish(self, n_lines: int) -> dict[str, Any]:
+        """Whole-file checks (open block, missing sections), then the hierarchy links."""
+        path, last = self.path, n_lines or None
+        if self.bone is not None:
+            raise MocapFormatError(path, f"bone block opened at line {self.bone_line} has no 'end' "
+                                         f"(truncated file?)", n_lines)
+        if not self.seen_bonedata:
+            raise MocapFormatError(path, "no :bonedata section (is this an ASF file?)", last)
+        if not self.root_seen:
+            raise MocapFormatError(path, "no :root section", last)
+        if not self.hier_lines:
+            raise MocapFormatError(path, "no :hierarchy (or an empty one): the bones cannot be connected",
+                                   last)
+        if not self.hier_ended:
+            raise MocapFormatError(path, ":hierarchy has no 'end' (truncated file?)", n_lines)
+        self.asf["root"] = self.root
+        self.asf["hierarchy"] = _link_hierarchy(path, self.hier_lines, self.bone_lines)
+        return self.asf
+
+
+def _bone_field(bone: dict, path, ln: int, s: str, toks: list[str], key: str) -> bool:
+    """Store one ``key values`` line of a bone block; True when it opens a ``limits`` entry."""
+    if key == "id":
+        bone["id"] = toks[1] if len(toks) > 1 else ""
+    elif key == "name":
+        if len(toks) != 2:
+            raise MocapFormatError(path, f"bone name must be one word, found {s!r}", ln)
+        bone["name"] = toks[1]
+    elif key == "direction":
+        d = _nums(toks[1:], 3, path, ln, "direction")
+        if not any(abs(x) > 0 for x in d):
+            raise MocapFormatError(path, "bone direction is the zero vector", ln)
+        bone["direction"] = d
+    elif key == "length":
+        v = _nums(toks[1:], 1, path, ln, "length")[0]
+        if v < 0:
+            raise MocapFormatError(path, f"bone length must be >= 0, found {toks[1]}", ln)
+        bone["length"] = v
+    elif key == "axis":
+        if len(toks) != 5:
+            raise MocapFormatError(path, "axis needs three angles and an order, e.g. 'axis 0 0 20 XYZ'", ln)
+        bone["axis"] = _nums(toks[1:4], 3, path, ln, "axis")
+        bone["axis_order"] = _axis_order(toks[4], path, ln, "axis order")
+    elif key == "dof":
+        bone["dof"] = _parse_dofs(toks[1:], path, ln, s)
+    elif key == "limits":
+        rest = s[len(toks[0]):].strip()
+        if rest:
+            bone["limits"].extend(_parse_limits(rest, path, ln))
+        return True
+    else:
+        bone["extra"].append(s)
+    return False
+
+
+def _parse_dofs(toks: list[str], path, ln: int, s: str) -> list[str]:
+    """The rotational dofs of a ``dof`` line (``rx ry rz``, each at most once)."""
+    dofs = [t.lower() for t in toks]
+    for d in dofs:
+        if d in _TRANS_DOFS:
+            raise MocapFormatError(path, f"translational dof {d!r} on a bone is not "
+                                   f"supported (only rx ry rz)", ln)
+        if d not in _ROT_DOFS:
+            raise MocapFormatError(path, f"unknown dof {d!r} (expected rx, ry, rz)", ln)
+    if len(set(dofs)) != len(dofs):
+        raise MocapFormatError(path, f"repeated dof in {s!r}", ln)
+    return dofs
+
+
+def _link_hierarchy(path, hier_lines: list[tuple[int, list[str]]],
+                    bone_lines: dict[str, int]) -> list[list]:
+    """``[parent, [children]]`` per hierarchy line, checked: every bone has exactly one
+    parent, known names only, no cycle, every bone reachable from the root."""
     known = set(bone_lines) | {"root"}
     parent_of: dict[str, tuple[str, int]] = {}
+    out = []
     for ln, toks in hier_lines:
         par = toks[0]
         if par not in known:
@@ -259,19 +328,18 @@ def read_asf(path: str | os.PathLike) -> dict[str, Any]:
             if ch == par:
                 raise MocapFormatError(path, f"bone {ch!r} is its own parent (cyclic hierarchy)", ln)
             parent_of[ch] = (par, ln)
-        asf["hierarchy"].append([par, list(toks[1:])])
+        out.append([par, list(toks[1:])])
     for name, bl in bone_lines.items():
         if name not in parent_of:
             raise MocapFormatError(path, f"bone {name!r} is missing from the :hierarchy", bl)
-        # walk up: must reach root without revisiting
-        seen = {name}
+        seen = {name}                   # walk up: must reach root without revisiting
         cur = name
         while cur != "root":
             cur, hl = parent_of[cur]
             if cur in seen:
                 raise MocapFormatError(path, f"cyclic hierarchy through bone {cur!r}", hl)
             seen.add(cur)
-    return asf
+    return out
 
 
 def _parse_limits(s: str, path, ln: int) -> list[list[float]]:
@@ -296,16 +364,18 @@ def _parse_limits(s: str, path, ln: int) -> list[list[float]]:
 def cm_per_unit(asf: dict, units: float | str | None = None) -> float:
     """Centimetres per ASF/AMC length unit: ``2.54 / length`` (``length 0.45`` → 5.644444).
 
-    ``units`` overrides: a number (cm per unit) or ``'cmu'``/``'cm'``/``'mm'``/``'m'``/``'inch'``.
+    ``units`` overrides: a number (cm per unit) or a unit name of
+    :data:`mocapkit.io.units.LENGTH_UNITS` (``'cmu'``, ``'cm'``, ``'mm'``, ``'m'``,
+    ``'inch'``, or an alias such as ``'in'``), the names the BVH reader takes.
     """
     if units is None:
         return 2.54 / float(asf["units"]["length"])
     if isinstance(units, str):
-        named = {"cmu": CMU_CM_PER_UNIT, "cm": 1.0, "mm": 0.1, "m": 100.0, "inch": 2.54, "in": 2.54}
-        if units.lower() not in named:
+        key = unit_name(units)
+        if key is None:
             raise MocapValueError(f"units must be a number (cm per file unit) or one of "
-                                  f"{', '.join(named)}, got {units!r}")
-        return named[units.lower()]
+                                  f"{', '.join(LENGTH_UNITS)}, got {units!r}")
+        return LENGTH_UNITS[key]
     f = float(units)
     if not np.isfinite(f) or f <= 0:
         raise MocapValueError(f"units must be a positive number of cm per file unit, got {units!r}")

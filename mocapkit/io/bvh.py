@@ -95,22 +95,10 @@ from ..motion import Motion
 from ..skeleton import Skeleton
 from ._atomic import atomic_write
 from ._text import float_rows, parse_float, parse_int, read_bytes
+from .units import LENGTH_UNITS, UNIT_LABELS, unit_name
 
-__all__ = ["read", "write", "node_positions", "UNITS"]
+__all__ = ["read", "write", "node_positions"]
 
-#: unit name -> factor to cm
-UNITS: dict[str, float] = {
-    "cm": 1.0,
-    "mm": 0.1,
-    "m": 100.0,
-    "inch": 2.54,
-    "cmu": 2.54 / 0.45,
-}
-_UNIT_ALIASES = {"in": "inch", "inches": "inch", "centimeter": "cm", "centimetre": "cm",
-                 "millimeter": "mm", "millimetre": "mm", "meter": "m", "metre": "m",
-                 "cmu_unit": "cmu", "cmu units": "cmu"}
-_UNIT_LABEL = {"cm": "centimetre", "mm": "millimetre", "m": "metre", "inch": "inch",
-               "cmu": "CMU unit (1/0.45 inch = 5.644444 cm)"}
 _TYPICAL_HEIGHT_CM = 175.0
 
 _CHANNELS = {"xposition": "Xposition", "yposition": "Yposition", "zposition": "Zposition",
@@ -401,11 +389,11 @@ def _fk_positions(nodes: list[_Node], ch: np.ndarray, keep: list[int], factor: f
 def _resolve_units(units, nodes: list[_Node], path) -> dict[str, Any]:
     if units is not None and not (isinstance(units, str) and units.lower() == "auto"):
         if isinstance(units, str):
-            key = _UNIT_ALIASES.get(units.lower(), units.lower())
-            if key not in UNITS:
+            key = unit_name(units)
+            if key is None:
                 raise MocapValueError(f"unknown BVH unit {units!r}; use a factor to cm or one of "
-                                      f"{', '.join(UNITS)}")
-            return {"name": key, "label": _UNIT_LABEL[key], "factor_to_cm": UNITS[key],
+                                      f"{', '.join(LENGTH_UNITS)}")
+            return {"name": key, "label": UNIT_LABELS[key], "factor_to_cm": LENGTH_UNITS[key],
                     "chosen_by": "user (units=)"}
         f = float(units)
         if not np.isfinite(f) or f <= 0:
@@ -418,13 +406,13 @@ def _resolve_units(units, nodes: list[_Node], path) -> dict[str, Any]:
         P[k] = n.offset + (P[n.parent] if n.parent >= 0 else 0.0)
     extent = float(np.max(P.max(0) - P.min(0)))
     if not extent > 0:
-        return {"name": "cm", "label": _UNIT_LABEL["cm"], "factor_to_cm": 1.0,
+        return {"name": "cm", "label": UNIT_LABELS["cm"], "factor_to_cm": 1.0,
                 "chosen_by": "default (the rest skeleton has no extent to infer a unit from)",
                 "rest_extent_file_units": extent}
-    best = min(UNITS, key=lambda u: abs(np.log(extent * UNITS[u] / _TYPICAL_HEIGHT_CM)))
-    return {"name": best, "label": _UNIT_LABEL[best], "factor_to_cm": UNITS[best],
+    best = min(LENGTH_UNITS, key=lambda u: abs(np.log(extent * LENGTH_UNITS[u] / _TYPICAL_HEIGHT_CM)))
+    return {"name": best, "label": UNIT_LABELS[best], "factor_to_cm": LENGTH_UNITS[best],
             "chosen_by": (f"inferred: rest skeleton extent {extent:.4g} file units is "
-                          f"{extent * UNITS[best]:.1f} cm in {best}, the candidate unit closest to a "
+                          f"{extent * LENGTH_UNITS[best]:.1f} cm in {best}, the candidate unit closest to a "
                           f"{_TYPICAL_HEIGHT_CM:g} cm adult (override with units=)"),
             "rest_extent_file_units": extent}
 
@@ -452,6 +440,19 @@ def _find_motion(lines: list[str]) -> int | None:
     return None
 
 
+def _keyword_line(path, lines: list[str], i: int, regex: re.Pattern, n_lines: int, expected: str,
+                  at_end: str) -> tuple[re.Match, int]:
+    """The match of ``regex`` on the first non-blank line from index ``i``, and its index."""
+    while i < len(lines) and not lines[i].strip():
+        i += 1
+    if i >= len(lines):
+        raise MocapFormatError(path, at_end, n_lines)
+    m = regex.match(lines[i])
+    if not m:
+        raise MocapFormatError(path, f"expected {expected}, found {lines[i].strip()!r}", i + 1)
+    return m, i
+
+
 def _parse_header(path, lines: list[str], n_lines: int):
     """(nodes, frames, frame time, index of the first frame line) from the lines of a file
     (all of them, or at least up to the ``Frame Time`` line); ``n_lines`` = lines in the file."""
@@ -466,28 +467,14 @@ def _parse_header(path, lines: list[str], n_lines: int):
     if lines[motion_line].split()[1:]:
         raise MocapFormatError(path, f"unexpected text after MOTION: {lines[motion_line].strip()!r}",
                                motion_line + 1)
-
-    def next_nonblank(i):
-        while i < len(lines) and not lines[i].strip():
-            i += 1
-        return i
-
-    i = next_nonblank(motion_line + 1)
-    if i >= len(lines):
-        raise MocapFormatError(path, "file ends after MOTION; expected 'Frames: N'", n_lines)
-    m = _FRAMES_RE.match(lines[i])
-    if not m:
-        raise MocapFormatError(path, f"expected 'Frames: N' after MOTION, found {lines[i].strip()!r}", i + 1)
+    m, i = _keyword_line(path, lines, motion_line + 1, _FRAMES_RE, n_lines, "'Frames: N' after MOTION",
+                         "file ends after MOTION; expected 'Frames: N'")
     n_frames = parse_int(m.group(1), path, i + 1, "the frame count")
     if n_frames <= 0:
         raise MocapFormatError(path, f"'Frames: {n_frames}': the file holds no motion (at least 1 frame "
                                      f"is needed)", i + 1)
-    i = next_nonblank(i + 1)
-    if i >= len(lines):
-        raise MocapFormatError(path, "file ends after 'Frames:'; expected 'Frame Time: seconds'", n_lines)
-    m = _FTIME_RE.match(lines[i])
-    if not m:
-        raise MocapFormatError(path, f"expected 'Frame Time: seconds', found {lines[i].strip()!r}", i + 1)
+    m, i = _keyword_line(path, lines, i + 1, _FTIME_RE, n_lines, "'Frame Time: seconds'",
+                         "file ends after 'Frames:'; expected 'Frame Time: seconds'")
     frame_time = parse_float(m.group(1), path, i + 1, "the frame time")
     if not FRAME_TIME_RANGE[0] <= frame_time <= FRAME_TIME_RANGE[1]:
         raise MocapFormatError(path, f"'Frame Time: {m.group(1)}' is outside the supported range "

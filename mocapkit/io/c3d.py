@@ -259,27 +259,8 @@ def read(path: str | os.PathLike, *, units: str | float | None = None, zero_miss
         warn.append(f"the C3D header announces {announced} frames (frames {info['first']}..{info['last']}) "
                     f"but the data hold {T}; read the {T} frames the data hold")
     res = np.asarray(c["data"]["meta_points"]["residuals"], dtype=float).reshape(N, T)
-    try:
-        rate = float(params["POINT"]["RATE"]["value"][0])
-    except (KeyError, IndexError, TypeError):
-        rate = float(c["header"]["points"]["frame_rate"])
-    if not np.isfinite(rate) or rate <= 0:
-        raise MocapFormatError(path, f"bad POINT:RATE {rate!r} (frames per second must be positive)")
-    file_units = None
-    try:
-        file_units = str(params["POINT"]["UNITS"]["value"][0]).strip()
-    except (KeyError, IndexError, TypeError):
-        pass
-    if units is not None:
-        ulabel, factor = _unit_factor(units, path)
-        how = "override (units=)"
-    elif file_units:
-        if file_units.lower() not in UNITS:
-            raise MocapFormatError(path, f"unknown POINT:UNITS {file_units!r} (expected one of "
-                                   f"{', '.join(UNITS)}); pass units= to read it anyway")
-        ulabel, factor, how = file_units.lower(), UNITS[file_units.lower()], "POINT:UNITS"
-    else:
-        ulabel, factor, how = "mm", UNITS["mm"], "no POINT:UNITS in the file; C3D default mm assumed"
+    rate = _frame_rate(path, c)
+    ulabel, factor, how = _point_units(path, params, units)
     xyz = np.transpose(pts[:3], (2, 1, 0))                            # (T, N, 3)
     with np.errstate(invalid="ignore"):
         obs = np.isfinite(xyz).all(axis=2) & (res.T >= 0)
@@ -294,15 +275,10 @@ def read(path: str | os.PathLike, *, units: str | float | None = None, zero_miss
     labels = _labels(params, N)
     names = _unique_names(labels, N)
     sk = Skeleton(tuple(names), -np.ones(N, dtype=int), np.zeros((N, 3)))
-    try:
-        n_analog = int(np.asarray(c["data"]["analogs"]).shape[1])
-    except (KeyError, IndexError):
-        n_analog = 0
-    analog_rate = float(c["header"]["analogs"].get("frame_rate", 0.0)) if "analogs" in c["header"] else 0.0
     meta = {"labels": labels + [""] * (N - len(labels)), "rate": rate,
-            "first_frame": int(c["header"]["points"]["first_frame"]),
-            "analog_channels": n_analog, "analog_rate": analog_rate, "processor": info["processor"],
-            "header_frames": announced, "residual_step": _residual_step(params),
+            "first_frame": int(c["header"]["points"]["first_frame"]), **_analogs(c),
+            "processor": info["processor"], "header_frames": announced,
+            "residual_step": _residual_step(params),
             "residuals": "measured (0 = filled)" if has_residuals else
                          "none (every valid sample has residual 0: nothing read as filled)"}
     src = {"path": str(path), "format": "c3d",
@@ -315,6 +291,45 @@ def read(path: str | os.PathLike, *, units: str | float | None = None, zero_miss
     with np.errstate(over="ignore", invalid="ignore"):
         P = xyz * factor
     return Motion(P, sk, rate, obs, src, filled)
+
+
+def _frame_rate(path: Path, c) -> float:
+    """Frames per second: ``POINT:RATE``, else the header's rate; must be positive."""
+    try:
+        rate = float(c["parameters"]["POINT"]["RATE"]["value"][0])
+    except (KeyError, IndexError, TypeError):
+        rate = float(c["header"]["points"]["frame_rate"])
+    if not np.isfinite(rate) or rate <= 0:
+        raise MocapFormatError(path, f"bad POINT:RATE {rate!r} (frames per second must be positive)")
+    return rate
+
+
+def _point_units(path: Path, params: dict, units) -> tuple[str, float, str]:
+    """(unit label, cm per file unit, how it was chosen): ``units=``, else ``POINT:UNITS``,
+    else the C3D default mm."""
+    file_units = None
+    try:
+        file_units = str(params["POINT"]["UNITS"]["value"][0]).strip()
+    except (KeyError, IndexError, TypeError):
+        pass
+    if units is not None:
+        return (*_unit_factor(units, path), "override (units=)")
+    if file_units:
+        if file_units.lower() not in UNITS:
+            raise MocapFormatError(path, f"unknown POINT:UNITS {file_units!r} (expected one of "
+                                   f"{', '.join(UNITS)}); pass units= to read it anyway")
+        return file_units.lower(), UNITS[file_units.lower()], "POINT:UNITS"
+    return "mm", UNITS["mm"], "no POINT:UNITS in the file; C3D default mm assumed"
+
+
+def _analogs(c) -> dict[str, Any]:
+    """Analog channel count and rate (the analog data themselves are not read)."""
+    try:
+        n_analog = int(np.asarray(c["data"]["analogs"]).shape[1])
+    except (KeyError, IndexError):
+        n_analog = 0
+    analog_rate = float(c["header"]["analogs"].get("frame_rate", 0.0)) if "analogs" in c["header"] else 0.0
+    return {"analog_channels": n_analog, "analog_rate": analog_rate}
 
 
 def _residual_step(params: dict) -> float | None:

@@ -197,7 +197,38 @@ def read(path: str | os.PathLike, *, n_joints: int | None = None, fps: float = 1
     names : joint names in file order, overriding the layout's labels (same name set).
     """
     path = Path(path)
-    text = read_text(path)
+    A, line_nos = _joint_lines(path, read_text(path))
+    n, ncol = A.shape
+    J, chosen = _joints_per_frame(path, A, line_nos, n_joints, layout)
+    lay = layout or _DEFAULT_LAYOUT[J]
+    file_order, motion_order, parents_by_name = _layout(lay, J, names)
+    T = n // J
+    F = A.reshape(T, J, ncol)
+    perm = [file_order.index(nm) for nm in motion_order]
+    F = F[:, perm]
+    raw = F[..., :3]
+    obs = ~(raw == 0).all(axis=2)
+    with np.errstate(over="ignore", invalid="ignore"):
+        f, unit = _resolve_units(units, raw, obs, path)
+        P = raw * f
+    if not np.isfinite(P[obs]).all():
+        raise MocapFormatError(path, "coordinates so large that they overflow when converted to cm")
+    P = np.where(obs[..., None], P, np.nan)
+    skeleton = _median_skeleton(P, obs, motion_order, parents_by_name)
+    per_frame = {}
+    if ncol == 4:
+        per_frame["confidence"] = F[..., 3].copy()
+    source = {"path": str(path), "format": "kinect", "units": unit,
+              "kinect": {"layout": lay, "file_order": tuple(file_order), "columns": ncol,
+                         "n_joints_chosen_by": chosen},
+              "per_frame": per_frame}
+    if not obs.any():
+        source["warnings"] = ["no tracked joint in the whole file (every line is 0 0 0)"]
+    return Motion(P, skeleton, fps, obs, source)
+
+
+def _joint_lines(path: Path, text: str) -> tuple[np.ndarray, list[int]]:
+    """(n, 3 or 4) values of the non-blank lines and their line numbers."""
     rows, line_nos = [], []
     for i, s in enumerate(text.splitlines()):
         r = s.split()
@@ -212,34 +243,42 @@ def read(path: str | os.PathLike, *, n_joints: int | None = None, fps: float = 1
                                      f"{ncol}", line_nos[0])
     A = float_rows(rows, line_nos, ncol, path,
                    "values (x y z confidence)" if ncol == 4 else "values (x y z)")
-    n = len(rows)
+    return A, line_nos
+
+
+def _joints_per_frame(path: Path, A: np.ndarray, line_nos: list[int], n_joints, layout) -> tuple[int, str]:
+    """Joints per frame (20 or 25) and how it was chosen: ``n_joints=``, the layout, or the
+    line count (both divide it: the smoother trajectories win)."""
+    n = len(A)
     chosen = "user (n_joints=)"
     if n_joints is None and layout is not None:
         if layout not in LAYOUTS:
             raise MocapValueError(f"unknown layout {layout!r}; use one of {', '.join(LAYOUTS)}")
         n_joints = len(LAYOUTS[layout][0])
         chosen = f"layout {layout!r}"
-    if n_joints is None:
-        cands = [J for J in (20, 25) if n % J == 0]
-        if not cands:
-            raise MocapFormatError(path, f"{n} joint lines is a multiple of neither 20 nor 25 joints per "
-                                         f"frame: truncated file? (or pass n_joints=)", line_nos[-1])
-        if len(cands) == 1:
-            J = cands[0]
-            chosen = f"auto: {n} lines divide only by {J}"
-        else:
-            jump = {J: _jumpiness(A, J) for J in cands}
-            J = min(cands, key=lambda c: (jump[c], c))
-            chosen = (f"auto: {n} lines divide by 20 and 25; {J} joints give the smoother trajectories "
-                      f"(median frame-to-frame step {jump[20]:.4g} for 20 vs {jump[25]:.4g} for 25)")
-    else:
+    if n_joints is not None:
         J = int(n_joints)
         if J not in (20, 25):
             raise MocapValueError(f"n_joints must be 20 or 25, got {n_joints!r}")
         if n % J:
             raise MocapFormatError(path, f"{n} joint lines is not a multiple of {J} joints per frame "
                                          f"(truncated file?)", line_nos[-1])
-    lay = layout or _DEFAULT_LAYOUT[J]
+        return J, chosen
+    cands = [J for J in (20, 25) if n % J == 0]
+    if not cands:
+        raise MocapFormatError(path, f"{n} joint lines is a multiple of neither 20 nor 25 joints per "
+                                     f"frame: truncated file? (or pass n_joints=)", line_nos[-1])
+    if len(cands) == 1:
+        return cands[0], f"auto: {n} lines divide only by {cands[0]}"
+    jump = {J: _jumpiness(A, J) for J in cands}
+    J = min(cands, key=lambda c: (jump[c], c))
+    return J, (f"auto: {n} lines divide by 20 and 25; {J} joints give the smoother trajectories "
+               f"(median frame-to-frame step {jump[20]:.4g} for 20 vs {jump[25]:.4g} for 25)")
+
+
+def _layout(lay: str, J: int, names) -> tuple[tuple[str, ...], tuple[str, ...], dict]:
+    """(file joint order, Motion joint order, parent by name) of layout ``lay``; ``names``
+    (a permutation of the layout's names) relabels the file order."""
     if lay not in LAYOUTS:
         raise MocapValueError(f"unknown layout {lay!r}; use one of {', '.join(LAYOUTS)}")
     file_order, motion_order, parents_by_name = LAYOUTS[lay]
@@ -251,19 +290,13 @@ def read(path: str | os.PathLike, *, n_joints: int | None = None, fps: float = 1
             raise MocapValueError(f"names= must be a permutation of the {lay} joint names: "
                                   f"{', '.join(file_order)}")
         file_order = names
-    T = n // J
-    F = A.reshape(T, J, ncol)
-    perm = [file_order.index(nm) for nm in motion_order]
-    F = F[:, perm]
-    raw = F[..., :3]
-    obs = ~(raw == 0).all(axis=2)
-    with np.errstate(over="ignore", invalid="ignore"):
-        f, unit = _resolve_units(units, raw, obs, path)
-        P = raw * f
-    if not np.isfinite(P[obs]).all():
-        raise MocapFormatError(path, "coordinates so large that they overflow when converted to cm")
-    P = np.where(obs[..., None], P, np.nan)
-    # skeleton: parent-first order, offsets = median bone vectors (cm)
+    return file_order, motion_order, parents_by_name
+
+
+def _median_skeleton(P: np.ndarray, obs: np.ndarray, motion_order, parents_by_name: dict) -> Skeleton:
+    """Parent-first skeleton whose offsets are the per-coordinate median bone vectors (cm);
+    a bone never observed takes the MSR template offset (zero for the root)."""
+    J = len(motion_order)
     idx = {nm: j for j, nm in enumerate(motion_order)}
     par = np.array([idx[parents_by_name[nm]] if parents_by_name[nm] else -1 for nm in motion_order])
     V = np.where((par >= 0)[None, :, None], P - P[:, np.maximum(par, 0)], P)
@@ -276,17 +309,7 @@ def read(path: str | os.PathLike, *, n_joints: int | None = None, fps: float = 1
     for j, nm in enumerate(motion_order):
         if not np.isfinite(offsets[j]).all():
             offsets[j] = _MSR_TEMPLATE_CM.get(nm, (0.0, 0.0, 0.0)) if par[j] >= 0 else 0.0
-    skeleton = Skeleton(tuple(motion_order), par, offsets)
-    per_frame = {}
-    if ncol == 4:
-        per_frame["confidence"] = F[..., 3].copy()
-    source = {"path": str(path), "format": "kinect", "units": unit,
-              "kinect": {"layout": lay, "file_order": tuple(file_order), "columns": ncol,
-                         "n_joints_chosen_by": chosen},
-              "per_frame": per_frame}
-    if not obs.any():
-        source["warnings"] = ["no tracked joint in the whole file (every line is 0 0 0)"]
-    return Motion(P, skeleton, fps, obs, source)
+    return Skeleton(tuple(motion_order), par, offsets)
 
 
 def write(motion: Motion, path: str | os.PathLike, *, layout: str | None = None,

@@ -84,6 +84,46 @@ def read(path: str | os.PathLike, *, units: str | None = None) -> Motion:
     """
     path = Path(path)
     lines = read_text(path).splitlines()
+    sep, keys, vals, header = _header(path, lines)
+    names, order = _marker_names(path, lines[3], sep)
+    n_triples = max(order) + 1
+    unit_txt = (units if units is not None else header.get("units", "")).strip().lower()
+    if unit_txt not in UNITS:
+        if units is not None:
+            raise MocapValueError(f"unknown TRC unit {units!r}; use one of mm, cm, m")
+        raise MocapFormatError(path, f"Units {header.get('units', '')!r} not understood; expected mm, cm "
+                                     f"or m (or pass units=)", 3)
+    factor = UNITS[unit_txt]
+    A, line_nos = _data(path, lines, sep, n_triples)
+    del lines
+    T, M = A.shape[0], len(names)
+    frame_no, times, data = A[:, 0], A[:, 1], A[:, 2:]
+    if not (np.isfinite(frame_no).all() and np.isfinite(times).all()):
+        i = int(np.flatnonzero(~(np.isfinite(frame_no) & np.isfinite(times)))[0])
+        raise MocapFormatError(path, "Frame# and Time must be numbers", line_nos[i])
+    P = data.reshape(T, n_triples, 3)[:, order] * factor
+    observed = np.isfinite(P).all(axis=2)
+    warnings: list[str] = []
+    mismatches = [m for m in (
+        _count_check(header, "numframes", "NumFrames", T, warnings,
+                     f"the file holds {T} complete data rows; all {T} rows were read"),
+        _count_check(header, "nummarkers", "NumMarkers", M, warnings,
+                     f"line 4 names {M} markers (and the data rows hold them); all {M} were read")) if m]
+    fps = _frame_rate(path, header, times, warnings)
+    skeleton = Skeleton(tuple(names), -np.ones(M, dtype=int), np.zeros((M, 3)))
+    source = {"path": str(path), "format": "trc",
+              "units": {"name": unit_txt, "factor_to_cm": factor, "chosen_by": "file header" if units is None else "user (units=)"},
+              "header": {k: v for k, v in zip(keys, vals) if k},
+              "per_frame": {"frame": frame_no, "time": times}}
+    if warnings:
+        source["warnings"] = warnings
+    for w in mismatches:
+        _warnings.warn(f"{path}: {w}", HeaderMismatchWarning, stacklevel=2)
+    return Motion(P, skeleton, fps, observed, source)
+
+
+def _header(path: Path, lines: list[str]):
+    """(cell separator, header keys, header values, {lower-case key: value}) of lines 1-3."""
     if not lines or not lines[0].strip():
         raise MocapFormatError(path, "empty file; expected a TRC header starting with 'PathFileType'", 1)
     if not lines[0].lstrip().lower().startswith("pathfiletype"):
@@ -99,14 +139,18 @@ def read(path: str | os.PathLike, *, units: str | None = None) -> Motion:
     if "nummarkers" not in header and "datarate" not in header:
         raise MocapFormatError(path, f"line 2 should hold the header keys (DataRate ... NumMarkers ... "
                                      f"Units), found {lines[1][:60]!r}", 2)
-    names_row = _split(lines[3], sep)
+    return sep, keys, vals, header
+
+
+def _marker_names(path: Path, line: str, sep: str) -> tuple[list[str], list[int]]:
+    """Marker names of line 4 (every non-empty cell after Frame#, Time) and the X/Y/Z
+    triple index of each."""
+    names_row = _split(line, sep)
     if len(names_row) < 2 or names_row[0].lower() not in ("frame#", "frame"):
         raise MocapFormatError(path, f"line 4 should start with 'Frame#' and 'Time', found "
-                                     f"{lines[3][:40]!r}", 4)
-    # marker names: every non-empty cell after Frame#, Time
-    cells = names_row[2:]
+                                     f"{line[:40]!r}", 4)
     names, cols = [], []
-    for i, c in enumerate(cells):
+    for i, c in enumerate(names_row[2:]):
         if c:
             names.append(c)
             cols.append(i)
@@ -119,23 +163,17 @@ def read(path: str | os.PathLike, *, units: str | None = None) -> Motion:
     if len(set(names)) != len(names):
         dup = sorted({n for n in names if names.count(n) > 1})
         raise MocapFormatError(path, f"duplicate marker names: {', '.join(dup)}", 4)
-    M = len(names)
-    order = [c // 3 for c in cols]                    # triple index of each name
-    n_triples = max(order) + 1
-    warnings: list[str] = []
-    mismatches: list[str] = []          # header counts vs the data: also a HeaderMismatchWarning
-    # units
-    unit_txt = (units if units is not None else header.get("units", "")).strip().lower()
-    if unit_txt not in UNITS:
-        if units is not None:
-            raise MocapValueError(f"unknown TRC unit {units!r}; use one of mm, cm, m")
-        raise MocapFormatError(path, f"Units {header.get('units', '')!r} not understood; expected mm, cm "
-                                     f"or m (or pass units=)", 3)
-    factor = UNITS[unit_txt]
-    # data rows: skip the X1/Y1/Z1 line and blank lines. Parsed in blocks of _READ_BLOCK
-    # rows so only one block of split cells (Python strings, ~60 bytes each) is alive at a
-    # time: 100,000 frames x 31 markers peaked at 14x the positions array when all rows
-    # were split first (docs/results/reliability.md)
+    return names, [c // 3 for c in cols]
+
+
+def _data(path: Path, lines: list[str], sep: str, n_triples: int) -> tuple[np.ndarray, list[int]]:
+    """(T, 2 + 3 n_triples) floats of the data rows (missing cells NaN) and their line numbers.
+
+    The X1/Y1/Z1 line and blank lines are skipped. Parsed in blocks of _READ_BLOCK rows so
+    only one block of split cells (Python strings, ~60 bytes each) is alive at a time:
+    100,000 frames x 31 markers peaked at 14x the positions array when all rows were split
+    first (docs/results/reliability.md).
+    """
     width = 2 + 3 * n_triples
     line_nos = [k + 1 for k in range(5, len(lines))
                 if lines[k].strip() and lines[k].replace(sep, "").strip()]
@@ -145,58 +183,38 @@ def read(path: str | os.PathLike, *, units: str | None = None) -> Motion:
         _parse_rows([_split(lines[n - 1], sep) for n in line_nos[a:a + _READ_BLOCK]],
                     line_nos[a:a + _READ_BLOCK], width, n_triples, path)
         for a in range(0, len(line_nos), _READ_BLOCK)])
-    del lines
-    T = A.shape[0]
-    frame_no, times, data = A[:, 0], A[:, 1], A[:, 2:]
-    if not (np.isfinite(frame_no).all() and np.isfinite(times).all()):
-        i = int(np.flatnonzero(~(np.isfinite(frame_no) & np.isfinite(times)))[0])
-        raise MocapFormatError(path, "Frame# and Time must be numbers", line_nos[i])
-    P = data.reshape(T, n_triples, 3)[:, order] * factor
-    observed = np.isfinite(P).all(axis=2)
-    # header checks (reported, not fatal)
+    return A, line_nos
+
+
+def _count_check(header: dict, key: str, label: str, n: int, warnings: list[str], held: str) -> str | None:
+    """Compare a header count with what the data hold: the mismatch text (also appended to
+    ``warnings``; reported, not fatal), or None when they agree or the field is absent."""
     try:
-        nf = int(float(header.get("numframes", T)))
-        if nf != T:
-            mismatches.append(f"header NumFrames={nf} but the file holds {T} complete data rows; "
-                              f"all {T} rows were read")
-            warnings.append(mismatches[-1])
-    except ValueError:
-        warnings.append(f"header NumFrames {header.get('numframes')!r} is not a number")
-    try:
-        nm = int(float(header.get("nummarkers", M)))
-        if nm != M:
-            mismatches.append(f"header NumMarkers={nm} but line 4 names {M} markers (and the data rows "
-                              f"hold them); all {M} were read")
-            warnings.append(mismatches[-1])
-    except ValueError:
-        warnings.append(f"header NumMarkers {header.get('nummarkers')!r} is not a number")
-    fps = None
+        v = int(float(header.get(key, n)))
+    except (ValueError, OverflowError):                  # 'abc', 'nan', 'inf'
+        warnings.append(f"header {label} {header.get(key)!r} is not a number")
+        return None
+    if v == n:
+        return None
+    warnings.append(f"header {label}={v} but {held}")
+    return warnings[-1]
+
+
+def _frame_rate(path: Path, header: dict, times: np.ndarray, warnings: list[str]) -> float:
+    """``DataRate``, else ``CameraRate``, else 1 / the median step of the Time column."""
     for key in ("datarate", "camerarate"):
         try:
             v = float(header.get(key, "nan"))
         except ValueError:
             v = float("nan")
         if np.isfinite(v) and v > 0:
-            fps = v
-            break
-    if fps is None:
-        dt = np.diff(times)
-        if len(dt) and np.all(dt > 0):
-            fps = 1.0 / float(np.median(dt))
-            warnings.append("no valid DataRate/CameraRate: fps derived from the Time column")
-        else:
-            raise MocapFormatError(path, "no valid DataRate or CameraRate in the header and no usable "
-                                         "Time column to derive the frame rate", 3)
-    skeleton = Skeleton(tuple(names), -np.ones(M, dtype=int), np.zeros((M, 3)))
-    source = {"path": str(path), "format": "trc",
-              "units": {"name": unit_txt, "factor_to_cm": factor, "chosen_by": "file header" if units is None else "user (units=)"},
-              "header": {k: v for k, v in zip(keys, vals) if k},
-              "per_frame": {"frame": frame_no, "time": times}}
-    if warnings:
-        source["warnings"] = warnings
-    for w in mismatches:
-        _warnings.warn(f"{path}: {w}", HeaderMismatchWarning, stacklevel=2)
-    return Motion(P, skeleton, fps, observed, source)
+            return v
+    dt = np.diff(times)
+    if len(dt) and np.all(dt > 0):
+        warnings.append("no valid DataRate/CameraRate: fps derived from the Time column")
+        return 1.0 / float(np.median(dt))
+    raise MocapFormatError(path, "no valid DataRate or CameraRate in the header and no usable "
+                                 "Time column to derive the frame rate", 3)
 
 
 _WRITE_BLOCK = 2048

@@ -381,9 +381,9 @@ class Bundle:
         out = self.refine_local(P, obs, postprocess=postprocess, threads=threads, network=network)
         out = _resample_back(out, fps, motion.fps, motion.n_frames)
         if self.same_topology or all(j in motion.skeleton.names for j in self.joints_out):
-            from ..solvers.lowrank import noise_level
+            from ..signal import estimate_noise
 
-            sigma = noise_level(motion.matrix(), motion.matrix_mask(), robust=True)
+            sigma = estimate_noise(motion.matrix(), motion.matrix_mask(), pool="all", fallback=0.0)
             full = C.attach_dropped(out, motion.skeleton, self.joints_out, source=motion.positions,
                                     source_observed=motion.observed, noise_cm=sigma, fps=motion.fps)
             full = clean_blend(full, motion.positions, motion.observed, sigma,
@@ -402,7 +402,7 @@ def clean_blend(out: np.ndarray, inp: np.ndarray, observed: np.ndarray, noise_cm
                 sigma0: float = CLEAN_BLEND_CM) -> np.ndarray:
     """"Do no harm" on near-clean input (issue 20): observed samples become
     ``w inp + (1 - w) out`` with ``w = 1 / (1 + (noise_cm / sigma0)^2)``, ``noise_cm`` the
-    input's robust noise estimate (:func:`mocapkit.solvers.lowrank.noise_level`).
+    input's robust noise estimate (:func:`mocapkit.signal.estimate_noise`, ``pool="all"``).
 
     The network corrects a light low-pass of its input (:func:`clips.model_input`), which
     costs a clean fast motion up to ~0.6 cm; a clean capture (estimated noise ~0.05 cm,

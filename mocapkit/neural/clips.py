@@ -43,7 +43,7 @@ bridged linearly in time), ``B`` = :func:`base_smooth` ``(X)`` (5-frame median +
 Gaussian sigma 1 frame) and the mask of observed joints; the output is
 ``B + correction``. Training clips are augmented (:meth:`~mocapkit.neural.train.
 SyntheticSource.augment`: rotation about the vertical, left/right mirror
-(:func:`mirror_permutation`), scale), so the normalisation's horizontal means are 0.
+(:func:`mocapkit.frames.mirror_permutation`), scale), so the normalisation's horizontal means are 0.
 
 Joints outside the subset (output)
 ----------------------------------
@@ -72,8 +72,9 @@ from typing import Sequence
 
 import numpy as np
 
+from .. import gaps
 from ..errors import MocapValueError
-from ..motion import Motion, fill_gaps_linear
+from ..motion import Motion
 from ..skeleton import Skeleton
 
 CMU_21: tuple[str, ...] = (
@@ -176,9 +177,9 @@ def ground_reference(root: np.ndarray, observed: np.ndarray | None = None, *,
             R = np.zeros_like(R)
         else:
             F = np.asarray(fallback, dtype=float)
-            R = fill_gaps_linear(F, np.isfinite(F))
+            R = gaps.fill(F, np.isfinite(F), never_observed=0.0)
     else:
-        R = fill_gaps_linear(R, np.repeat(obs[:, None], 3, axis=1))
+        R = gaps.fill(R, np.repeat(obs[:, None], 3, axis=1), never_observed=0.0)
     if sigma and sigma > 0 and len(R) > 1:
         from scipy.ndimage import gaussian_filter1d
 
@@ -269,7 +270,7 @@ def model_input(Z: np.ndarray, observed: np.ndarray, *, fill: bool = True, mask:
         return np.stack([model_input(z, o, fill=fill, mask=mask, base_sigma=base_sigma,
                                      highpass_gain=highpass_gain) for z, o in zip(Z, obs)])
     if fill and not oc.all():
-        X = fill_gaps_linear(np.where(oc, Z, 0.0), oc)
+        X = gaps.fill(np.where(oc, Z, 0.0), oc, never_observed=0.0)
     else:
         X = np.where(oc, Z, 0.0)
     if base_sigma and base_sigma > 0:
@@ -297,18 +298,6 @@ def body_size(P: np.ndarray, observed: np.ndarray | None = None) -> float:
 
 MIRROR_AXIS = 0
 """Horizontal axis negated by the left/right mirror augmentation (x of Y-up CMU data)."""
-
-
-def mirror_permutation(joints: Sequence[str]) -> np.ndarray:
-    """Index map swapping each ``l...`` joint with its ``r...`` twin (others stay)."""
-    names = list(joints)
-    out = np.arange(len(names))
-    for i, n in enumerate(names):
-        if n[:1] in ("l", "r"):
-            twin = ("r" if n[0] == "l" else "l") + n[1:]
-            if twin in names:
-                out[i] = names.index(twin)
-    return out
 
 
 # ----------------------------------------------------------------------------------------
@@ -463,7 +452,7 @@ def attach_dropped(kept: np.ndarray, skeleton: Skeleton, joints: Sequence[str], 
         if not ok.any():
             continue
         rel = np.where(ok[:, None], src[:, j] - src[:, a], np.nan)
-        rel = fill_gaps_linear(np.nan_to_num(rel), np.repeat(ok[:, None], 3, axis=1))
+        rel = gaps.fill(np.nan_to_num(rel), np.repeat(ok[:, None], 3, axis=1), never_observed=0.0)
         if len(rel) >= med:
             rel = median_filter(rel, size=(med, 1), mode="nearest")
         rel = gaussian_filter1d(rel, sig, axis=0, mode="nearest")

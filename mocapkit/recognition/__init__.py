@@ -10,8 +10,8 @@ Entry points used by the CLI::
     classify(model_path, motion_path) -> (label, confidence)
     load_model(path) -> a classifier with .predict(motion) -> (label, confidence)
 """
-from .classifier import (DEFAULT_METHOD, METHODS, SkeletonClassifier, classify, load_model,
-                         sequence_features, train_classifier)
+from .classifier import DEFAULT_METHOD, METHODS, SkeletonClassifier, classify, sequence_features, train_classifier
+from .model_file import load_model
 from .nmc import NMCClassifier, gonmf, nmf_objective
 from .rocket import MiniRocket, RocketClassifier, trajectories
 

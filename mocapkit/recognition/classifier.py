@@ -20,13 +20,15 @@ calibrated-ish probabilities: ``predict`` returns the most probable label and it
 probability as the confidence. A model saves to ``.npz`` (no pickle): scaler, weights,
 classes, parameters and (from this version on) the joint names of the training skeleton.
 
-Model files and the CLI (:func:`train_classifier`, :func:`load_model`, :func:`classify`):
+Model files and the CLI (:func:`train_classifier`, :func:`~mocapkit.recognition.model_file.load_model`,
+:func:`classify`):
 ``mocapkit classify train`` trains the **MiniRocket/MultiRocket** classifier by default
 (:class:`mocapkit.recognition.rocket.RocketClassifier`: MultiRocket poolings, augmented
 training set, leave-one-clip-out ridge; ``method='skeleton'`` this
 classifier, ``method='nmc'`` the thesis' NMC, :class:`mocapkit.recognition.nmc.NMCClassifier`,
-inductive). :func:`load_model` (and :meth:`SkeletonClassifier.load`, kept as the generic
-loader the CLI calls) returns whichever model a file holds. Every model remembers the joint
+inductive). :func:`~mocapkit.recognition.model_file.load_model` (the CLI's loader; it
+dispatches on the header format each classifier module registers, and
+:meth:`SkeletonClassifier.load` calls it) returns whichever model a file holds. Every model remembers the joint
 names of its training skeleton and refuses a motion of another joint set with a
 :class:`~mocapkit.errors.MocapValueError` naming both.
 """
@@ -38,17 +40,20 @@ from typing import Sequence
 
 import numpy as np
 
-from ..errors import MocapFormatError, MocapValueError, NotFittedError
+from ..errors import MocapValueError, NotFittedError
 from ..motion import Motion
 from ..retrieval.features import Prepared, gpf, hod, prepare, pyramid_segments
+from .model_file import (check_joint_set, joint_set_of, load_model, read_head, register_format,
+                         write_model)
 
-__all__ = ["sequence_features", "SkeletonClassifier", "train_classifier", "classify", "load_model",
-           "check_joint_set", "METHODS", "DEFAULT_METHOD", "MODEL_FORMAT_VERSION"]
+__all__ = ["sequence_features", "SkeletonClassifier", "train_classifier", "classify",
+           "METHODS", "DEFAULT_METHOD", "MODEL_FORMAT_VERSION", "MODEL_FORMAT"]
 
 METHODS = ("minirocket", "skeleton", "nmc")
 DEFAULT_METHOD = "minirocket"
 
 MODEL_FORMAT_VERSION = 1
+MODEL_FORMAT = "mocapkit-classifier"
 SMOOTH_S = 0.15
 
 
@@ -86,33 +91,6 @@ def sequence_features(seq: Motion | Prepared) -> np.ndarray:
     Q = p.positions.copy()
     Q[:, 0] = 0.0
     return np.concatenate([h, _pyramid_stats(gpf(p)), _pyramid_stats(Q.reshape(p.n_frames, -1))])
-
-
-def check_joint_set(joints: Sequence[str], motion: Motion) -> None:
-    """Raise MocapValueError when ``motion``'s joint names are not ``joints`` (the training
-    skeleton's); an empty ``joints`` (a model file from before joint sets were stored)
-    accepts any motion."""
-    mine = tuple(str(j) for j in joints)
-    if not mine:
-        return
-    names = tuple(motion.skeleton.names)
-    if names != mine:
-        src = str(motion.source.get("path", ""))
-        raise MocapValueError(
-            f"{src + ': ' if src else ''}the model was trained on a {len(mine)}-joint skeleton "
-            f"({', '.join(mine[:4])}, ...) but this motion has {len(names)} joints "
-            f"({', '.join(names[:4])}, ...); train a model on clips of this skeleton kind "
-            "('mocapkit classify train DATA -o MODEL')")
-
-
-def joint_set_of(motions: Sequence[Motion]) -> tuple[str, ...]:
-    """The one joint-name tuple of ``motions``; MocapValueError when they mix skeleton kinds."""
-    sets = {m.skeleton.names for m in motions}
-    if len(sets) > 1:
-        desc = "; ".join(f"{len(s)} joints ({', '.join(s[:3])}, ...)" for s in sorted(sets, key=len))
-        raise MocapValueError(f"training motions have {len(sets)} different joint sets ({desc}); "
-                              "train one model per skeleton kind")
-    return next(iter(sets))
 
 
 class SkeletonClassifier:
@@ -187,49 +165,20 @@ class SkeletonClassifier:
         return str(self.classes_[i]), float(pr[i])
 
     def save(self, path: str | os.PathLike, *, overwrite: bool = False) -> Path:
-        from .model_file import write_model
-
         self._check()
-        header = {"format": "mocapkit-classifier", "version": MODEL_FORMAT_VERSION,
+        header = {"format": MODEL_FORMAT, "version": MODEL_FORMAT_VERSION,
                   "params": {"C": self.C, "max_iter": self.max_iter}, "smooth_s": SMOOTH_S}
         return write_model(self, path, header, overwrite=overwrite)
 
     @classmethod
     def load(cls, path: str | os.PathLike):
         """Load a classifier model file. Generic: returns the model the file holds
-        (:func:`load_model`) -- this class, a MiniRocket or an NMC model."""
+        (:func:`~mocapkit.recognition.model_file.load_model`) -- this class, a MiniRocket or an NMC model."""
         return load_model(path)
 
     @classmethod
     def from_arrays(cls, header: dict, st: dict, path) -> "SkeletonClassifier":
-        from .model_file import read_head
-
         return read_head(cls(**header["params"]), header, st, path, MODEL_FORMAT_VERSION)
-
-
-def load_model(path: str | os.PathLike):
-    """The classifier a model file holds: :class:`SkeletonClassifier`,
-    :class:`~mocapkit.recognition.rocket.RocketClassifier` or
-    :class:`~mocapkit.recognition.nmc.NMCClassifier`; MocapFormatError for anything else."""
-    from .nmc import MODEL_FORMAT as NMC_FORMAT, NMCClassifier
-    from .rocket import MODEL_FORMAT as ROCKET_FORMAT, RocketClassifier
-
-    from ..io._npz import read_npz
-
-    p = Path(path)
-    header, st = read_npz(p, "classifier model")
-    fmt = header.get("format")
-    kinds = {"mocapkit-classifier": SkeletonClassifier, ROCKET_FORMAT: RocketClassifier,
-             NMC_FORMAT: NMCClassifier}
-    if fmt not in kinds:
-        raise MocapFormatError(p, f"not a mocapkit classifier model (it holds a {fmt!r}); "
-                                  "train one with 'mocapkit classify train DATA -o MODEL'")
-    try:
-        return kinds[fmt].from_arrays(header, st, p)
-    except MocapFormatError:
-        raise
-    except Exception as e:
-        raise MocapFormatError(p, f"damaged {fmt} model ({type(e).__name__}: {e})") from None
 
 
 def train_classifier(paths_or_dir, output: str | os.PathLike, labels: Sequence[str] | None = None,
@@ -317,3 +266,6 @@ def classify(model_path: str | os.PathLike, motion_path: str | os.PathLike) -> t
     from ..io import read
 
     return load_model(model_path).predict(read(motion_path))
+
+
+register_format(MODEL_FORMAT, SkeletonClassifier)

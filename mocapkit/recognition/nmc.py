@@ -55,6 +55,7 @@ import scipy.sparse as sp
 from ..errors import MocapValueError, NotFittedError
 from ..motion import Motion
 from ..retrieval.features import PLANES, Prepared, orientation_bins, prepare, sliding_windows
+from .model_file import check_joint_set, load_model, read_head, register_format, write_model
 
 __all__ = ["knn_graph", "nmf_objective", "gonmf", "encode_windows", "window_features",
            "NMCClassifier", "MODEL_FORMAT"]
@@ -375,8 +376,6 @@ class NMCClassifier:
         confidence)`` like the other classifiers (the CLI's interface), after checking the
         motion's joint set against the training skeleton's."""
         if isinstance(seqs, Motion):
-            from .classifier import check_joint_set
-
             check_joint_set(getattr(self, "joints_", ()), seqs)
             pr = self._proba(self.bags([seqs]))[0]
             i = int(np.argmax(pr))
@@ -397,8 +396,6 @@ class NMCClassifier:
 
     def save(self, path, *, overwrite: bool = False):
         """Write the fitted model (inductive use) to ``.npz`` (no pickle)."""
-        from .model_file import write_model
-
         if not hasattr(self, "Z_"):
             raise NotFittedError("NMC is not fitted")
         header = {"format": MODEL_FORMAT, "version": MODEL_FORMAT_VERSION, "params": self.params(),
@@ -408,8 +405,6 @@ class NMCClassifier:
 
     @classmethod
     def from_arrays(cls, header: dict, st: dict, path) -> "NMCClassifier":
-        from .model_file import read_head
-
         if "bow_mean" in st:                    # files written before the shared layout
             st = {**st, "mean": st["bow_mean"], "scale": st["bow_scale"]}
         m = read_head(cls(**header["params"]), header, st, path, MODEL_FORMAT_VERSION)
@@ -422,9 +417,11 @@ class NMCClassifier:
     @classmethod
     def load(cls, path) -> "NMCClassifier":
         from ..errors import MocapFormatError
-        from .classifier import load_model
 
         m = load_model(path)
         if not isinstance(m, cls):
             raise MocapFormatError(path, f"not an NMC model (it holds a {type(m).__name__})")
         return m
+
+
+register_format(MODEL_FORMAT, NMCClassifier)

@@ -75,7 +75,6 @@ save to ``.npz`` (no pickle).
 from __future__ import annotations
 
 import itertools
-import json
 import os
 from pathlib import Path
 from typing import Sequence
@@ -84,6 +83,8 @@ import numpy as np
 
 from ..errors import MocapFormatError, MocapValueError, NotFittedError
 from ..motion import Motion
+from .model_file import (check_joint_set, joint_set_of, load_model, read_head, register_format,
+                         write_model)
 
 __all__ = ["trajectories", "MiniRocket", "RocketClassifier", "fit_dilations", "golden_quantiles",
            "augment_series", "ridge_group_loo", "KERNEL_INDICES", "MODEL_FORMAT"]
@@ -506,8 +507,6 @@ class RocketClassifier:
 
     def check_joints(self, motion: Motion) -> None:
         """Raise MocapValueError when ``motion``'s joints are not the training joint set."""
-        from .classifier import check_joint_set
-
         self._check()
         check_joint_set(self.joints_, motion)
 
@@ -515,8 +514,6 @@ class RocketClassifier:
     def fit(self, motions: Sequence[Motion], labels: Sequence) -> "RocketClassifier":
         if len(motions) != len(labels):
             raise MocapValueError(f"{len(motions)} motions but {len(labels)} labels")
-        from .classifier import joint_set_of
-
         joints = joint_set_of(motions)
         X = np.stack([self.series(m) for m in motions])
         self.fit_series(X, labels)
@@ -620,8 +617,6 @@ class RocketClassifier:
 
     # -- save / load ---------------------------------------------------------------
     def save(self, path: str | os.PathLike, *, overwrite: bool = False) -> Path:
-        from .model_file import write_model
-
         self._check()
         header = {"format": MODEL_FORMAT, "version": MODEL_FORMAT_VERSION, "params": self.params(),
                   "alpha": self.alpha_, "temperature": self.temperature_}
@@ -632,8 +627,6 @@ class RocketClassifier:
 
     @classmethod
     def from_arrays(cls, header: dict, st: dict, path) -> "RocketClassifier":
-        from .model_file import read_head
-
         version = header.get("version")
         params = dict(header.get("params", {}))
         if version == 1:                 # v1 files: MiniRocket PPV, one transform, no augmentation
@@ -654,9 +647,10 @@ class RocketClassifier:
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> "RocketClassifier":
-        from .classifier import load_model
-
         m = load_model(path)
         if not isinstance(m, cls):
             raise MocapFormatError(path, f"not a MiniRocket classifier (it holds a {type(m).__name__})")
         return m
+
+
+register_format(MODEL_FORMAT, RocketClassifier)

@@ -62,9 +62,11 @@ from typing import Iterable, Sequence
 
 import numpy as np
 
+from .. import gaps
 from ..errors import MocapValueError
-from ..motion import Motion, fill_gaps_linear
-from ..skeleton import Skeleton, _side
+from ..frames import find_hips, up_axis_of
+from ..motion import Motion
+from ..skeleton import JOINT_ALIASES, Skeleton, _side, strip_side
 
 __all__ = ["KEYPOINTS", "Prepared", "find_keypoints", "prepare", "hod", "hod_dim", "gpf", "orientation_bins",
            "GPFCodebook", "pyramid_segments", "sliding_windows"]
@@ -73,28 +75,14 @@ KEYPOINTS = ("root", "neck", "head",
              "lshoulder", "lelbow", "lwrist", "rshoulder", "relbow", "rwrist",
              "lhip", "lknee", "lankle", "rhip", "rknee", "rankle")
 
-# Side-stripped name patterns of the shoulder joint, tried in order (exact name first,
-# then "contains"); the shallowest matching joint on each side wins.
-_LIMB_PATTERNS = {"shoulder": ("arm", "shldr", "shoulder", "clavicle")}
 PLANES = ((0, 1), (0, 2), (1, 2))          # xy, xz, yz
 
 
-def _strip(name: str) -> str:
-    from ..bodyframe import _strip_side
-
-    return _strip_side(name)
-
-
-def _depths(sk: Skeleton) -> np.ndarray:
-    d = np.zeros(sk.n_joints, dtype=int)
-    for j, p in enumerate(sk.parents):
-        d[j] = d[p] + 1 if p >= 0 else 0
-    return d
-
-
 def _sided(sk: Skeleton, patterns: Sequence[str], exclude: set[int]) -> tuple[int, int] | None:
-    depth = _depths(sk)
-    info = [(j, _side(n), _strip(n)) for j, n in enumerate(sk.names) if j not in exclude]
+    """Left and right joints whose side-stripped name is one of ``patterns``, tried in
+    order (exact name first, then contained); the shallowest on each side wins."""
+    depth = sk.depths()
+    info = [(j, _side(n), strip_side(n)) for j, n in enumerate(sk.names) if j not in exclude]
     for exact in (True, False):
         for pat in patterns:
             out = []
@@ -131,15 +119,13 @@ def _next_on_chain(sk: Skeleton, j: int, reach: np.ndarray, tiny: float) -> int 
 def find_keypoints(skeleton: Skeleton) -> np.ndarray | None:
     """Joint index of each of the 15 :data:`KEYPOINTS`, by name and tree, or None.
 
-    Hips: :func:`mocapkit.bodyframe.find_hips`; shoulders by name (``arm``, ``shldr``,
+    Hips: :func:`mocapkit.frames.find_hips`; shoulders by name (``arm``, ``shldr``,
     ``shoulder``, ``clavicle``; ``humerus`` when the hips came out as ``femur`` -- a BVH
     conversion of an ASF skeleton, whose joints sit at bone *starts*); elbow/knee and
     wrist/ankle are the next two joints down the limb chain (the child leading to the
     farthest descendant, zero-length bones skipped); head = a midline joint named
     ``head``; neck = the lowest common ancestor of the shoulders.
     """
-    from ..bodyframe import find_hips
-
     sk = skeleton
     J = sk.n_joints
     root = int(np.flatnonzero(sk.parents < 0)[0])
@@ -153,8 +139,8 @@ def find_keypoints(skeleton: Skeleton) -> np.ndarray | None:
         p = sk.parents[j]
         if p >= 0:
             reach[p] = max(reach[p], reach[j] + np.linalg.norm(sk.offsets[j]))
-    bvh_of_asf = _strip(sk.names[hips[0]]) == "femur"
-    pats = ("humerus",) if bvh_of_asf else _LIMB_PATTERNS["shoulder"]
+    bvh_of_asf = strip_side(sk.names[hips[0]]) == "femur"
+    pats = ("humerus",) if bvh_of_asf else JOINT_ALIASES["upper_arm"]
     sh = _sided(sk, pats, {root, *hips})
     if sh is None:
         return None
@@ -169,7 +155,7 @@ def find_keypoints(skeleton: Skeleton) -> np.ndarray | None:
     heads = [j for j, n in enumerate(sk.names) if "head" in n.lower() and _side(n) is None]
     if not heads:
         return None
-    depth = _depths(sk)
+    depth = sk.depths()
     head = max(heads, key=lambda j: (depth[j], -j))
     a, b = _ancestors(sk, found["lshoulder"]), set(_ancestors(sk, found["rshoulder"]))
     common = [j for j in a if j in b]
@@ -236,7 +222,7 @@ def prepare(motion: Motion, *, max_fps: float = 30.0, keypoints: bool = True,
     if not obs.any():
         src = motion.source.get("path", "")
         raise MocapValueError(f"{src or 'motion'}: no joint is observed in any frame; nothing to describe")
-    X = fill_gaps_linear(motion.matrix(), motion.matrix_mask())
+    X = gaps.fill(motion.matrix(), motion.matrix_mask(), never_observed=0.0)
     T, J = motion.n_frames, motion.n_joints
     fps = motion.fps
     if fps > max_fps * 1.01 and T > 1:
@@ -248,8 +234,6 @@ def prepare(motion: Motion, *, max_fps: float = 30.0, keypoints: bool = True,
         X = signal.gaussian(X, sigma=max(float(smooth_s) * fps, 1e-3))
     P = X.reshape(-1, J, 3)
     idx = find_keypoints(motion.skeleton) if keypoints else None
-    from ..bodyframe import find_hips, up_axis_of
-
     if idx is not None:
         P = P[:, idx]
         mode = "keypoints15"

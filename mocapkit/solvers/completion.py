@@ -42,16 +42,15 @@ matrices (the data-dependent parts are batched).
 """
 from __future__ import annotations
 
-import contextlib
-import functools
-import warnings
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 from scipy import fft as _fft
 
-from ..errors import ConvergenceWarning, MocapValueError
+from .. import gaps
+from ..errors import MocapValueError
 from . import _linalg
+from .info import SolveInfo, warn_not_converged
 
 __all__ = ["second_difference_matrix", "smooth_solve", "estimate_rank", "soft_threshold",
            "tsmc", "trnn", "lds_em_complete"]
@@ -60,61 +59,6 @@ __all__ = ["second_difference_matrix", "smooth_solve", "estimate_rank", "soft_th
 # --------------------------------------------------------------------------------------
 # helpers
 # --------------------------------------------------------------------------------------
-_CONTROLLER: Any = None
-
-
-def _one_blas_thread(func: Callable) -> Callable:
-    """Run ``func`` with BLAS limited to one thread (no-op without threadpoolctl).
-
-    Every product here is a pass over a T x 93 matrix or smaller; on 2 shared cores
-    OpenBLAS's spinning threads made a 0.2 s solve take 4.5 s (measured), so the public
-    solvers run single-threaded.
-    """
-    @functools.wraps(func)
-    def wrapper(*args: Any, **kwargs: Any) -> Any:
-        global _CONTROLLER
-        try:
-            if _CONTROLLER is None:
-                from threadpoolctl import ThreadpoolController
-
-                _CONTROLLER = ThreadpoolController()
-            ctx = _CONTROLLER.limit(limits=1, user_api="blas")
-        except ImportError:                              # pragma: no cover
-            ctx = contextlib.nullcontext()
-        with ctx:
-            return func(*args, **kwargs)
-    return wrapper
-
-
-def _prepare(X: Any, mask: Any) -> tuple[np.ndarray, np.ndarray]:
-    """Float copy of X with unobserved entries zeroed, and a full bool mask."""
-    X = np.array(X, dtype=np.float64, copy=True)
-    if X.ndim != 2:
-        raise MocapValueError(f"X must be a 2-D (frames x coordinates) matrix, got shape {X.shape}")
-    if X.shape[0] < 1 or X.shape[1] < 1:
-        raise MocapValueError(f"X is empty (shape {X.shape})")
-    if mask is None:
-        m = np.isfinite(X)
-    else:
-        m = np.asarray(mask)
-        if m.shape != X.shape:
-            raise MocapValueError(f"mask must have the shape of X {X.shape}, got {m.shape}")
-        m = m.astype(bool)
-        bad = m & ~np.isfinite(X)
-        if bad.any():
-            raise MocapValueError(f"X has {int(bad.sum())} non-finite entries marked as observed")
-    if not m.any():
-        raise MocapValueError("X has no observed entries")
-    X[~m] = 0.0
-    return X, m
-
-
-def _linear_fill(X: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    from ..motion import fill_gaps_linear
-
-    return fill_gaps_linear(X, mask)
-
-
 def second_difference_matrix(n: int) -> np.ndarray:
     """The symmetric (n, n) matrix O of thesis eqs. 4.2 / 4.22 (last row fixed to [1, -1]).
 
@@ -195,9 +139,9 @@ def estimate_rank(X: Any, mask: Any = None, threshold: float = 0.1) -> int:
     X : (T, C) matrix; mask : optional bool (T, C), True = observed.
     threshold : jump threshold on the normalised singular values.
     """
-    X, m = _prepare(X, mask)
+    X, m = _linalg.prepare(X, mask)
     if not m.all():
-        X = _linear_fill(np.where(m, X, np.nan), m)
+        X = gaps.fill(np.where(m, X, np.nan), m, never_observed=0.0)
     s = _singular_values(X)
     if s[0] <= 0:
         return 1
@@ -211,21 +155,19 @@ def _rel(a: float, b: float) -> float:
     return a / b if b > 0 else a
 
 
-class SolverConvergenceWarning(ConvergenceWarning, RuntimeWarning):
-    """:class:`~mocapkit.errors.ConvergenceWarning` of these solvers; also a RuntimeWarning,
-    the category they used before ConvergenceWarning existed (kept for compatibility)."""
-
-
-def _not_converged(name: str, it: int, crit: float, tol: float) -> None:
-    warnings.warn(f"{name}: not converged after {it} iterations (max_iter={it}; criterion "
-                  f"{crit:.2e} > tol {tol:.1e}); raise max_iter (e.g. max_iter={2 * max(it, 1)}) "
-                  f"or tol", SolverConvergenceWarning, stacklevel=4)
+ALM_CRITERION = "max relative residual / change"
+"""What the ALM solvers' ``residual`` is (:func:`tsmc`, :func:`trnn`, stopping rule of
+Sec. 4.2.3): the largest of the two relative constraint residuals and the relative change
+of the low-rank product."""
+EM_CRITERION = "relative change of the filled values"
+"""What :func:`lds_em_complete`'s ``residual`` is: ``||new - old|| / ||old||`` over the
+missing entries (centred)."""
 
 
 # --------------------------------------------------------------------------------------
 # bilinear factorisation + sparse error + smoothness (thesis Sec. 4.1)
 # --------------------------------------------------------------------------------------
-@_one_blas_thread
+@_linalg.one_blas_thread
 def tsmc(X: Any, mask: Any = None, *, rank: int | str | None = None, alpha: float = 1.0,
          beta: float = 100.0, lam1: float = 1e-5, lam2: float = 1e-5, gamma: float = 1.4,
          lam_max: float = 1e10, tol: float = 1e-4, max_iter: int = 500,
@@ -256,7 +198,7 @@ def tsmc(X: Any, mask: Any = None, *, rank: int | str | None = None, alpha: floa
 
     Parameters
     ----------
-    X : (T, C) data (cm); mask : bool (T, C), True = observed (None: finite entries).
+    X : (T, C) data (cm); mask : bool (T, C), True = observed (None: X complete).
     rank : k, columns of U and V.  ``"lsj"``: the thesis' ``min(ceil(1.1 r), C, T)`` with
         r from :func:`estimate_rank` (eq. 4.15).  None (default): ``min(C, T)``, the full
         width -- our decision: on raw (uncentred) mocap matrices the last-jump rank is 2-3
@@ -275,9 +217,11 @@ def tsmc(X: Any, mask: Any = None, *, rank: int | str | None = None, alpha: floa
     Returns
     -------
     Y : (T, C) low-rank estimate U V^T (the thesis' output); with ``return_info`` also a
-    dict (iterations, converged, criterion, rank, E (T, C) sparse error).
+    :class:`~mocapkit.solvers.info.SolveInfo` (residual: the stopping criterion above,
+    :data:`ALM_CRITERION`; extra ``rank`` k and ``E`` (T, C) sparse error).  Stopping at
+    ``max_iter`` above ``tol`` warns (:func:`~mocapkit.solvers.info.warn_not_converged`).
     """
-    X, m = _prepare(X, mask)
+    X, m = _linalg.prepare(X, mask)
     T, C = X.shape
     k = _tsmc_rank(X, m, rank, rank_threshold)
     if alpha < 0 or beta < 0:
@@ -290,22 +234,24 @@ def tsmc(X: Any, mask: Any = None, *, rank: int | str | None = None, alpha: floa
     nx = np.linalg.norm(X)
     if nx == 0:
         Y = np.zeros((T, C))
-        info = {"iterations": 0, "converged": True, "criterion": 0.0, "rank": k,
-                "E": np.zeros((T, C))}
+        info = SolveInfo(0, True, 0.0, ALM_CRITERION, {"rank": k, "E": np.zeros((T, C))})
         return (Y, info) if return_info else Y
-    spec = _singular_values(X)[0]
-    Y1 = X / max(spec, np.abs(X).max() / max(alpha, 1e-12))
-    Y2 = Y1.copy()
     U, V, E, it, converged, crit = _tsmc_loop(
-        X, ~m, V, (Y1, Y2), (float(alpha), float(beta)),
+        X, ~m, V, _alm_multipliers(X, alpha), (float(alpha), float(beta)),
         (float(lam1), float(lam2), float(gamma), float(lam_max)), float(tol), int(max_iter), mstep)
+    info = SolveInfo(it, converged, float(crit), ALM_CRITERION, {"rank": k, "E": E})
     if not converged:
-        _not_converged("tsmc", it, crit, tol)
+        warn_not_converged("tsmc", info, tol, max_iter, stacklevel=2)
     Y = U @ V.T
-    if return_info:
-        return Y, {"iterations": it, "converged": converged, "criterion": float(crit),
-                   "rank": k, "E": E}
-    return Y
+    return (Y, info) if return_info else Y
+
+
+def _alm_multipliers(D: np.ndarray, weight: float) -> tuple[np.ndarray, np.ndarray]:
+    """Start of both ALM multipliers of :func:`tsmc` / :func:`trnn`: Lin et al. (2010)'s
+    ``J(D) = D / max(||D||_2, ||D||_inf / weight)`` (weight: the l1 weight)."""
+    spec = _singular_values(D)[0]
+    Y1 = D / max(spec, np.abs(D).max() / max(weight, 1e-12))
+    return Y1, Y1.copy()
 
 
 def _tsmc_rank(X: np.ndarray, m: np.ndarray, rank, rank_threshold: float) -> int:
@@ -483,6 +429,16 @@ def _trnn_loop(D: np.ndarray, miss: np.ndarray, factors: tuple, mults: tuple, la
     return A, B, S, it, converged, crit
 
 
+def _trnn_settings(Xlin: np.ndarray, r: int, d, lam: float | None,
+                   rank_threshold: float) -> tuple[int, int, float]:
+    """Truncation r, factor width d (:func:`_trnn_width`, r <= d) and sparse weight lam
+    (default ``100 / sqrt(max(T, C))``, Sec. 4.2.3) of :func:`trnn`."""
+    T, C = Xlin.shape
+    r = int(min(max(int(r), 0), T, C))
+    d = _trnn_width(Xlin, d, r, rank_threshold)
+    return min(r, d), d, 100.0 / np.sqrt(max(T, C)) if lam is None else lam
+
+
 def _trnn_width(Xlin: np.ndarray, d, r: int, rank_threshold: float) -> int:
     """Factor width d of :func:`trnn` from its ``d`` argument (Sec. 4.2.3)."""
     T, C = Xlin.shape
@@ -515,7 +471,7 @@ def _orth_max(N: np.ndarray) -> np.ndarray:
     return Qt.T @ P.T
 
 
-@_one_blas_thread
+@_linalg.one_blas_thread
 def trnn(X: Any, mask: Any = None, *, r: int = 15, d: int | str | None = None, lam: float | None = None,
          mu: float = 100.0, rho: float = 1.4, eta: float = 1e-5, eta_max: float = 1e6,
          tol: float = 1e-4, max_iter: int = 500, rank_threshold: float = 0.1, seed: int = 0,
@@ -557,45 +513,44 @@ def trnn(X: Any, mask: Any = None, *, r: int = 15, d: int | str | None = None, l
 
     Returns
     -------
-    Xhat : (T, C) = A B^T; with ``return_info`` also a dict (iterations, converged,
-    criterion, r, d, S).
+    Xhat : (T, C) = A B^T; with ``return_info`` also a
+    :class:`~mocapkit.solvers.info.SolveInfo` (residual: the stopping criterion above,
+    :data:`ALM_CRITERION`; extra ``r``, ``d`` and ``S`` (T, C) sparse error).  Stopping at
+    ``max_iter`` above ``tol`` warns (:func:`~mocapkit.solvers.info.warn_not_converged`).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from mocapkit.solvers.completion import trnn
+    >>> rng = np.random.default_rng(0)
+    >>> X = np.sin(np.linspace(0, 2 * np.pi, 120)[:, None] * [1, 2]) @ rng.normal(size=(2, 9))
+    >>> M = rng.random(X.shape) > 0.3                             # 30 % missing
+    >>> Xhat, info = trnn(np.where(M, X, np.nan), M, r=2, return_info=True)
+    >>> print(round(float(np.sqrt(np.mean((Xhat - X)[~M] ** 2))), 2), info.converged)
+    0.01 True
     """
-    X, m = _prepare(X, mask)
+    X, m = _linalg.prepare(X, mask)
     T, C = X.shape
-    r = int(min(max(int(r), 0), T, C))
-    Xlin = X if m.all() else _linear_fill(np.where(m, X, np.nan), m)
-    d = _trnn_width(Xlin, d, r, rank_threshold)
-    r = min(r, d)
-    if lam is None:
-        lam = 100.0 / np.sqrt(max(T, C))
+    Xlin = X if m.all() else gaps.fill(np.where(m, X, np.nan), m, never_observed=0.0)
+    r, d, lam = _trnn_settings(Xlin, r, d, lam, rank_threshold)
     if lam < 0 or mu < 0 or eta <= 0 or rho < 1:
         raise MocapValueError("trnn needs lam >= 0, mu >= 0, eta > 0 and rho >= 1")
     D = X                                                # P_Omega(X): zeros off Omega
-    nd = np.linalg.norm(D)
-    if nd == 0:
-        Z = np.zeros((T, C))
-        info = {"iterations": 0, "converged": True, "criterion": 0.0, "r": r, "d": d,
-                "S": np.zeros((T, C))}
-        return (Z, info) if return_info else Z
-    rng = np.random.default_rng(seed)
-    A = np.zeros((0, d))                                 # replaced in the first iteration
-    B = rng.standard_normal((C, d))
+    if np.linalg.norm(D) == 0:
+        info = SolveInfo(0, True, 0.0, ALM_CRITERION, {"r": r, "d": d, "S": np.zeros((T, C))})
+        return (np.zeros((T, C)), info) if return_info else np.zeros((T, C))
+    B = np.random.default_rng(seed).standard_normal((C, d))
     B /= np.linalg.norm(B)
-    spec = _singular_values(D)[0]
-    Y1 = D / max(spec, np.abs(D).max() / max(lam, 1e-12))
-    Y2 = Y1.copy()
     P, Q = _trnn_pq(Xlin, r)
     del Xlin
-    A, B, S, it, converged, crit = _trnn_loop(D, ~m, (A, B, P, Q), (Y1, Y2), float(lam),
-                                              float(mu), (float(eta), float(rho), float(eta_max)),
-                                              float(tol), int(max_iter), mstep)
+    A, B, S, it, converged, crit = _trnn_loop(        # A (0, d): set in the first iteration
+        D, ~m, (np.zeros((0, d)), B, P, Q), _alm_multipliers(D, lam), float(lam), float(mu),
+        (float(eta), float(rho), float(eta_max)), float(tol), int(max_iter), mstep)
+    info = SolveInfo(it, converged, float(crit), ALM_CRITERION, {"r": r, "d": d, "S": S})
     if not converged:
-        _not_converged("trnn", it, crit, tol)
+        warn_not_converged("trnn", info, tol, max_iter, stacklevel=2)
     Xhat = A @ B.T
-    if return_info:
-        return Xhat, {"iterations": it, "converged": converged, "criterion": float(crit),
-                      "r": r, "d": d, "S": S}
-    return Xhat
+    return (Xhat, info) if return_info else Xhat
 
 
 # --------------------------------------------------------------------------------------
@@ -731,7 +686,7 @@ def _kalman_rts_masked(Xc: np.ndarray, W: np.ndarray, A: np.ndarray, Cm: np.ndar
     return ms, Vsum, Vsum - Pf[-1], Vsum - Vn, cross, Vn
 
 
-@_one_blas_thread
+@_linalg.one_blas_thread
 def lds_em_complete(X: Any, mask: Any = None, *, k: int | None = None, max_iter: int = 100,
                     tol: float = 1e-4, min_var: float = 1e-6, estep: str = "fill",
                     return_info: bool = False):
@@ -771,26 +726,42 @@ def lds_em_complete(X: Any, mask: Any = None, *, k: int | None = None, max_iter:
 
     Returns
     -------
-    Xhat : (T, C) completed matrix; with ``return_info`` also a dict (iterations,
-    converged, change, k).
+    Xhat : (T, C) completed matrix; with ``return_info`` also a
+    :class:`~mocapkit.solvers.info.SolveInfo` (residual: the last relative change of the
+    filled values, :data:`EM_CRITERION`; extra ``k``).  Stopping at ``max_iter`` above
+    ``tol`` warns (:func:`~mocapkit.solvers.info.warn_not_converged`).
     """
-    X, m = _prepare(X, mask)
+    X, m = _linalg.prepare(X, mask)
     T, Cn = X.shape
     k = int(min(48, Cn) if k is None else k)
     if k < 1:
         raise MocapValueError(f"k must be >= 1, got {k}")
     k = min(k, Cn, max(T - 1, 1))
-    Xf = X if m.all() else _linear_fill(np.where(m, X, np.nan), m)
-    miss = ~m
-    mean = Xf.mean(axis=0)
+    Xf = X if m.all() else gaps.fill(np.where(m, X, np.nan), m, never_observed=0.0)
     if T < 3:
-        out = Xf
-        info = {"iterations": 0, "converged": True, "change": 0.0, "k": k}
-        return (out, info) if return_info else out
+        info = SolveInfo(0, True, 0.0, EM_CRITERION, {"k": k})
+        return (Xf, info) if return_info else Xf
+    mean = Xf.mean(axis=0)
     Xc = Xf - mean
     scale = max(float(Xc.var()), 1e-12)
     floor = min_var * scale
-    # PCA initialisation
+    params = _lds_init(Xc, k, floor)
+    if estep not in ("fill", "observed"):
+        raise MocapValueError(f"estep must be 'fill' or 'observed', got {estep!r}")
+    it, converged, change = _lds_em(Xc, m, params, estep, floor, int(max_iter), tol)
+    info = SolveInfo(it, converged, change, EM_CRITERION, {"k": k})
+    if not converged:
+        warn_not_converged("dynammo", info, tol, max_iter, stacklevel=2)
+    out = Xc + mean
+    out[m] = X[m]
+    return (out, info) if return_info else out
+
+
+def _lds_init(Xc: np.ndarray, k: int, floor: float) -> tuple[np.ndarray, ...]:
+    """DynaMMo's starting parameters (A, C, Q, R, u0, V0) from PCA of the centred, linearly
+    filled data Xc (T, C): C = the top-k principal directions, A by least squares on the
+    latent sequence, Q / V0 the (floored) residual / latent covariances, R (diagonal, (C,))
+    the per-coordinate reconstruction error."""
     _, Vg = _linalg.eigh(Xc.T @ Xc, what="dynammo")
     Cm = Vg[:, ::-1][:, :k].copy()                        # (C, k)
     Zs = Xc @ Cm
@@ -798,50 +769,69 @@ def lds_em_complete(X: Any, mask: Any = None, *, k: int | None = None, max_iter:
     Q = _psd_floor(np.cov((Zs[1:] - Zs[:-1] @ A.T).T).reshape(k, k), floor)
     Rd = np.maximum(((Xc - Zs @ Cm.T) ** 2).mean(axis=0), floor)
     u0, V0 = Zs[0].copy(), _psd_floor(np.cov(Zs.T).reshape(k, k), floor)
+    return A, Cm, Q, Rd, u0, V0
+
+
+def _lds_em(Xc: np.ndarray, m: np.ndarray, params: tuple, estep: str, floor: float,
+            max_iter: int, tol: float) -> tuple[int, bool, float]:
+    """EM iterations of :func:`lds_em_complete` on the centred data Xc (T, C), whose missing
+    entries (``~m``) are overwritten in place with C E[z_t] (DynaMMo's step 4).
+
+    Returns (iterations, converged, last relative change of the filled values; inf when
+    nothing is missing: one iteration, converged by definition).
+    """
+    miss = ~m
+    n_obs = np.maximum(m.sum(axis=0), 1)
     change = np.inf
     converged = not miss.any()
     it = 0
-    if estep not in ("fill", "observed"):
-        raise MocapValueError(f"estep must be 'fill' or 'observed', got {estep!r}")
-    n_obs = np.maximum(m.sum(axis=0), 1)
-    for it in range(1, int(max_iter) + 1):
-        if miss.any() and estep == "observed":
-            ms, Vsum, Vsum_prev, Vsum_next, cross, V1 = _kalman_rts_masked(
-                Xc, m / Rd, A, Cm, Q, u0, V0)
-            new = (ms @ Cm.T)[miss]
-            change = float(np.linalg.norm(new - Xc[miss]) / max(np.linalg.norm(Xc[miss]), 1e-300))
-            Xc[miss] = new                                # E[x_missing] = C E[z]
-        else:
-            ms, Vsum, Vsum_prev, Vsum_next, cross, V1 = _kalman_rts(Xc, A, Cm, Q, Rd, u0, V0)
-            if miss.any():
-                new = (ms @ Cm.T)[miss]
-                change = float(np.linalg.norm(new - Xc[miss]) / max(np.linalg.norm(Xc[miss]), 1e-300))
-                Xc[miss] = new
-        # sufficient statistics
-        S11 = Vsum + ms.T @ ms                            # sum_t E[z_t z_t^T]
-        Sprev = Vsum_prev + ms[:-1].T @ ms[:-1]           # t = 1..T-1
-        Snext = Vsum_next + ms[1:].T @ ms[1:]             # t = 2..T
-        S10 = cross + ms[1:].T @ ms[:-1]                  # sum E[z_t z_{t-1}^T]
-        # M-step
-        A = np.linalg.solve(Sprev.T, S10.T).T
-        Q = _psd_floor((Snext - A @ S10.T) / (T - 1), floor)
-        XZ = Xc.T @ ms                                    # (C, k), missing entries filled
-        Cm = np.linalg.solve(S11.T, XZ.T).T
-        # R from the observed entries only (plus the state uncertainty, averaged over frames)
-        resid = np.where(m, Xc - ms @ Cm.T, 0.0)
-        Rd = np.maximum((resid ** 2).sum(axis=0) / n_obs
-                        + np.einsum("ck,kl,cl->c", Cm, Vsum / T, Cm), floor)
-        u0 = ms[0].copy()
-        V0 = _psd_floor(V1, floor)
+    for it in range(1, max_iter + 1):
+        stats, change = _lds_estep(Xc, m, params, estep, change)
+        params = _lds_mstep(Xc, m, stats, n_obs, floor)
         if not miss.any():
             break
         if change < tol:
             converged = True
             break
-    if not converged:
-        _not_converged("dynammo", it, change, tol)
-    out = Xc + mean
-    out[m] = X[m]
-    if return_info:
-        return out, {"iterations": it, "converged": converged, "change": change, "k": k}
-    return out
+    return it, converged, change
+
+
+def _lds_estep(Xc: np.ndarray, m: np.ndarray, params: tuple, estep: str,
+               change: float) -> tuple[tuple, float]:
+    """Kalman/RTS smoothing (E-step) and the re-estimate ``Xc[~m] = C E[z]`` (in place).
+
+    Returns the smoother's statistics (:func:`_kalman_rts`) and the relative change of the
+    filled values (``change`` unchanged when nothing is missing)."""
+    A, Cm, Q, Rd, u0, V0 = params
+    miss = ~m
+    if miss.any() and estep == "observed":
+        stats = _kalman_rts_masked(Xc, m / Rd, A, Cm, Q, u0, V0)
+    else:
+        stats = _kalman_rts(Xc, A, Cm, Q, Rd, u0, V0)
+    if miss.any():
+        new = (stats[0] @ Cm.T)[miss]
+        change = float(np.linalg.norm(new - Xc[miss]) / max(np.linalg.norm(Xc[miss]), 1e-300))
+        Xc[miss] = new                                    # E[x_missing] = C E[z]
+    return stats, change
+
+
+def _lds_mstep(Xc: np.ndarray, m: np.ndarray, stats: tuple, n_obs: np.ndarray,
+               floor: float) -> tuple[np.ndarray, ...]:
+    """Closed-form M-step (Ghahramani & Hinton 1996) with the missing entries at their
+    expected values; R from the observed entries only plus the state uncertainty."""
+    ms, Vsum, Vsum_prev, Vsum_next, cross, V1 = stats
+    T = Xc.shape[0]
+    # sufficient statistics
+    S11 = Vsum + ms.T @ ms                            # sum_t E[z_t z_t^T]
+    Sprev = Vsum_prev + ms[:-1].T @ ms[:-1]           # t = 1..T-1
+    Snext = Vsum_next + ms[1:].T @ ms[1:]             # t = 2..T
+    S10 = cross + ms[1:].T @ ms[:-1]                  # sum E[z_t z_{t-1}^T]
+    A = np.linalg.solve(Sprev.T, S10.T).T
+    Q = _psd_floor((Snext - A @ S10.T) / (T - 1), floor)
+    XZ = Xc.T @ ms                                    # (C, k), missing entries filled
+    Cm = np.linalg.solve(S11.T, XZ.T).T
+    # R from the observed entries only (plus the state uncertainty, averaged over frames)
+    resid = np.where(m, Xc - ms @ Cm.T, 0.0)
+    Rd = np.maximum((resid ** 2).sum(axis=0) / n_obs
+                    + np.einsum("ck,kl,cl->c", Cm, Vsum / T, Cm), floor)
+    return A, Cm, Q, Rd, ms[0].copy(), _psd_floor(V1, floor)

@@ -220,8 +220,8 @@ def gcv_smooth(X, mask=None, *, order: int = 2, s: float | np.ndarray | None = N
         raise MocapValueError(f"gcv spline: column(s) {np.flatnonzero(empty)[:10].tolist()} have "
                               f"no observed sample")
     s_fixed = None if s is None else np.broadcast_to(np.asarray(s, float), (C,)).copy()
-    from ..gaps import fill_linear                    # the one gap filler
-    Y0 = fill_linear(np.where(M, Y, np.nan), M, ends="hold")
+    from ..gaps import fill                           # the one gap filler
+    Y0 = fill(np.where(M, Y, np.nan), M)
     W = M.astype(float)
     f, s_ = _select_and_fit(Y0, W, order, s_fixed, Y0)
     n_iter = 0

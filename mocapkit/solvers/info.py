@@ -16,12 +16,15 @@ them into the method's convergence summary and the one warning.
 """
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field
 from typing import Any, Mapping
 
 import numpy as np
 
-__all__ = ["SolveInfo"]
+from ..errors import ConvergenceWarning
+
+__all__ = ["SolveInfo", "warn_not_converged"]
 
 
 @dataclass(frozen=True)
@@ -57,3 +60,37 @@ class SolveInfo:
         return {"n_iter": plain(self.n_iter), "converged": plain(self.converged),
                 "residual": plain(self.residual), "criterion": self.criterion,
                 **{k: plain(v) for k, v in self.extra.items()}}
+
+
+def warn_not_converged(name: str, info: SolveInfo, tol: float, max_iter: int,
+                       advice: str | None = None, *, stacklevel: int = 1) -> None:
+    """The one warning of a solver that stopped at ``max_iter`` above ``tol``.
+
+    Every solver of :mod:`mocapkit.solvers` that warns about its own convergence calls
+    this (a :class:`~mocapkit.errors.ConvergenceWarning`; the method-level summary and
+    warning of a Denoiser is :func:`mocapkit.denoise.base.report_convergence`).
+
+    Parameters
+    ----------
+    name : the solver (or method) named at the start of the message.
+    info : the solve's report; ``n_iter``, ``residual`` and ``criterion`` (scalars) are
+        quoted.
+    tol, max_iter : the stopping settings the solve ran with.
+    advice : what to change; default "raise max_iter (e.g. max_iter=2 max_iter) or tol".
+    stacklevel : frames above the caller of this function that the warning points at
+        (1: the solver's caller; add one per wrapping decorator).
+
+    >>> import warnings
+    >>> info = SolveInfo(n_iter=3, converged=False, residual=2.5e-3,
+    ...                  criterion="relative change")
+    >>> with warnings.catch_warnings(record=True) as w:
+    ...     warnings.simplefilter("always")
+    ...     warn_not_converged("demo", info, tol=1e-4, max_iter=3)
+    >>> print(w[0].message)
+    demo: not converged after 3 iterations (max_iter=3; final relative change 2.50e-03 > tol 1.0e-04); raise max_iter (e.g. max_iter=6) or tol
+    """
+    max_iter = int(max_iter)
+    warnings.warn(f"{name}: not converged after {int(info.n_iter)} iterations (max_iter={max_iter}; "
+                  f"final {info.criterion} {float(info.residual):.2e} > tol {float(tol):.1e}); "
+                  + (advice or f"raise max_iter (e.g. max_iter={2 * max(max_iter, 1)}) or tol"),
+                  ConvergenceWarning, stacklevel=stacklevel + 2)

@@ -199,12 +199,38 @@ def ksvd(Y, n_atoms: int, *, sparsity: int, n_iter: int = 10, init="data",
     KSVDResult
     """
     t0 = time.perf_counter()
+    Y, K, Ts = _ksvd_args(Y, n_atoms, sparsity, omp)
+    rng = np.random.default_rng(random_state)
+    D = _init_dictionary(Y, K, init, rng)
+    res = KSVDResult(D, None)
+    for it in range(int(n_iter)):
+        idx, coef = _code(Y, D, Ts, omp)
+        # residual R = Y - W D^T, from the sparse codes
+        R = Y - np.einsum("ns,nsk->nk", coef, D.T[idx])
+        res.rmse.append(float(np.sqrt(np.mean(R ** 2))))
+        used_for_replacement: set[int] = set()
+        err, replaced = _update_atoms(Y, D, R, idx, coef, rng, exact, used_for_replacement)
+        if it < int(n_iter) - 1 and mu_thresh < 1.0:
+            replaced += _replace_duplicates(Y, D, err, used_for_replacement, mu_thresh)
+        D = normalize_atoms(D)
+        res.n_replaced.append(replaced)
+        if callback is not None:
+            callback(it, D, res.rmse[-1])
+    res.dictionary = D
+    if return_codes:
+        idx, coef = _code(Y, D, Ts, omp)
+        res.codes = _codes_dense(idx, coef, K)
+    res.seconds = time.perf_counter() - t0
+    return res
+
+
+def _ksvd_args(Y, n_atoms: int, sparsity: int, omp: str) -> tuple[np.ndarray, int, int]:
+    """Checked training samples (N, n) float64, K and T_s of :func:`ksvd`."""
     Y = np.asarray(Y, dtype=np.float64)
     if Y.ndim != 2 or Y.shape[0] == 0 or Y.shape[1] == 0:
         raise MocapValueError(f"ksvd: Y must be a non-empty (N, n) array, got shape {Y.shape}")
     if not np.isfinite(Y).all():
         raise MocapValueError("ksvd: training samples contain NaN or inf")
-    N, n = Y.shape
     K = int(n_atoms)
     Ts = int(sparsity)
     if K < 1:
@@ -213,89 +239,101 @@ def ksvd(Y, n_atoms: int, *, sparsity: int, n_iter: int = 10, init="data",
         raise MocapValueError(f"ksvd: sparsity must be in 1..n_atoms ({K}), got {sparsity}")
     if omp not in ("numpy", "sklearn"):
         raise MocapValueError(f"ksvd: omp must be 'numpy' or 'sklearn', got {omp!r}")
-    rng = np.random.default_rng(random_state)
-    D = _init_dictionary(Y, K, init, rng)
-    res = KSVDResult(D, None)
+    return Y, K, Ts
 
-    def code(D):
-        G = D.T @ D
-        Xy = Y @ D
-        if omp == "numpy":
-            return batch_omp(Xy, G, Ts)
-        import warnings
 
-        from sklearn.linear_model import orthogonal_mp_gram
+def _code(Y: np.ndarray, D: np.ndarray, Ts: int, omp: str) -> tuple[np.ndarray, np.ndarray]:
+    """Sparse coding step of :func:`ksvd`: (idx, coef) (N, T_s) of every sample (OMP)."""
+    G = D.T @ D
+    Xy = Y @ D
+    if omp == "numpy":
+        return batch_omp(Xy, G, Ts)
+    import warnings
 
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)
-            W = np.atleast_2d(orthogonal_mp_gram(G, Xy.T, n_nonzero_coefs=Ts)).T.reshape(N, K)
-        order = np.argsort(-np.abs(W), axis=1, kind="stable")[:, :Ts]
-        return order, np.take_along_axis(W, order, axis=1)
+    from sklearn.linear_model import orthogonal_mp_gram
 
-    for it in range(int(n_iter)):
-        idx, coef = code(D)
-        # residual R = Y - W D^T, from the sparse codes
-        R = Y - np.einsum("ns,nsk->nk", coef, D.T[idx])
-        res.rmse.append(float(np.sqrt(np.mean(R ** 2))))
-        # group (sample, slot) pairs by atom
-        flat = idx.ravel()
-        nz = coef.ravel() != 0.0
-        order = np.argsort(np.where(nz, flat, K), kind="stable")
-        counts = np.bincount(flat[nz], minlength=K)
-        starts = np.concatenate([[0], np.cumsum(counts)])
-        coef_flat = coef.ravel()
-        used_for_replacement: set[int] = set()
-        err = (R ** 2).sum(axis=1)
-        replaced = 0
-        for k in rng.permutation(K):
-            pos = order[starts[k]:starts[k + 1]]
-            if pos.size == 0:
-                j = _worst_sample(err, used_for_replacement)
-                if j is not None:
-                    D[:, k] = Y[j] / max(np.linalg.norm(Y[j]), 1e-300)
-                    replaced += 1
-                continue
-            I = pos // Ts
-            g = coef_flat[pos]
-            E = R[I] + np.outer(g, D[:, k])                    # (|I|, n) residual without atom k
-            if exact:
-                U, s, Vt = _linalg.svd(E, full_matrices=False, what="k-svd")
-                d = Vt[0]
-                g = U[:, 0] * s[0]
-            else:
-                d = E.T @ g
-                nd = np.linalg.norm(d)
-                if nd <= 1e-300:
-                    continue
-                d /= nd
-                g = E @ d
-            D[:, k] = d
-            coef_flat[pos] = g
-            R[I] = E - np.outer(g, d)
-            err[I] = (R[I] ** 2).sum(axis=1)
-        # replace near-duplicate atoms (KSVD-Box "cleardict")
-        if it < int(n_iter) - 1 and mu_thresh < 1.0:
-            Gm = np.abs(D.T @ D)
-            np.fill_diagonal(Gm, 0.0)
-            for k in range(K):
-                if Gm[k, :k].max(initial=0.0) > mu_thresh:
-                    j = _worst_sample(err, used_for_replacement)
-                    if j is None:
-                        break
-                    D[:, k] = Y[j] / max(np.linalg.norm(Y[j]), 1e-300)
-                    Gm[k, :] = Gm[:, k] = np.abs(D.T @ D[:, k])
-                    Gm[k, k] = 0.0
-                    replaced += 1
-        D = normalize_atoms(D)
-        res.n_replaced.append(replaced)
-        if callback is not None:
-            callback(it, D, res.rmse[-1])
-    res.dictionary = D
-    if return_codes:
-        idx, coef = code(D)
-        res.codes = _codes_dense(idx, coef, K)
-    res.seconds = time.perf_counter() - t0
-    return res
+    N, K = Y.shape[0], D.shape[1]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        W = np.atleast_2d(orthogonal_mp_gram(G, Xy.T, n_nonzero_coefs=Ts)).T.reshape(N, K)
+    order = np.argsort(-np.abs(W), axis=1, kind="stable")[:, :Ts]
+    return order, np.take_along_axis(W, order, axis=1)
+
+
+def _update_atoms(Y: np.ndarray, D: np.ndarray, R: np.ndarray, idx: np.ndarray,
+                  coef: np.ndarray, rng: np.random.Generator, exact: bool,
+                  used: set[int]) -> tuple[np.ndarray, int]:
+    """One dictionary sweep (approximate K-SVD, Rubinstein et al. Alg. 5), in place on D,
+    the residual R (N, n) and the codes: atoms in random order, each refitted to the
+    residual of the samples using it (:func:`_atom_update`); an atom used by no sample is
+    replaced by the worst-represented one (:func:`_worst_sample`).
+
+    Returns the per-sample squared residual (N,) and the number of atoms replaced.
+    """
+    K = D.shape[1]
+    Ts = idx.shape[1]
+    # group (sample, slot) pairs by atom
+    flat = idx.ravel()
+    nz = coef.ravel() != 0.0
+    order = np.argsort(np.where(nz, flat, K), kind="stable")
+    counts = np.bincount(flat[nz], minlength=K)
+    starts = np.concatenate([[0], np.cumsum(counts)])
+    coef_flat = coef.ravel()
+    err = (R ** 2).sum(axis=1)
+    replaced = 0
+    for k in rng.permutation(K):
+        pos = order[starts[k]:starts[k + 1]]
+        if pos.size == 0:
+            j = _worst_sample(err, used)
+            if j is not None:
+                D[:, k] = Y[j] / max(np.linalg.norm(Y[j]), 1e-300)
+                replaced += 1
+            continue
+        I = pos // Ts
+        E = R[I] + np.outer(coef_flat[pos], D[:, k])          # (|I|, n) residual without atom k
+        d, g = _atom_update(E, coef_flat[pos], exact)
+        if d is None:
+            continue
+        D[:, k] = d
+        coef_flat[pos] = g
+        R[I] = E - np.outer(g, d)
+        err[I] = (R[I] ** 2).sum(axis=1)
+    return err, replaced
+
+
+def _atom_update(E: np.ndarray, g: np.ndarray, exact: bool):
+    """New unit atom d (n,) and coefficients g (|I|,) for the residual E (|I|, n) without the
+    atom: the rank-1 SVD (exact K-SVD) or one power step ``d = E^T g / ||E^T g||``,
+    ``g = E d`` (approximate); d is None when ``E^T g`` vanishes (atom left as it is)."""
+    if exact:
+        U, s, Vt = _linalg.svd(E, full_matrices=False, what="k-svd")
+        return Vt[0], U[:, 0] * s[0]
+    d = E.T @ g
+    nd = np.linalg.norm(d)
+    if nd <= 1e-300:
+        return None, g
+    d /= nd
+    return d, E @ d
+
+
+def _replace_duplicates(Y: np.ndarray, D: np.ndarray, err: np.ndarray, used: set[int],
+                        mu_thresh: float) -> int:
+    """Replace atoms whose |cosine| with an earlier atom exceeds ``mu_thresh`` by the
+    worst-represented samples (KSVD-Box "cleardict"), in place; returns how many."""
+    K = D.shape[1]
+    replaced = 0
+    Gm = np.abs(D.T @ D)
+    np.fill_diagonal(Gm, 0.0)
+    for k in range(K):
+        if Gm[k, :k].max(initial=0.0) > mu_thresh:
+            j = _worst_sample(err, used)
+            if j is None:
+                break
+            D[:, k] = Y[j] / max(np.linalg.norm(Y[j]), 1e-300)
+            Gm[k, :] = Gm[:, k] = np.abs(D.T @ D[:, k])
+            Gm[k, k] = 0.0
+            replaced += 1
+    return replaced
 
 
 def _worst_sample(err: np.ndarray, used: set[int]) -> int | None:

@@ -32,7 +32,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import MocapValueError
-from .completion import _one_blas_thread
+from . import _linalg
 
 __all__ = ["masked_sq_distances", "locality_adaptor", "llc_code", "dense_codes", "llc_reconstruct"]
 
@@ -70,7 +70,7 @@ def locality_adaptor(dist: np.ndarray, sigma: float | np.ndarray | None = None) 
     return np.exp((dist - dist.max(axis=1, keepdims=True)) / sigma)
 
 
-@_one_blas_thread
+@_linalg.one_blas_thread
 def llc_code(Y: np.ndarray, D: np.ndarray, mask: np.ndarray | None = None, *, lam: float = 10.0,
              sigma: float | None = None, n_neighbors: int | None = None, eps: float = 1e-4,
              chunk: int = 4096) -> tuple[np.ndarray, np.ndarray]:

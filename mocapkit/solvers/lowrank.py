@@ -37,81 +37,16 @@ References
 """
 from __future__ import annotations
 
-import contextlib
-import functools
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
+from .. import gaps
 from ..errors import MocapValueError
 from . import _linalg
+from .info import SolveInfo
 
-__all__ = ["shrink_singular_values", "tsvd", "svt", "rpca_ialm", "slra", "segment_layout",
-           "noise_level"]
-
-
-# --------------------------------------------------------------------------------------
-# one BLAS thread
-# --------------------------------------------------------------------------------------
-_CONTROLLER: Any = None
-
-
-def _blas_limit() -> contextlib.AbstractContextManager:
-    """Context limiting BLAS/LAPACK to one thread (no-op without threadpoolctl).
-
-    Every product and eigendecomposition here is small (<= 93 x 93 or one pass over a
-    T x 93 matrix); a second BLAS thread gains < 15 %, and when the cores are busy
-    OpenBLAS's spinning threads made a 1-second solve take ~50 s (measured on 2 shared
-    cores).  So the public solvers run single-threaded.
-    """
-    global _CONTROLLER
-    try:
-        if _CONTROLLER is None:
-            from threadpoolctl import ThreadpoolController
-
-            _CONTROLLER = ThreadpoolController()
-        return _CONTROLLER.limit(limits=1, user_api="blas")
-    except ImportError:                                # pragma: no cover
-        return contextlib.nullcontext()
-
-
-def _single_thread(func: Callable) -> Callable:
-    @functools.wraps(func)
-    def wrapper(*args: Any, **kwargs: Any) -> Any:
-        with _blas_limit():
-            return func(*args, **kwargs)
-    return wrapper
-
-
-# --------------------------------------------------------------------------------------
-# input checks
-# --------------------------------------------------------------------------------------
-def _prepare(X: Any, mask: Any, name: str = "X", batch: bool = False
-             ) -> tuple[np.ndarray, np.ndarray | None]:
-    """Validated float copy of X with unobserved entries set to 0, and the mask (or None)."""
-    X = np.array(X, dtype=np.float64, copy=True)
-    ndim_ok = (2, 3) if batch else (2,)
-    if X.ndim not in ndim_ok:
-        raise MocapValueError(f"{name} must be a 2-D matrix (frames x coordinates), got shape {X.shape}")
-    if X.shape[-1] == 0 or X.shape[-2] == 0:
-        raise MocapValueError(f"{name} is empty (shape {X.shape})")
-    if mask is None:
-        if not np.isfinite(X).all():
-            raise MocapValueError(
-                f"{name} has {int((~np.isfinite(X)).sum())} non-finite entries but no mask; "
-                f"pass mask= (True = observed) to treat them as missing")
-        return X, None
-    m = np.asarray(mask)
-    if m.shape != X.shape:
-        raise MocapValueError(f"mask must have the shape of {name} {X.shape}, got {m.shape}")
-    m = m.astype(bool)
-    bad = m & ~np.isfinite(X)
-    if bad.any():
-        raise MocapValueError(f"{name} has {int(bad.sum())} non-finite entries marked as observed")
-    X[~m] = 0.0
-    if m.all():
-        return X, None
-    return X, m
+__all__ = ["shrink_singular_values", "tsvd", "svt", "rpca_ialm", "slra", "segment_layout"]
 
 
 # --------------------------------------------------------------------------------------
@@ -183,7 +118,7 @@ def _spectral_norm(M: np.ndarray) -> np.ndarray:
 # --------------------------------------------------------------------------------------
 # truncated SVD
 # --------------------------------------------------------------------------------------
-@_single_thread
+@_linalg.one_blas_thread
 def tsvd(X: Any, k: int = 10, mask: Any = None, *, max_iter: int = 100, tol: float = 1e-6
          ) -> np.ndarray:
     """Best rank-k approximation (Eckart-Young), with iterative imputation of missing entries.
@@ -203,7 +138,7 @@ def tsvd(X: Any, k: int = 10, mask: Any = None, *, max_iter: int = 100, tol: flo
     -------
     (m, n) rank-<=k matrix (observed entries are *not* forced back).
     """
-    X, mask = _prepare(X, mask)
+    X, mask = _linalg.prepare(X, mask, full_mask=False)
     k = int(k)
     if k < 1:
         raise MocapValueError(f"k must be >= 1, got {k}")
@@ -219,9 +154,7 @@ def tsvd(X: Any, k: int = 10, mask: Any = None, *, max_iter: int = 100, tol: flo
 
     if mask is None:
         return project(X)
-    from ..motion import fill_gaps_linear
-
-    Z = fill_gaps_linear(X, mask)
+    Z = gaps.fill(X, mask, never_observed=0.0)
     miss = ~mask
     A = project(Z)
     for _ in range(max_iter):
@@ -237,30 +170,6 @@ def tsvd(X: Any, k: int = 10, mask: Any = None, *, max_iter: int = 100, tol: flo
 # --------------------------------------------------------------------------------------
 # singular value thresholding (Cai, Candes & Shen 2010)
 # --------------------------------------------------------------------------------------
-def noise_level(X: Any, mask: Any = None, *, robust: bool = False) -> float:
-    """Rough per-entry noise standard deviation of a smooth time series matrix (same unit as X).
-
-    RMS of the second difference along time (axis 0), divided by sqrt(6) (the gain of the
-    [1, -2, 1] filter on white noise), over triples of consecutive observed frames.  For
-    mocap at >= 30 fps the true motion's second differences are small, so this measures
-    the jitter; outliers raise it.  ``robust=True`` uses 1.4826 x the median absolute
-    second difference instead of the RMS (outliers, a minority, do not move it).  Returns 0
-    for fewer than 3 frames.
-    """
-    X, mask = _prepare(X, mask)
-    if X.shape[0] < 3:
-        return 0.0
-    d2 = X[2:] - 2 * X[1:-1] + X[:-2]
-    if mask is not None:
-        ok = mask[2:] & mask[1:-1] & mask[:-2]
-        d2 = d2[ok]
-    if d2.size == 0:
-        return 0.0
-    if robust:
-        return float(1.4826 * np.median(np.abs(d2)) / np.sqrt(6.0))
-    return float(np.sqrt(np.mean(d2 ** 2) / 6.0))
-
-
 def _proj_soc(y: np.ndarray, s: float) -> tuple[np.ndarray, float]:
     """Projection of (y, s) on the cone {(y, s): ||y||_F <= s} (Cai et al. 2010, Sec. 3.3)."""
     ny = float(np.linalg.norm(y))
@@ -272,7 +181,7 @@ def _proj_soc(y: np.ndarray, s: float) -> tuple[np.ndarray, float]:
     return c * y, c * ny
 
 
-@_single_thread
+@_linalg.one_blas_thread
 def svt(X: Any, mask: Any = None, tau: float | None = None, delta: float | None = None, *,
         eps: float = 0.0, tol: float = 1e-4, max_iter: int = 500, svd: str = "auto",
         method: str = "auto", return_info: bool = False):
@@ -307,16 +216,17 @@ def svt(X: Any, mask: Any = None, tau: float | None = None, delta: float | None 
 
     Returns
     -------
-    A : (m, n) estimate; with ``return_info`` also a dict (iterations, converged, rank,
-    residual = the final value of the stopping criterion compared with ``tol``, criterion =
-    its name, fit_ratio = ``||P_Omega(A - X)||_F / eps`` for eps > 0 (must end <= 1.001), else 0).
+    A : (m, n) estimate; with ``return_info`` also a :class:`~mocapkit.solvers.info.SolveInfo`
+    (residual = the final value of the stopping criterion compared with ``tol``, criterion =
+    its name; extra ``rank``, ``fit_ratio`` = ``||P_Omega(A - X)||_F / eps`` for eps > 0
+    (must end <= 1.001), else 0, ``restarts``, ``delta``).
     Initial "kicking" ``Y_0 = k_0 delta P_Omega(X)`` with ``k_0 = ceil(tau / (delta
     ||P_Omega X||_2))`` (Sec. 5.1.1) skips the first iterations that return 0.
     Divergence guard (ours): when ``||P_Omega(X - A)||`` leaves ``(2 + 2 delta) ||P_Omega
     X||`` the step is halved and the iteration restarts (``restarts``, final ``delta`` in
-    the info dict).  Cost with missing entries: max_iter iterations of :func:`_svt_loop`.
+    the info's extra).  Cost with missing entries: max_iter iterations of :func:`_svt_loop`.
     """
-    X, mask = _prepare(X, mask)
+    X, mask = _linalg.prepare(X, mask, full_mask=False)
     m, n = X.shape
     n_obs = m * n if mask is None else int(mask.sum())
     if n_obs == 0:
@@ -324,8 +234,8 @@ def svt(X: Any, mask: Any = None, tau: float | None = None, delta: float | None 
     normX = float(np.linalg.norm(X))
     if normX == 0.0:
         A = np.zeros_like(X)
-        return (A, {"iterations": 0, "converged": True, "rank": 0, "residual": 0.0,
-                    "criterion": "exact"}) if return_info else A
+        return (A, SolveInfo(0, True, 0.0, "exact", {"rank": 0, "fit_ratio": 0.0})
+                ) if return_info else A
     if tau is None:
         tau = np.sqrt(m * n) * normX / np.sqrt(n_obs)
     if delta is None:
@@ -336,8 +246,8 @@ def svt(X: Any, mask: Any = None, tau: float | None = None, delta: float | None 
 
     if mask is None and method == "auto":
         A = _svt_full(X, tau, eps)
-        return (A, {"iterations": 0, "converged": True, "rank": _rank(A), "restarts": 0,
-                    "delta": delta, "residual": 0.0, "criterion": "closed form"}
+        return (A, SolveInfo(0, True, 0.0, "closed form", {"rank": _rank(A), "fit_ratio": 0.0,
+                                                           "restarts": 0, "delta": delta})
                 ) if return_info else A
     if method not in ("auto", "iterative"):
         raise MocapValueError(f"method must be 'auto' or 'iterative', got {method!r}")
@@ -346,11 +256,11 @@ def svt(X: Any, mask: Any = None, tau: float | None = None, delta: float | None 
         X, None if mask is None else ~mask, tau, delta, eps, tol, max_iter, _use_gram(m, n, svd),
         normX)
     if return_info:
-        return A, {"iterations": it, "converged": converged, "rank": int(rank),
-                   "residual": float(crit), "fit_ratio": float(fit), "restarts": restarts,
-                   "delta": float(delta),
-                   "criterion": ("relative residual ||P(X - A)|| / ||P X||" if eps == 0.0
-                                 else "relative change of A")}
+        return A, SolveInfo(it, converged, float(crit),
+                            ("relative residual ||P(X - A)|| / ||P X||" if eps == 0.0
+                             else "relative change of A"),
+                            {"rank": int(rank), "fit_ratio": float(fit), "restarts": restarts,
+                             "delta": float(delta)})
     return A
 
 
@@ -457,6 +367,11 @@ CHUNK_ELEMENTS = 1 << 17
 """Matrices of a stack solved together per IALM chunk: as many as fit in ~131k entries
 (1 MB per working array, so the five arrays of a chunk stay in the L2/L3 cache; a stack of
 500 segments at once ran 1.8x slower per frame and needed 20x the input in memory)."""
+
+
+IALM_CRITERION = "relative residual ||D-A-E||/||D||"
+"""What the IALM solvers' ``residual`` is (:func:`rpca_ialm`, :func:`slra`): the final
+``||D - A - E||_F / ||D||_F`` (observed entries), compared with ``tol``."""
 
 
 def _shrink_into(M: np.ndarray, tau: np.ndarray, out: np.ndarray, gram: bool) -> np.ndarray:
@@ -624,7 +539,7 @@ def _ialm_batch(D: np.ndarray, mask: np.ndarray | None, lam: np.ndarray, tol: fl
     return A, E, iters, conv
 
 
-@_single_thread
+@_linalg.one_blas_thread
 def rpca_ialm(D: Any, lam: float | None = None, mask: Any = None, tol: float = 1e-7,
               max_iter: int = 500, *, rho: float = 1.5, svd: str = "auto",
               return_info: bool = False, want_E: bool = True):
@@ -646,12 +561,30 @@ def rpca_ialm(D: Any, lam: float | None = None, mask: Any = None, tol: float = 1
     Returns
     -------
     A, E : low-rank and sparse parts (same shape as D; on unobserved entries E = -A is
-    meaningless and A is the completion).  With ``return_info`` also a dict with
-    ``iterations``, ``converged`` and ``residual`` (the final ``||D - A - E||_F / ||D||_F``
-    compared with ``tol``; arrays of length p for a stack, else scalars).  ``want_E=False``
-    returns None for E (one array of D's size less).
+    meaningless and A is the completion).  With ``return_info`` also a
+    :class:`~mocapkit.solvers.info.SolveInfo` (``n_iter``, ``converged`` and ``residual``,
+    the final ``||D - A - E||_F / ||D||_F`` compared with ``tol`` (:data:`IALM_CRITERION`);
+    arrays of length p for a stack, else scalars).  ``want_E=False`` returns None for E
+    (one array of D's size less).
+
+    Examples
+    --------
+    A rank-1 matrix with two gross errors is split into its low-rank and sparse parts:
+
+    >>> import numpy as np
+    >>> from mocapkit.solvers.lowrank import rpca_ialm
+    >>> rng = np.random.default_rng(0)
+    >>> L = np.outer(rng.normal(size=60), rng.normal(size=20))     # rank 1, (60, 20)
+    >>> D = L.copy()
+    >>> D[3, 2] += 10.0
+    >>> D[17, 5] -= 8.0
+    >>> A, E, info = rpca_ialm(D, return_info=True)
+    >>> info.converged, info.residual < 1e-7
+    (True, True)
+    >>> print(np.round([E[3, 2], E[17, 5]], 3), bool(np.abs(A - L).max() < 1e-4))
+    [10. -8.] True
     """
-    D, mask = _prepare(D, mask, "D", batch=True)
+    D, mask = _linalg.prepare(D, mask, name="D", batch=True, full_mask=False)
     single = D.ndim == 2
     if single:
         D = D[None]
@@ -671,7 +604,7 @@ def rpca_ialm(D: Any, lam: float | None = None, mask: Any = None, tol: float = 1
         A, iters, conv, crit = A[0], int(iters[0]), bool(conv[0]), float(crit[0])
         E = None if E is None else E[0]
     if return_info:
-        return A, E, {"iterations": iters, "converged": conv, "residual": crit}
+        return A, E, SolveInfo(iters, conv, crit, IALM_CRITERION)
     return A, E
 
 
@@ -733,7 +666,7 @@ def _blend_weights(starts: np.ndarray, stops: np.ndarray) -> list[np.ndarray]:
     return ws
 
 
-@_single_thread
+@_linalg.one_blas_thread
 def slra(D: Any, segment: int = 200, overlap: int = 0, *, n_segments: int | None = None,
          mask: Any = None, lam: float | None = None, center: str = "none", tol: float = 1e-7,
          max_iter: int = 500, rho: float = 1.5, svd: str = "auto", return_info: bool = False):
@@ -761,10 +694,11 @@ def slra(D: Any, segment: int = 200, overlap: int = 0, *, n_segments: int | None
     Returns
     -------
     A, E : (m, n) low-rank estimate and sparse part (E = D - A on observed entries).
-    With ``return_info`` also a dict: starts, stops, iterations, converged, residual (per
-    segment; the final relative IALM residual, see :func:`rpca_ialm`).
+    With ``return_info`` also a :class:`~mocapkit.solvers.info.SolveInfo` with one
+    ``n_iter`` / ``converged`` / ``residual`` per segment (the final relative IALM residual,
+    see :func:`rpca_ialm`) and extra ``starts``, ``stops`` (the segments' frames).
     """
-    D, mask = _prepare(D, mask, "D")
+    D, mask = _linalg.prepare(D, mask, name="D", full_mask=False)
     m, n = D.shape
     if center not in ("none", "mean", "median"):
         raise MocapValueError(f"center must be 'none', 'mean' or 'median', got {center!r}")
@@ -787,8 +721,8 @@ def slra(D: Any, segment: int = 200, overlap: int = 0, *, n_segments: int | None
     if mask is not None:
         E[~mask] = 0.0
     if return_info:
-        return A, E, {"starts": starts, "stops": stops, "iterations": iters, "converged": conv,
-                      "residual": resid}
+        return A, E, SolveInfo(iters, conv, resid, IALM_CRITERION,
+                               {"starts": starts, "stops": stops})
     return A, E
 
 

@@ -62,10 +62,10 @@ def _block(X: np.ndarray, sigma: float, window: int) -> np.ndarray:
     """
     from sklearn.utils.extmath import randomized_svd
 
-    from ..denoise.sparse import lagged_windows, overlap_mean       # the window helpers
+    from ..windows import lagged, overlap_mean
 
     T, C = X.shape
-    H = lagged_windows(X, window)                                     # (m, C window)
+    H = lagged(X, window)                                             # (m, C window)
     m, n = H.shape
     big, beta = max(m, n), min(m, n) / max(m, n)
     unit = sigma * np.sqrt(big)

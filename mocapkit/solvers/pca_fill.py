@@ -88,10 +88,10 @@ import warnings
 
 import numpy as np
 
-from ..bodyframe import BodyTransform, up_axis_of
+from ..frames import Frame, up_axis_of
 from ..io._rotations import axis_rotation
 from ..errors import MocapValueError
-from ..gaps import fill_linear, find_gaps
+from ..gaps import fill, find_gaps
 from ..rigid import distance_stats, yaw_kabsch
 from . import _linalg
 
@@ -99,7 +99,7 @@ __all__ = ["body_frame", "pca_fill", "lowrank_complete"]
 
 
 def body_frame(P: np.ndarray, observed: np.ndarray, *, up_axis: int | None = None,
-               heading: bool = True, n_iter: int = 30, robust_cm: float = 5.0) -> BodyTransform:
+               heading: bool = True, n_iter: int = 30, robust_cm: float = 5.0) -> Frame:
     """Per-frame heading and horizontal translation of a marker set, robust to which
     markers are visible (module docstring, step 1).
 
@@ -112,7 +112,7 @@ def body_frame(P: np.ndarray, observed: np.ndarray, *, up_axis: int | None = Non
     little. Frames seeing fewer than 2 markers take the frame interpolated in time.
 
     P : (T, J, 3) cm (NaN = missing); observed : (T, J). ``heading=False`` fits the
-    translation only. Returns a :class:`~mocapkit.bodyframe.BodyTransform` (``world =
+    translation only. Returns a :class:`~mocapkit.frames.Frame` (``world =
     R_t local + origin_t``; ``origin`` has no vertical component).
     """
     P = np.asarray(P, dtype=float)
@@ -123,7 +123,7 @@ def body_frame(P: np.ndarray, observed: np.ndarray, *, up_axis: int | None = Non
         raise MocapValueError(f"up_axis must be 0, 1 or 2, got {up_axis!r}")
     h = [(up + 1) % 3, (up + 2) % 3]
     if not obs.any():
-        return BodyTransform.identity(T, up)
+        return Frame.identity(np.zeros((T, 3)))
     Q = np.where(obs[..., None], P, 0.0)
     wo = obs.astype(float)
     n_t = wo.sum(axis=1)
@@ -162,7 +162,7 @@ def body_frame(P: np.ndarray, observed: np.ndarray, *, up_axis: int | None = Non
             th_v = np.unwrap(th[good])
             th = np.full(T, np.nan)
             th[good] = th_v
-            th = fill_linear(th[:, None], good[:, None])[:, 0]
+            th = fill(th[:, None], good[:, None])[:, 0]
         else:
             th = np.zeros(T)
         done = (np.abs(th - theta).max() < 1e-12 and np.abs(c_new - c)[good].max(initial=0.0) < 1e-10)
@@ -171,9 +171,9 @@ def body_frame(P: np.ndarray, observed: np.ndarray, *, up_axis: int | None = Non
             break
     c[:, up] = 0.0
     if (~good).any() and good.any():
-        c = fill_linear(np.where(good[:, None], c, np.nan), np.repeat(good[:, None], 3, 1))
+        c = fill(np.where(good[:, None], c, np.nan), np.repeat(good[:, None], 3, 1))
     R = axis_rotation(up, theta)
-    return BodyTransform(origin=c, rotation=R, up_axis=up, heading=theta)
+    return Frame(origin=c, rotation=R)
 
 
 def _ncomp(S: np.ndarray, min_cum_sv: float) -> int:
@@ -230,12 +230,11 @@ def lowrank_complete(X: np.ndarray, mask: np.ndarray, *, min_cum_sv: float = 0.9
     Known fragility (measured, not yet fixed): on a planted rank-3 test matrix a 1e-14
     change of the linear start moves the result from 1e-9 to 3.4 off after 300 iterations,
     so the EM path is not robust to its start; the tests pin the start to
-    :func:`mocapkit.gaps.fill_linear`."""
+    :func:`mocapkit.gaps.fill`."""
     X = np.asarray(X, dtype=float)
     M = np.asarray(mask, bool) & np.isfinite(X)
     ever = M.any(axis=0)
-    Y = fill_linear(X, M)
-    Y[:, ~ever] = 0.0
+    Y = fill(X, M, never_observed=0.0)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
         mu = np.nan_to_num(np.nanmean(np.where(M, X, np.nan), axis=0))
@@ -349,7 +348,7 @@ def pca_fill(P: np.ndarray, observed: np.ndarray, *, sigma_cm: float = 20.0,
     min_cum_sv : cumulative singular-value share of the kept components (paper: 0.99).
     frame : ``"heading"`` (translation and heading removed, default), ``"translation"``
         (translation only, as the paper) or ``"world"`` (none).
-    up_axis : vertical axis (default :func:`mocapkit.bodyframe.up_axis_of`).
+    up_axis : vertical axis (default :func:`mocapkit.frames.up_axis_of`).
     min_frames : fewest training frames of a model; fewer -> iterative fallback.
     min_donors : markers within 2 sigma of the missing one that must be seen in a frame
         for it to be filled (and for a gap to use the R2 model).
@@ -369,14 +368,7 @@ def pca_fill(P: np.ndarray, observed: np.ndarray, *, sigma_cm: float = 20.0,
     (P_filled (T, J, 3), filled (T, J) bool[, info]): observed samples unchanged, fills
     where supported, NaN elsewhere.
     """
-    P = np.asarray(P, dtype=float)
-    if P.ndim != 3 or P.shape[2] != 3:
-        raise MocapValueError(f"positions must be (T, J, 3), got {P.shape}")
-    obs = np.asarray(observed, bool) & np.isfinite(P).all(axis=-1)
-    if frame not in ("heading", "translation", "world"):
-        raise MocapValueError(f"frame must be 'heading', 'translation' or 'world', got {frame!r}")
-    if not (float(sigma_cm) > 0 and 0 < float(min_cum_sv) <= 1 and float(mm_weight) > 0):
-        raise MocapValueError("sigma_cm and mm_weight must be > 0 and min_cum_sv in (0, 1]")
+    P, obs = _pca_fill_args(P, observed, frame, sigma_cm, min_cum_sv, mm_weight)
     T, J, _ = P.shape
     out = np.where(obs[..., None], P, np.nan)
     filled = np.zeros((T, J), bool)
@@ -385,78 +377,141 @@ def pca_fill(P: np.ndarray, observed: np.ndarray, *, sigma_cm: float = 20.0,
     if not todo or J < 2:
         return (out, filled, info) if return_info else (out, filled)
     up = up_axis_of(P) if up_axis is None else int(up_axis)
-    tr = (BodyTransform.identity(T, up) if frame == "world"
+    tr = (Frame.identity(np.zeros((T, 3))) if frame == "world"
           else body_frame(P, obs, up_axis=up, heading=(frame == "heading")))
-    Ll = tr.to_local(np.where(obs[..., None], P, 0.0))
-    Xl = np.where(np.repeat(obs, 3, axis=1), Ll.reshape(T, 3 * J), np.nan)
-    dmean, _, _, dlo, dhi = distance_stats(P, obs, return_range=True)
-    slack = np.maximum(float(range_slack_cm), 0.25 * (dhi - dlo))
-    dlo, dhi = dlo - slack, dhi + slack               # plausible distance range of each pair
-    W = np.exp(-np.nan_to_num(dmean, nan=np.inf) ** 2 / (2.0 * float(sigma_cm) ** 2))
-    close = W >= np.exp(-0.5 * float(support_sigmas) ** 2)   # close enough to count as support
-    np.fill_diagonal(close, False)
-    cols_of = lambda js: (3 * np.asarray(js)[:, None] + np.arange(3)).ravel()   # noqa: E731
-    cache: dict = {}
-    local_fill = np.full((T, J, 3), np.nan)
-    k_min = int(min_donors)
-    L3 = Xl.reshape(T, J, 3)
+    gf = _GapFiller(P, obs, tr.to_local(np.where(obs[..., None], P, 0.0)), sigma_cm=sigma_cm,
+                    mm_weight=mm_weight, min_cum_sv=min_cum_sv, min_frames=min_frames,
+                    min_donors=min_donors, cover=cover, std_floor_cm=std_floor_cm, n_iter=n_iter,
+                    end_correction=end_correction, support_sigmas=support_sigmas,
+                    range_slack_cm=range_slack_cm)
+    for g in todo:                                               # loop over gaps
+        left = gf.r2(g, info)
+        if len(left):                                            # too few complete frames
+            gf.fallback(g, left, info)
+    new = np.isfinite(gf.local_fill).all(axis=-1) & ~obs
+    if new.any():
+        world = tr.to_world(np.nan_to_num(gf.local_fill))
+        out[new] = world[new]
+        filled = new
+    return (out, filled, info) if return_info else (out, filled)
 
-    def plausible(m: int, fr: np.ndarray, xm: np.ndarray) -> np.ndarray:
+
+def _pca_fill_args(P, observed, frame: str, sigma_cm: float, min_cum_sv: float,
+                   mm_weight: float) -> tuple[np.ndarray, np.ndarray]:
+    """Checked positions (T, J, 3) float and observed mask (T, J) (finite samples only) of
+    :func:`pca_fill`."""
+    P = np.asarray(P, dtype=float)
+    if P.ndim != 3 or P.shape[2] != 3:
+        raise MocapValueError(f"positions must be (T, J, 3), got {P.shape}")
+    obs = np.asarray(observed, bool) & np.isfinite(P).all(axis=-1)
+    if frame not in ("heading", "translation", "world"):
+        raise MocapValueError(f"frame must be 'heading', 'translation' or 'world', got {frame!r}")
+    if not (float(sigma_cm) > 0 and 0 < float(min_cum_sv) <= 1 and float(mm_weight) > 0):
+        raise MocapValueError("sigma_cm and mm_weight must be > 0 and min_cum_sv in (0, 1]")
+    return P, obs
+
+
+def _cols(js) -> np.ndarray:
+    """Columns (3 per marker) of markers ``js`` in a (T, 3J) matrix."""
+    return (3 * np.asarray(js)[:, None] + np.arange(3)).ravel()
+
+
+class _GapFiller:
+    """The per-gap steps of :func:`pca_fill` (module docstring steps 4-7) on the local-frame
+    positions ``Ll`` (T, J, 3): marker weights and support from the mean pair distances,
+    R2 models cached by donor set, the fills collected in ``local_fill`` (T, J, 3; NaN
+    where not filled).  Settings as :func:`pca_fill`."""
+
+    def __init__(self, P: np.ndarray, obs: np.ndarray, Ll: np.ndarray, *, sigma_cm, mm_weight,
+                 min_cum_sv, min_frames, min_donors, cover, std_floor_cm, n_iter,
+                 end_correction, support_sigmas, range_slack_cm):
+        T, J, _ = P.shape
+        self.obs, self.T = obs, T
+        self.Xl = np.where(np.repeat(obs, 3, axis=1), Ll.reshape(T, 3 * J), np.nan)
+        self.L3 = self.Xl.reshape(T, J, 3)
+        dmean, _, _, dlo, dhi = distance_stats(P, obs, return_range=True)
+        slack = np.maximum(float(range_slack_cm), 0.25 * (dhi - dlo))
+        self.dlo, self.dhi = dlo - slack, dhi + slack     # plausible distance range of each pair
+        self.W = np.exp(-np.nan_to_num(dmean, nan=np.inf) ** 2 / (2.0 * float(sigma_cm) ** 2))
+        self.close = self.W >= np.exp(-0.5 * float(support_sigmas) ** 2)   # counts as support
+        np.fill_diagonal(self.close, False)
+        self.mm_weight, self.min_cum_sv = float(mm_weight), float(min_cum_sv)
+        self.std_floor, self.n_iter, self.cover = float(std_floor_cm), int(n_iter), float(cover)
+        self.min_frames, self.k_min, self.end_correction = min_frames, int(min_donors), end_correction
+        self.cache: dict = {}
+        self.local_fill = np.full((T, J, 3), np.nan)
+
+    def plausible(self, m: int, fr: np.ndarray, xm: np.ndarray) -> np.ndarray:
         """Frames whose fill keeps every close marker seen there at a distance inside the
         range seen in the data (widened by the slack): no extrapolated garbage."""
-        cj = np.flatnonzero(close[m])
-        d = np.linalg.norm(L3[fr][:, cj] - xm[:, None, :], axis=-1)     # NaN where unseen
+        cj = np.flatnonzero(self.close[m])
+        d = np.linalg.norm(self.L3[fr][:, cj] - xm[:, None, :], axis=-1)     # NaN where unseen
         with np.errstate(invalid="ignore"):
-            bad = (d < dlo[m, cj]) | (d > dhi[m, cj])
+            bad = (d < self.dlo[m, cj]) | (d > self.dhi[m, cj])
         return ~bad.any(axis=1)
-    for g in todo:                                               # loop over gaps
-        m = g.joint
+
+    def r2(self, g, info: dict) -> np.ndarray:
+        """R2 fill of gap ``g`` (steps 4-5, 7): up to three passes, the donors re-chosen for
+        the frames left (cover, half of it, any share); returns the gap frames with evidence
+        that no pass could fill."""
+        obs, m, k_min = self.obs, g.joint, self.k_min
         gap = np.arange(g.start, g.stop)
-        left = gap[obs[gap][:, close[m]].sum(axis=1) >= k_min]    # frames with evidence
-        ends = ([f for f in (g.start - 1, g.stop) if 0 <= f < T and obs[f, m]]
-                if end_correction else [])
-        for cov in (float(cover), 0.5 * float(cover), 0.0):   # passes: donors re-chosen for the frames left
+        left = gap[obs[gap][:, self.close[m]].sum(axis=1) >= k_min]    # frames with evidence
+        ends = ([f for f in (g.start - 1, g.stop) if 0 <= f < self.T and obs[f, m]]
+                if self.end_correction else [])
+        for cov in (self.cover, 0.5 * self.cover, 0.0):
             if not len(left):
                 break
-            seen = obs[left].mean(axis=0)
-            cand = [j for j in np.argsort(-W[m] * seen) if j != m and W[m, j] > 1e-4
-                    and seen[j] >= cov and seen[j] > 0]
-            train = obs[:, m].copy()
-            donors = []
-            for j in cand:                                       # greedy, by weight
-                t2 = train & obs[:, j]
-                if t2.sum() >= min_frames:
-                    donors.append(int(j))
-                    train = t2
-            near = [j for j in donors if close[m, j]]
+            donors, train = self._donors(m, left, cov)
+            near = [j for j in donors if self.close[m, j]]
             ok = obs[left][:, near].sum(axis=1) >= k_min if len(near) >= k_min else np.zeros(len(left), bool)
             if not ok.any():
                 continue
             fr = left[ok]
-            key = (m, tuple(donors))
-            if key not in cache:
-                wcol = np.repeat(np.r_[float(mm_weight), W[m, donors]], 3)
-                cache[key] = _model(Xl, np.flatnonzero(train), cols_of([m] + donors), wcol,
-                                    float(min_cum_sv), float(std_floor_cm)) + (wcol,)
             e_ok = [f for f in ends if obs[f, near].sum() >= k_min]
-            xm = _r2_predict(Xl, m, fr, e_ok, cols_of(donors), *cache[key])
-            keep = plausible(m, fr, xm)
-            local_fill[fr[keep], m] = xm[keep]
+            xm = _r2_predict(self.Xl, m, fr, e_ok, _cols(donors), *self._model(m, donors, train))
+            keep = self.plausible(m, fr, xm)
+            self.local_fill[fr[keep], m] = xm[keep]
             info["pca"] += int(keep.sum())
             left = left[~ok]
-        if len(left):                                            # too few complete frames
-            pad = max(g.length, int(min_frames), 2 * len(left))
-            a, b = max(g.start - pad, 0), min(g.stop + pad, T)     # a window around the gap
-            Y = _weighted_complete(Xl[a:b], m, W[m], float(mm_weight), float(min_cum_sv),
-                                   float(std_floor_cm), int(n_iter), min(30, b - a))
-            if Y is None:
-                continue
-            keep = plausible(m, left, Y[left - a])
-            local_fill[left[keep], m] = Y[left - a][keep]
-            info["pca-iterative"] += int(keep.sum())
-    new = np.isfinite(local_fill).all(axis=-1) & ~obs
-    if new.any():
-        world = tr.to_world(np.nan_to_num(local_fill))
-        out[new] = world[new]
-        filled = new
-    return (out, filled, info) if return_info else (out, filled)
+        return left
+
+    def _donors(self, m: int, left: np.ndarray, cov: float) -> tuple[list[int], np.ndarray]:
+        """Donors of marker m for the frames ``left``: markers seen in at least ``cov`` of
+        them, added greedily by weight x share seen while the frames where m and every
+        chosen donor are seen stay >= ``min_frames``; returns them and those frames (T,)."""
+        obs, W = self.obs, self.W
+        seen = obs[left].mean(axis=0)
+        cand = [j for j in np.argsort(-W[m] * seen) if j != m and W[m, j] > 1e-4
+                and seen[j] >= cov and seen[j] > 0]
+        train = obs[:, m].copy()
+        donors = []
+        for j in cand:                                       # greedy, by weight
+            t2 = train & obs[:, j]
+            if t2.sum() >= self.min_frames:
+                donors.append(int(j))
+                train = t2
+        return donors, train
+
+    def _model(self, m: int, donors: list[int], train: np.ndarray) -> tuple:
+        """The R2 model of marker m from ``donors`` (:func:`_model`, cached) and its weights."""
+        key = (m, tuple(donors))
+        if key not in self.cache:
+            wcol = np.repeat(np.r_[self.mm_weight, self.W[m, donors]], 3)
+            self.cache[key] = _model(self.Xl, np.flatnonzero(train), _cols([m] + donors), wcol,
+                                     self.min_cum_sv, self.std_floor) + (wcol,)
+        return self.cache[key]
+
+    def fallback(self, g, left: np.ndarray, info: dict) -> None:
+        """Step 6: the frames ``left`` of gap ``g`` from the iterative low-rank completion
+        of a window around the gap (:func:`_weighted_complete`), where plausible."""
+        m = g.joint
+        pad = max(g.length, int(self.min_frames), 2 * len(left))
+        a, b = max(g.start - pad, 0), min(g.stop + pad, self.T)     # a window around the gap
+        Y = _weighted_complete(self.Xl[a:b], m, self.W[m], self.mm_weight, self.min_cum_sv,
+                               self.std_floor, self.n_iter, min(30, b - a))
+        if Y is None:
+            return
+        keep = self.plausible(m, left, Y[left - a])
+        self.local_fill[left[keep], m] = Y[left - a][keep]
+        info["pca-iterative"] += int(keep.sum())

@@ -61,39 +61,15 @@ from typing import Iterable
 
 import numpy as np
 
+from .. import gaps
 from ..errors import MocapValueError
+from ..windows import counts, lagged
 from . import _linalg
-from .completion import _one_blas_thread
+from .info import SolveInfo
 
-__all__ = ["window_matrix", "lag_covariance", "learn_bases", "choose_k", "welsch",
-           "welsch_weight", "window_counts", "coefficients", "overlap_add",
+__all__ = ["lag_covariance", "learn_bases", "choose_k", "welsch",
+           "welsch_weight", "coefficients", "overlap_add",
            "robust_filter", "objective", "dense_quadratic_reference", "WindowProjector"]
-
-
-# ---------------------------------------------------------------------------------------
-# windows
-# ---------------------------------------------------------------------------------------
-def window_matrix(X: np.ndarray, M: int) -> np.ndarray:
-    """Trajectory matrix D (S, M*L) of one clip X (T, L), frame-major rows
-    ``D[s] = X[s:s+M].ravel()`` (eqs. 1-2 up to a column permutation); S = T - M + 1.
-
-    Returns a read-only zero-copy strided view when X is C-contiguous.
-    """
-    X = np.ascontiguousarray(X, dtype=float)
-    T, L = X.shape
-    S = T - M + 1
-    if S <= 0:
-        return np.zeros((0, M * L))
-    v = np.lib.stride_tricks.as_strided(X, shape=(S, M * L), strides=(X.strides[0], X.strides[1]),
-                                        writeable=False)
-    return v
-
-
-def window_counts(T: int, M: int) -> np.ndarray:
-    """n_t (T,): how many length-M windows (starts 0..T-M) contain frame t."""
-    S = T - M + 1
-    t = np.arange(T)
-    return (np.minimum(t, S - 1) - np.maximum(t - M + 1, 0) + 1).astype(float)
 
 
 # ---------------------------------------------------------------------------------------
@@ -162,16 +138,16 @@ def lag_covariance(clips: Iterable[np.ndarray], M: int, *, method: str = "lag",
             continue
         S_tot += S
         if method == "dense":
-            D = np.array(window_matrix(X, M))
+            D = lagged(X, M)
             G += D.T @ D
         elif method == "chunked":
-            D = window_matrix(X, M)
+            D = lagged(X, M, view=True)
             for a in range(0, S, chunk):
                 B = np.array(D[a:a + chunk])
                 G += B.T @ B
         else:
             if S * n <= 4_000_000:
-                B0_sum += X[:S].T @ np.asarray(window_matrix(X, M))
+                B0_sum += X[:S].T @ lagged(X, M, view=True)
             else:
                 for d in range(M):
                     B0_sum[:, d * L:(d + 1) * L] += X[:S].T @ X[d:d + S]
@@ -180,24 +156,30 @@ def lag_covariance(clips: Iterable[np.ndarray], M: int, *, method: str = "lag",
     if S_tot == 0:
         raise MocapValueError(f"no training clip is at least M = {M} frames long")
     if method == "lag" and M > 1:
-        # block (m, m+d) = B0[d] - sum_{t<m} x_t x_{t+d}ᵀ + sum_{t<m} x_{S+t} x_{S+t+d}ᵀ,
-        # the two sums taken over all clips at once
-        Hd, Tl = np.stack(heads), np.stack(tails)                # (C, M-1, L)
-        Gv = G.reshape(M, L, M, L)
-        for d in range(M):
-            k = M - d - 1
-            blocks = np.repeat(B0_sum[:, d * L:(d + 1) * L][None], k + 1, axis=0)
-            if k > 0:
-                diff = (np.einsum("cti,ctj->tij", Tl[:, :k], Tl[:, d:d + k])
-                        - np.einsum("cti,ctj->tij", Hd[:, :k], Hd[:, d:d + k]))
-                blocks[1:] += np.cumsum(diff, axis=0)
-            m = np.arange(k + 1)
-            Gv[m, :, m + d, :] = blocks
-            if d > 0:
-                Gv[m + d, :, m, :] = blocks.transpose(0, 2, 1)
+        _lag_blocks(G, B0_sum, np.stack(heads), np.stack(tails), M, L)
     elif method == "lag":
         G += B0_sum
     return G, S_tot
+
+
+def _lag_blocks(G: np.ndarray, B0_sum: np.ndarray, Hd: np.ndarray, Tl: np.ndarray, M: int,
+                L: int) -> None:
+    """Fill G (ML, ML) from the first block row ``B0_sum`` (L, ML) of DᵀD and the clips'
+    first / last M-1 frames ``Hd`` / ``Tl`` (C, M-1, L) (method ``'lag'`` of
+    :func:`lag_covariance`): block (m, m+d) = B0[d] - sum_{t<m} x_t x_{t+d}ᵀ +
+    sum_{t<m} x_{S+t} x_{S+t+d}ᵀ, the two sums taken over all clips at once."""
+    Gv = G.reshape(M, L, M, L)
+    for d in range(M):
+        k = M - d - 1
+        blocks = np.repeat(B0_sum[:, d * L:(d + 1) * L][None], k + 1, axis=0)
+        if k > 0:
+            diff = (np.einsum("cti,ctj->tij", Tl[:, :k], Tl[:, d:d + k])
+                    - np.einsum("cti,ctj->tij", Hd[:, :k], Hd[:, d:d + k]))
+            blocks[1:] += np.cumsum(diff, axis=0)
+        m = np.arange(k + 1)
+        Gv[m, :, m + d, :] = blocks
+        if d > 0:
+            Gv[m + d, :, m, :] = blocks.transpose(0, 2, 1)
 
 
 def choose_k(eigvals: np.ndarray, energy: float | None = 0.99, n_bases: int | None = None) -> int:
@@ -221,7 +203,7 @@ def choose_k(eigvals: np.ndarray, energy: float | None = 0.99, n_bases: int | No
     return int(min(n, np.searchsorted(np.cumsum(ev) / tot, e - 1e-12) + 1))
 
 
-@_one_blas_thread
+@_linalg.one_blas_thread
 def learn_bases(clips: Iterable[np.ndarray], M: int, *, energy: float | None = 0.99,
                 n_bases: int | None = None, method: str = "lag") -> tuple[np.ndarray, np.ndarray, int]:
     """M-SSA filter bases (Sec. 3.1): eigenvectors of the grand lag-covariance.
@@ -406,7 +388,7 @@ def _prior(Z, A, n_t) -> float:
     return max(float(n_t @ np.einsum("tl,tl->t", Z, Z) - np.einsum("tl,tl->", Z, A)), 0.0)
 
 
-@_one_blas_thread
+@_linalg.one_blas_thread
 def robust_filter(Y: np.ndarray, E: np.ndarray, M: int, *, mask: np.ndarray | None = None,
                   lam: float = 0.1, p: float = 3.0, max_iter: int = 20, tol: float = 1e-4,
                   Z0: np.ndarray | None = None, method: str = "auto", fill_iter: int = 100,
@@ -424,39 +406,80 @@ def robust_filter(Y: np.ndarray, E: np.ndarray, M: int, *, mask: np.ndarray | No
     p : Welsch scale in the units of Y (paper: 3); ``np.inf`` = least squares.
     max_iter, tol : at most ``max_iter`` outer iterations; stop when the relative change
         of J is below ``tol``.
-    Z0 : (T, L) initial motion; default Y with missing entries linearly interpolated
-        in time (channels never observed start at 0, i.e. the training mean if Y is
-        centred).
+    Z0 : (T, L) initial motion; default Y linearly interpolated in time over its gaps
+        (never-observed channels at 0: the training mean if Y is centred).
     method : implementation of the coefficient + overlap-add step, see
         :class:`WindowProjector` (``'auto'``, ``'direct'``, ``'fft'``, ``'fft32'``).
-    cache : optional dict reused between calls with the same bases (see
-        :class:`WindowProjector`).
-    fill_iter : missing entries (alpha = 0) have no data term, so the alternating
-        updates move them only by averaging window reconstructions -- a slow (Jacobi)
-        iteration for long gaps. Before the first and after the last alternating
-        iteration the missing entries are therefore set to their exact minimiser of J
-        with every other entry fixed (J is quadratic in them: solve
-        ``(N - A)_mm z_m = (A z_o)_m`` by conjugate gradients, at most ``fill_iter``
-        steps, preconditioned by N = diag(n_t)). Each such block step cannot increase J.
-        0 = the paper's plain alternation.
-    return_info : also return a dict with ``cost`` (J before each motion step and at
-        the end; non-increasing), ``n_iter``, ``fill_cg_iter``, ``weights`` (alpha * w
-        of the last step), ``converged`` (the relative change of J fell to ``tol`` before
-        ``max_iter`` motion steps) and ``residual`` (that last relative change of J).
+    cache : optional dict reused between calls with the same bases (:class:`WindowProjector`).
+    fill_iter : before the first and after the last alternating iteration the missing
+        entries (alpha = 0, no data term: the alternation moves them only slowly) are set
+        to their exact minimiser of J, the others fixed -- ``(N - A)_mm z_m = (A z_o)_m``
+        by at most ``fill_iter`` conjugate-gradient steps preconditioned by N = diag(n_t)
+        (module docstring; J cannot increase). 0 = the paper's plain alternation.
+    return_info : also return a :class:`~mocapkit.solvers.info.SolveInfo`: ``n_iter``
+        (motion steps run), ``converged`` (the relative change of J fell to ``tol`` before
+        ``max_iter`` motion steps), ``residual`` (that last relative change of J); extra
+        ``cost`` (J before each motion step and at the end; non-increasing),
+        ``fill_cg_iter`` and ``weights`` (alpha * w of the last step).
 
     Returns
     -------
     Z : (T, L) filtered motion (every entry finite), [info].
-    """
-    from ..motion import fill_gaps_linear
 
+    Examples
+    --------
+    Bases learned from a clean 3-channel clip remove noise, an outlier and a gap:
+
+    >>> import numpy as np
+    >>> from mocapkit.solvers.robust_bases import learn_bases, robust_filter
+    >>> t = np.arange(300) / 30.0
+    >>> X = np.c_[np.sin(t), np.cos(2 * t), np.sin(3 * t + 1)]            # (300, 3)
+    >>> E, _, _ = learn_bases([X], 10, n_bases=4)                         # (30, 4)
+    >>> Y = X + 0.05 * np.random.default_rng(0).normal(size=X.shape)
+    >>> Y[100, 0] += 3.0                                                  # an outlier
+    >>> Y[150:160, 1] = np.nan                                            # a gap
+    >>> Z, info = robust_filter(Y, E, 10, p=0.3, return_info=True)
+    >>> rms = lambda A: float(np.sqrt(np.nanmean((A - X) ** 2)))
+    >>> print(round(rms(Y), 2), round(rms(Z), 2), bool(abs(Z[100, 0] - X[100, 0]) < 0.01))
+    0.11 0.04 True
+    >>> info.converged, info.criterion
+    (True, 'relative change of J')
+    """
+    Y, alpha, lam, p = _filter_args(Y, M, mask, lam, p)
+    T, L = Y.shape
+    M = int(M)
+    proj = WindowProjector(E if isinstance(E, np.ndarray) and E.dtype == float else np.asarray(E, dtype=float),
+                           M, L, T, method, n_calls=int(max_iter) + 2, cache=cache)
+    Yf = np.where(alpha, Y, 0.0)
+    Z = _start_motion(Y, alpha, Yf, Z0)
+    n_t = counts(T, M)
+    a = alpha.astype(float)
+    miss = ~alpha
+    fill = bool(miss.any() and fill_iter > 0)
+    cg_its = 0
+    if fill:
+        Z, cg_its = _fill_missing(Z, miss, proj, n_t, int(fill_iter))
+    Z, w, costs, it, done, rel = _alternate(Z, Yf, a, proj, n_t, lam, p, float(tol),
+                                            max(1, int(max_iter)))
+    if fill:
+        Z, k = _fill_missing(Z, miss, proj, n_t, int(fill_iter))
+        cg_its += k
+        costs.append(_cost(Z, proj(Z), Yf, a, n_t, lam, p)[0])
+    if return_info:
+        return Z, SolveInfo(it, done, rel, "relative change of J",
+                            {"cost": np.array(costs), "fill_cg_iter": cg_its, "weights": w})
+    return Z
+
+
+def _filter_args(Y, M: int, mask, lam: float, p: float) -> tuple[np.ndarray, np.ndarray, float, float]:
+    """Checked inputs of :func:`robust_filter`: Y (T, L) float, alpha (T, L) bool (observed
+    and finite), lam, p."""
     Y = np.asarray(Y, dtype=float)
     if Y.ndim != 2:
         raise MocapValueError(f"Y must be a (T, L) array, got shape {Y.shape}")
     T, L = Y.shape
-    M = int(M)
-    if T < M:
-        raise MocapValueError(f"the clip has {T} frames, fewer than the window length M = {M}")
+    if T < int(M):
+        raise MocapValueError(f"the clip has {T} frames, fewer than the window length M = {int(M)}")
     alpha = np.isfinite(Y) if mask is None else (np.asarray(mask, dtype=bool) & np.isfinite(Y))
     if alpha.shape != (T, L):
         raise MocapValueError(f"mask must have shape {(T, L)}, got {alpha.shape}")
@@ -466,42 +489,51 @@ def robust_filter(Y: np.ndarray, E: np.ndarray, M: int, *, mask: np.ndarray | No
         raise MocapValueError(f"lam must be positive, got {lam!r}")
     if not p > 0:
         raise MocapValueError(f"Welsch p must be positive (or inf), got {p!r}")
-    proj = WindowProjector(E if isinstance(E, np.ndarray) and E.dtype == float else np.asarray(E, dtype=float),
-                           M, L, T, method, n_calls=int(max_iter) + 2, cache=cache)
-    Yf = np.where(alpha, Y, 0.0)
+    return Y, alpha, lam, p
+
+
+def _start_motion(Y: np.ndarray, alpha: np.ndarray, Yf: np.ndarray, Z0) -> np.ndarray:
+    """Initial motion of :func:`robust_filter`: ``Z0`` (checked), else Y with its missing
+    entries linearly interpolated in time (never-observed channels at 0)."""
     if Z0 is None:
-        Z = fill_gaps_linear(Y, alpha) if not alpha.all() else Yf.copy()
+        return gaps.fill(Y, alpha, never_observed=0.0) if not alpha.all() else Yf.copy()
+    Z = np.array(Z0, dtype=float)
+    if Z.shape != Y.shape or not np.isfinite(Z).all():
+        raise MocapValueError("Z0 must be a finite (T, L) array")
+    return Z
+
+
+def _cost(Z: np.ndarray, A: np.ndarray, Yf: np.ndarray, a: np.ndarray, n_t: np.ndarray,
+          lam: float, p: float) -> tuple[float, np.ndarray]:
+    """J (eq. 11/16) at motion Z with ``A = WindowProjector(Z)``, and the IRLS factors
+    ``exp(-r^2/p^2)`` (rho'(r)/r, Fig. 2c; 1 for p = inf) of the residuals r = Z - Y."""
+    R = Z - Yf
+    if np.isinf(p):
+        e = np.ones_like(R)
+        data = 0.5 * float(np.sum(a * R * R))
     else:
-        Z = np.array(Z0, dtype=float)
-        if Z.shape != (T, L) or not np.isfinite(Z).all():
-            raise MocapValueError("Z0 must be a finite (T, L) array")
-    n_t = window_counts(T, M)
+        e = np.exp(-(R * R) / (p * p))                         # rho'(r)/r, Fig. 2c
+        data = 0.5 * p * p * float(np.sum(a * (1.0 - e)))      # eq. 9
+    return data + lam * _prior(Z, A, n_t), e
+
+
+def _alternate(Z: np.ndarray, Yf: np.ndarray, a: np.ndarray, proj, n_t: np.ndarray,
+               lam: float, p: float, tol: float, n_max: int):
+    """The alternation of :func:`robust_filter` (Sec. 3.4.3): coefficient step + overlap-add
+    (eqs. 13-14, ``proj``), then the closed-form IRLS motion step (*) with the weights of
+    eq. 15, until the relative change of J is <= ``tol`` or ``n_max`` motion steps.
+
+    Returns (Z, last weights alpha w, J before each motion step and at the end, motion
+    steps run, converged, last relative change of J).
+    """
     two_lam_n = (2.0 * lam * n_t)[:, None]
-    a = alpha.astype(float)
-    miss = ~alpha
-    cg_its = 0
-    if miss.any() and fill_iter > 0:
-        Z, k = _fill_missing(Z, miss, proj, n_t, int(fill_iter))
-        cg_its += k
     costs: list[float] = []
     w = a.copy()
-    half_p2 = 0.5 * p * p
-
-    def cost(Z, A):
-        R = Z - Yf
-        if np.isinf(p):
-            e = np.ones_like(R)
-            data = 0.5 * float(np.sum(a * R * R))
-        else:
-            e = np.exp(-(R * R) / (p * p))                         # rho'(r)/r, Fig. 2c
-            data = half_p2 * float(np.sum(a * (1.0 - e)))          # eq. 9
-        return data + lam * _prior(Z, A, n_t), e
-
-    n_max = max(1, int(max_iter))
     rel = float("inf")                                            # last relative change of J
+    done = False
     for it in range(n_max + 1):
         A = proj(Z)                                               # eqs. 13-14
-        J, e = cost(Z, A)
+        J, e = _cost(Z, A, Yf, a, n_t, lam, p)
         if costs:
             rel = abs(costs[-1] - J) / max(abs(costs[-1]), 1e-300)
         done = bool(costs) and abs(costs[-1] - J) <= tol * max(abs(costs[-1]), 1e-300)
@@ -510,14 +542,7 @@ def robust_filter(Y: np.ndarray, E: np.ndarray, M: int, *, mask: np.ndarray | No
             break
         w = a * e                                                 # eq. 15 (IRLS weights)
         Z = (w * Yf + 2.0 * lam * A) / (w + two_lam_n)            # (*)
-    if miss.any() and fill_iter > 0:
-        Z, k = _fill_missing(Z, miss, proj, n_t, int(fill_iter))
-        cg_its += k
-        costs.append(cost(Z, proj(Z))[0])
-    if return_info:
-        return Z, {"cost": np.array(costs), "n_iter": it, "fill_cg_iter": cg_its, "weights": w,
-                   "converged": done, "residual": rel}
-    return Z
+    return Z, w, costs, it, done, rel
 
 
 def _fill_missing(Z: np.ndarray, miss: np.ndarray, proj, n_t: np.ndarray, max_iter: int,

@@ -55,6 +55,7 @@ import numpy as np
 
 from ..errors import MocapValueError
 from . import _linalg
+from .info import SolveInfo
 
 __all__ = ["soft_threshold", "lasso_fista", "lasso_admm", "l1l1_admm", "dictionary_svd",
            "DictionarySVD", "lipschitz_constant", "lasso_objective", "l1l1_objective"]
@@ -252,36 +253,81 @@ def lasso_admm(Z, D, lam, *, rho: float | None = None, n_iter: int = 40, tol: fl
     Returns
     -------
     Theta : (S, K) codes (the w variable: exactly sparse); with ``return_info``
-        ``(Theta, info)``.
+        ``(Theta, info)``, info a :class:`~mocapkit.solvers.info.SolveInfo`.
+
+    Examples
+    --------
+    With an orthonormal dictionary eq. (4) has the closed form ``theta = soft(D^T z,
+    lam / 2)``; two windows, lam = 1:
+
+    >>> import numpy as np
+    >>> from mocapkit.solvers.sparse_coding import lasso_admm
+    >>> D = np.linalg.qr(np.random.default_rng(0).normal(size=(4, 4)))[0]
+    >>> theta = np.array([[3.0, -0.2, 1.0, 0.0], [0.0, -2.0, 0.0, 0.4]])
+    >>> Theta, info = lasso_admm(theta @ D.T, D, 1.0, n_iter=200, tol=1e-10, return_info=True)
+    >>> print(np.round(Theta, 4) + 0.0)
+    [[ 2.5  0.   0.5  0. ]
+     [ 0.  -1.5  0.   0. ]]
+    >>> info.converged, info.criterion
+    (True, 'relative primal/dual residual')
     """
     Z, D, dt = _check(Z, D, dtype)
     S, K = Z.shape[0], D.shape[1]
     sv = _svd_for(D, svd)
     lamc = _lam_column(lam, S, dt)
+    rho = _lasso_rho(rho, lamc, sv)
+    alpha = _relax_alpha(relax)
+    P, s, V = sv.cast(dt)
+    s64 = sv.s
+    f_b = (2.0 * alpha * s64 / (2.0 * s64 ** 2 + rho)).astype(dt)
+    f_q = (2.0 * alpha * s64 ** 2 / (2.0 * s64 ** 2 + rho)).astype(dt)
+    Ba = ((Z @ P) * f_b) @ V.T                     # alpha (2D^TD + rho I)^{-1} 2 D^T z
+    W = np.zeros((S, K), dtype=dt) if Theta0 is None else np.array(Theta0, dtype=dt).reshape(S, K)
+    C = np.zeros((S, K), dtype=dt) if U0 is None else np.array(U0, dtype=dt).reshape(S, K)   # u
+    n_iter = int(n_iter)
+    W, iters, rmax, smax = _lasso_iterations(Ba, V, f_q, W, C, _clipper(lamc / dt.type(rho)),
+                                             rho, alpha, n_iter, tol, check_every)
+    if return_info:
+        return W, _admm_info(iters, n_iter, rmax, smax, tol)
+    return W
+
+
+def _lasso_rho(rho: float | None, lamc: np.ndarray, sv: DictionarySVD) -> float:
+    """The ADMM penalty of :func:`lasso_admm`: ``rho`` or ``0.5 median(lam)``, floored at
+    1e-6 s_max^2 (s_max the largest singular value of the dictionary)."""
     top = float(sv.s.max(initial=0.0)) ** 2
     if rho is None:
         rho = 0.5 * float(np.median(lamc))
     rho = max(float(rho), 1e-6 * max(top, 1e-300))
     if not np.isfinite(rho):
         raise MocapValueError(f"rho must be a positive number, got {rho!r}")
+    return rho
+
+
+def _relax_alpha(relax) -> float:
+    """The over-relaxation parameter alpha of the ADMM solvers, checked to lie in (0, 2)."""
     alpha = float(relax)
     if not (0.0 < alpha < 2.0):
         raise MocapValueError(f"relax must be in (0, 2), got {relax!r}")
-    P, s, V = sv.cast(dt)
-    s64 = sv.s
-    f_b = (2.0 * alpha * s64 / (2.0 * s64 ** 2 + rho)).astype(dt)
-    f_q = (2.0 * alpha * s64 ** 2 / (2.0 * s64 ** 2 + rho)).astype(dt)
-    Ba = ((Z @ P) * f_b) @ V.T                     # alpha (2D^TD + rho I)^{-1} 2 D^T z
-    thr = lamc / dt.type(rho)
-    W = np.zeros((S, K), dtype=dt) if Theta0 is None else np.array(Theta0, dtype=dt).reshape(S, K)
-    C = np.zeros((S, K), dtype=dt) if U0 is None else np.array(U0, dtype=dt).reshape(S, K)   # u
+    return alpha
+
+
+def _lasso_iterations(Ba: np.ndarray, V: np.ndarray, f_q: np.ndarray, W: np.ndarray,
+                      C: np.ndarray, clip, rho: float, alpha: float, n_iter: int, tol: float,
+                      check_every: int) -> tuple[np.ndarray, int, float, float]:
+    """The ADMM iterations of :func:`lasso_admm`, in place on w (``W``) and u (``C``).
+
+    ``Ba`` = alpha (2 D^T D + rho I)^{-1} 2 D^T z, ``f_q`` the factors of alpha V diag(f)
+    V^T, ``clip`` the clip to +-lam/rho (:func:`_clipper`).  Returns (w, iterations run,
+    largest relative primal and dual residual at the last check).
+    """
+    dt = W.dtype
+    S, K = W.shape
     X = W - C                                      # w - u
     Y = np.empty((S, K), dtype=dt)
     XV = np.empty((S, V.shape[1]), dtype=dt)
     tmp = np.empty((S, K), dtype=dt) if alpha != 1.0 else None
     Th, W_prev = np.empty((S, K), dtype=dt), np.empty((S, K), dtype=dt)     # check buffers
-    clip = _clipper(thr)
-    n_iter = int(n_iter)
     rmax = smax = float("inf")
     it = -1
     for it in range(n_iter):
@@ -311,9 +357,7 @@ def lasso_admm(Z, D, lam, *, rho: float | None = None, n_iter: int = 40, tol: fl
             smax = float((rho * _row_norms(W_prev) / scale).max(initial=0.0))
             if rmax <= tol and smax <= tol:
                 break
-    if return_info:
-        return W, _admm_info(it + 1, n_iter, rmax, smax, tol)
-    return W
+    return W, it + 1, rmax, smax
 
 
 def _row_norms(A: np.ndarray) -> np.ndarray:
@@ -336,12 +380,20 @@ def _clipper(t):
     return f
 
 
-def _admm_info(iters: int, n_iter: int, rmax: float, smax: float, tol: float) -> dict:
-    """Convergence report of a batched ADMM run: ``n_iter`` run (of ``max_iter``),
-    ``primal`` / ``dual``: largest relative residual over the windows at the last check
-    (the quantities compared with ``tol``), ``converged``: both <= ``tol``."""
-    return {"n_iter": int(iters), "max_iter": int(n_iter), "primal": float(rmax), "dual": float(smax),
-            "tol": float(tol), "converged": bool(rmax <= tol and smax <= tol)}
+ADMM_CRITERION = "relative primal/dual residual"
+"""What the ADMM solvers' ``residual`` is: the larger of the largest relative primal and
+dual residuals over the windows at the last check (both are compared with ``tol``)."""
+
+
+def _admm_info(iters: int, n_iter: int, rmax: float, smax: float, tol: float) -> SolveInfo:
+    """Convergence report of a batched ADMM run: ``n_iter`` iterations run, ``converged``
+    (both residuals <= ``tol``), ``residual`` = max(primal, dual) (:data:`ADMM_CRITERION`);
+    extra ``max_iter`` (the cap), ``primal`` / ``dual`` (largest relative residual over the
+    windows at the last check) and ``tol``."""
+    return SolveInfo(n_iter=int(iters), converged=bool(rmax <= tol and smax <= tol),
+                     residual=max(float(rmax), float(smax)), criterion=ADMM_CRITERION,
+                     extra={"max_iter": int(n_iter), "primal": float(rmax), "dual": float(smax),
+                            "tol": float(tol)})
 
 
 def l1l1_admm(Z, D, lam, *, n_iter: int = 300, tol: float = 1e-5, rho: float | None = None,
@@ -391,62 +443,105 @@ def l1l1_admm(Z, D, lam, *, n_iter: int = 300, tol: float = 1e-5, rho: float | N
     Returns
     -------
     Theta : (S, K) codes (the w variable, exactly sparse); with ``return_residual``
-        ``(Theta, E)``; with ``return_info`` ``(..., info)``.
+        ``(Theta, E)``; with ``return_info`` ``(..., info)``, info a
+        :class:`~mocapkit.solvers.info.SolveInfo` (:func:`_admm_info`).
     """
     Z, D, dt = _check(Z, D, dtype)
-    S, n = Z.shape
-    K = D.shape[1]
     sv = _svd_for(D, svd)
-    lam = _lam_column(lam, S, dt)
-    alpha = float(relax)
-    if not (0.0 < alpha < 2.0):
-        raise MocapValueError(f"relax must be in (0, 2), got {relax!r}")
-    P, s, V = sv.cast(dt)
-    s64 = sv.s
-    f_a = (alpha * s64 / (1.0 + s64 ** 2)).astype(dt)
-    f_b = (alpha * s64 ** 2 / (1.0 + s64 ** 2)).astype(dt)
-    zscale = np.abs(Z.astype(np.float64)).mean(axis=1, keepdims=True)
-    zscale = np.where(zscale > 0, zscale, 1.0)
-    Z = (Z / zscale).astype(dt)
+    lam = _lam_column(lam, Z.shape[0], dt)
+    alpha = _relax_alpha(relax)
+    Z, zscale = _normalise_rows(Z, dt)
     rho = 1.0 if rho is None else float(rho)
     if not (np.isfinite(rho) and rho > 0):
         raise MocapValueError(f"rho must be a positive number, got {rho!r}")
-    # Scaled duals kept as N = -u and C = v; with the soft threshold written as
-    # soft(y, t) = y - clip(y, -t, t) the updates collapse to (exact algebra):
-    #   e-step:  Ye = z - (D theta)^ + N;  N' = clip(Ye, +-1/rho);  e = Ye - N'
-    #   w-step:  Y = theta^ + C;           C' = clip(Y, +-lam/rho); w = Y - C'
-    # and the next theta-step needs only  z - e - u = (D theta)^ - N + 2 N'  and
-    # w - v = Y - 2 C'.  Over-relaxation (alpha): (D theta)^ = alpha D theta +
-    # (1 - alpha)(z - e), theta^ = alpha theta + (1 - alpha) w, with z - e = Ain - N and
-    # w = X + C; alpha is folded into the factors f_a, f_b and the P^T product.
-    # All (S, n) / (S, K) arrays are preallocated and updated in place.
-    W = np.zeros((S, K), dtype=dt)
-    E = Z.copy()
-    N = np.zeros((S, n), dtype=dt)           # -u
-    C = np.zeros((S, K), dtype=dt)           # v
-    Ain = Z - E + N                          # z - e - u
-    X = W - C                                # w - v
-    r_ = s.shape[0]
-    a, b, c = (np.empty((S, r_), dtype=dt) for _ in range(3))
-    Y = np.empty((S, K), dtype=dt)
-    DT = np.empty((S, n), dtype=dt)
-    Ye = np.empty((S, n), dtype=dt)
-    # buffers of the residual checks (no fresh large arrays inside the loop)
-    N_old, Ain_old = np.empty((S, n), dtype=dt), np.empty((S, n), dtype=dt)
-    C_old, X_old, DtdE = (np.empty((S, K), dtype=dt) for _ in range(3))
-    znorm = np.maximum(_row_norms(Z), 1.0)
-    clip_e = _clipper(np.asarray(1.0 / rho, dtype=dt))
-    clip_w = _clipper(lam / dt.type(rho))
-    check = True
+    st = _L1L1State(Z, lam, sv, alpha, rho)
+    check, it, n_iter = True, -1, int(n_iter)
     rmax = smax = float("inf")
-    it = -1
-    n_iter = int(n_iter)
     for it in range(n_iter):
         check = (it + 1) % balance_every == 0 or it == n_iter - 1
+        st.step(check)
+        if check:
+            r, sdual = st.residuals()
+            rmax = float((r / st.znorm).max(initial=0.0))
+            smax = float((sdual / st.znorm).max(initial=0.0))
+            if rmax <= tol and smax <= tol:
+                break
+            if it < balance_until:
+                st.balance(r, sdual)
+    W, E = st.result(check)
+    out = (W * zscale.astype(dt),)
+    if return_residual:
+        out += (E * zscale.astype(dt),)
+    if return_info:
+        out += (_admm_info(it + 1, n_iter, rmax, smax, tol),)
+    return out if len(out) > 1 else out[0]
+
+
+def _normalise_rows(Z: np.ndarray, dt) -> tuple[np.ndarray, np.ndarray]:
+    """Z (S, n) divided by each row's mean absolute value (eq. 5 is positively homogeneous),
+    in ``dt``, and that scale (S, 1) in float64 (1 for an all-zero row)."""
+    zscale = np.abs(Z.astype(np.float64)).mean(axis=1, keepdims=True)
+    zscale = np.where(zscale > 0, zscale, 1.0)
+    return (Z / zscale).astype(dt), zscale
+
+
+class _L1L1State:
+    """The iterates of :func:`l1l1_admm` on the row-normalised problem, updated in place.
+
+    Scaled duals kept as N = -u and C = v; with the soft threshold written as
+    soft(y, t) = y - clip(y, -t, t) the updates collapse to (exact algebra):
+
+    * e-step:  Ye = z - (D theta)^ + N;  N' = clip(Ye, +-1/rho);  e = Ye - N'
+    * w-step:  Y = theta^ + C;           C' = clip(Y, +-lam/rho); w = Y - C'
+
+    and the next theta-step needs only  z - e - u = (D theta)^ - N + 2 N'  and
+    w - v = Y - 2 C'.  Over-relaxation (alpha): (D theta)^ = alpha D theta +
+    (1 - alpha)(z - e), theta^ = alpha theta + (1 - alpha) w, with z - e = Ain - N and
+    w = X + C; alpha is folded into the factors f_a, f_b and the P^T product.
+    All (S, n) / (S, K) arrays are preallocated here (no fresh large array per iteration).
+    """
+
+    def __init__(self, Z: np.ndarray, lam: np.ndarray, sv: DictionarySVD, alpha: float,
+                 rho: float):
+        dt = Z.dtype
+        S, n = Z.shape
+        self.P, self.s, self.V = sv.cast(dt)
+        K, r_ = self.V.shape
+        s64 = sv.s
+        self.f_a = (alpha * s64 / (1.0 + s64 ** 2)).astype(dt)
+        self.f_b = (alpha * s64 ** 2 / (1.0 + s64 ** 2)).astype(dt)
+        self.Z, self.lam, self.alpha, self.dt = Z, lam, alpha, dt
+        self.W = np.zeros((S, K), dtype=dt)
+        self.E = Z.copy()
+        self.N = np.zeros((S, n), dtype=dt)           # -u
+        self.C = np.zeros((S, K), dtype=dt)           # v
+        self.Ain = Z - self.E + self.N                # z - e - u
+        self.X = self.W - self.C                      # w - v
+        self.a, self.b, self.c = (np.empty((S, r_), dtype=dt) for _ in range(3))
+        self.Y = np.empty((S, K), dtype=dt)
+        self.DT = np.empty((S, n), dtype=dt)
+        self.Ye = np.empty((S, n), dtype=dt)
+        # buffers of the residual checks
+        self.N_old, self.Ain_old = np.empty((S, n), dtype=dt), np.empty((S, n), dtype=dt)
+        self.C_old, self.X_old, self.DtdE = (np.empty((S, K), dtype=dt) for _ in range(3))
+        self.znorm = np.maximum(_row_norms(Z), 1.0)
+        self._set_rho(rho)
+
+    def _set_rho(self, rho: float) -> None:
+        self.rho = rho
+        self.clip_e = _clipper(np.asarray(1.0 / rho, dtype=self.dt))
+        self.clip_w = _clipper(self.lam / self.dt.type(rho))
+
+    def step(self, check: bool) -> None:
+        """One iteration: theta-step, e- and w-steps with their dual updates; with ``check``
+        the previous duals and iterates are kept for :meth:`residuals`."""
+        P, s, V, dt, alpha = self.P, self.s, self.V, self.dt, self.alpha
+        a, b, c, Y, DT, Ye = self.a, self.b, self.c, self.Y, self.DT, self.Ye
+        N, C, Ain, X = self.N, self.C, self.Ain, self.X
         np.matmul(Ain, P, out=a)
         np.matmul(X, V, out=b)
-        a *= f_a
-        np.multiply(b, f_b, out=c)
+        a *= self.f_a
+        np.multiply(b, self.f_b, out=c)
         np.subtract(a, c, out=c)                 # alpha c
         np.matmul(c, V.T, out=Y)                 # alpha (theta - (w - v))
         b *= dt.type(alpha)
@@ -454,68 +549,65 @@ def l1l1_admm(Z, D, lam, *, n_iter: int = 300, tol: float = 1e-5, rho: float | N
         b *= s                                   # alpha s (V^T theta)
         np.matmul(b, P.T, out=DT)                # alpha D theta
         if check:
-            np.copyto(N_old, N)
-            np.copyto(C_old, C)
-            np.copyto(Ain_old, Ain)
-            np.copyto(X_old, X)
+            np.copyto(self.N_old, N)
+            np.copyto(self.C_old, C)
+            np.copyto(self.Ain_old, Ain)
+            np.copyto(self.X_old, X)
         if alpha != 1.0:
             np.subtract(Ain, N, out=Ye)          # z - e
             Ye *= dt.type(1.0 - alpha)
             DT += Ye                             # (D theta)^
-        np.subtract(Z, DT, out=Ye)
+        np.subtract(self.Z, DT, out=Ye)
         Ye += N
         np.subtract(DT, N, out=Ain)
-        clip_e(Ye, out=N)                        # N'
+        self.clip_e(Ye, out=N)                   # N'
         Ain += N
         Ain += N                                 # z - e' - u' = (D theta)^ - N + 2 N'
         Y += X
         Y += C
         if alpha != 1.0:
             Y += dt.type(1.0 - alpha) * C        # theta^ + C
-        clip_w(Y, out=C)                         # C'
+        self.clip_w(Y, out=C)                    # C'
         np.subtract(Y, C, out=X)
         X -= C                                   # w - v = Y - 2 C'
-        if check:
-            np.subtract(Ye, N, out=E)                # e'
-            np.subtract(Y, C, out=W)                 # w'
-            # previous iterate: w = (w - v) + v,  e = z - (z - e - u) - u
-            dE = Ain_old
-            dE -= Z
-            dE += E
-            dE -= N_old                              # e' - e
-            dW = X_old
-            dW += C_old
-            np.subtract(W, dW, out=dW)               # w' - w
-            # primal residuals (of the relaxed iterate): u' - u = N - N';  C' - C
-            N_old -= N
-            C_old -= C
-            r = np.sqrt(_row_norms(N_old) ** 2 + _row_norms(C_old) ** 2)
-            np.matmul((dE @ P) * s, V.T, out=DtdE)
-            DtdE -= dW
-            sdual = rho * _row_norms(DtdE)
-            rmax = float((r / znorm).max(initial=0.0))
-            smax = float((sdual / znorm).max(initial=0.0))
-            if rmax <= tol and smax <= tol:
-                break
-            if it < balance_until:
-                rt, st = float(np.sqrt((r ** 2).sum())), float(np.sqrt((sdual ** 2).sum()))
-                f = 2.0 if rt > 10.0 * st else (0.5 if st > 10.0 * rt else 1.0)
-                if f != 1.0:
-                    rho *= f
-                    N /= dt.type(f)
-                    C /= dt.type(f)
-                    clip_e = _clipper(np.asarray(1.0 / rho, dtype=dt))
-                    clip_w = _clipper(lam / dt.type(rho))
-                    np.subtract(Z, E, out=Ain)
-                    Ain += N
-                    np.subtract(W, C, out=X)
-    if not check:
-        W = Y - C
-        E = Ye - N
-    W = W * zscale.astype(dt)
-    out = (W,)
-    if return_residual:
-        out += (E * zscale.astype(dt),)
-    if return_info:
-        out += (_admm_info(it + 1, int(n_iter), rmax, smax, tol),)
-    return out if len(out) > 1 else W
+
+    def residuals(self) -> tuple[np.ndarray, np.ndarray]:
+        """After a checked :meth:`step`: set e', w' and return every window's primal and
+        dual residual norms (S,) (primal: of the relaxed iterate, the dual updates
+        ``u' - u``, ``v' - v``)."""
+        np.subtract(self.Ye, self.N, out=self.E)     # e'
+        np.subtract(self.Y, self.C, out=self.W)      # w'
+        # previous iterate: w = (w - v) + v,  e = z - (z - e - u) - u
+        dE = self.Ain_old
+        dE -= self.Z
+        dE += self.E
+        dE -= self.N_old                             # e' - e
+        dW = self.X_old
+        dW += self.C_old
+        np.subtract(self.W, dW, out=dW)              # w' - w
+        # primal residuals (of the relaxed iterate): u' - u = N - N';  C' - C
+        self.N_old -= self.N
+        self.C_old -= self.C
+        r = np.sqrt(_row_norms(self.N_old) ** 2 + _row_norms(self.C_old) ** 2)
+        np.matmul((dE @ self.P) * self.s, self.V.T, out=self.DtdE)
+        self.DtdE -= dW
+        return r, self.rho * _row_norms(self.DtdE)
+
+    def balance(self, r: np.ndarray, sdual: np.ndarray) -> None:
+        """Residual balancing (Boyd et al. 2011 Sec. 3.4.1): rho doubled / halved when the
+        total primal and dual residuals differ by more than 10x, duals rescaled."""
+        rt, st = float(np.sqrt((r ** 2).sum())), float(np.sqrt((sdual ** 2).sum()))
+        f = 2.0 if rt > 10.0 * st else (0.5 if st > 10.0 * rt else 1.0)
+        if f != 1.0:
+            self.N /= self.dt.type(f)
+            self.C /= self.dt.type(f)
+            self._set_rho(self.rho * f)
+            np.subtract(self.Z, self.E, out=self.Ain)
+            self.Ain += self.N
+            np.subtract(self.W, self.C, out=self.X)
+
+    def result(self, checked: bool) -> tuple[np.ndarray, np.ndarray]:
+        """(w, e) of the normalised problem after the last step."""
+        if not checked:
+            return self.Y - self.C, self.Ye - self.N
+        return self.W, self.E

@@ -47,7 +47,7 @@ from typing import Any, Iterator
 
 import numpy as np
 
-from ... import corrupt, io, metrics, signal
+from ... import corrupt, gaps, io, metrics, signal
 from ...motion import Motion
 from ..core import Context, Row, protocol
 
@@ -94,7 +94,7 @@ def load_clips(data: Path, quick: bool, max_seconds: float) -> Iterator[tuple[st
 
 def oracle_classical(truth: Motion, noisy: Motion) -> float:
     """Lowest RMSE of spline fill + median(1/3/5/7) + Gaussian(0.5-8 frames or none)."""
-    X = signal.fill_gaps(noisy.matrix(), noisy.matrix_mask(), kind="cubic", ends="nearest")
+    X = gaps.fill(noisy.matrix(), noisy.matrix_mask(), kind="cubic")
     best = np.inf
     for k in (1, 3, 5, 7):
         Xm = signal.median(X, window=k) if k > 1 else X

@@ -298,9 +298,9 @@ def _one_thread(func: Callable[[Context], Iterator[Row]]) -> Callable[[Context],
 
     @functools.wraps(func)
     def wrapper(ctx: Context) -> Iterator[Row]:
-        from threadpoolctl import threadpool_limits
+        from ...solvers._linalg import blas_limit
 
-        with threadpool_limits(1):
+        with blas_limit():
             yield from func(ctx)
 
     return wrapper

@@ -27,10 +27,9 @@ from typing import Any, Iterator
 import numpy as np
 
 from ...datasets import bundled, cmu_amc
+from ...io.units import CMU_CM_PER_UNIT
 from ..core import Context, Row, Timer, protocol
 
-CMU_UNIT_CM = 5.6444
-"""1 CMU ASF length unit in cm: (1 / 0.45) inch."""
 
 # (our clip, paper's clip, frames, noisy frames, segments, paper FD: ours/TSVD/SVT/RPCA)
 TABLE2 = (
@@ -133,9 +132,9 @@ def _stat_rows(proto, clip, cond, label, fds, secs, paper, frames) -> Iterator[R
     fds = np.asarray(fds)
     yield Row(proto, clip, cond, label, "FD", "CMU unit", float(fds.mean()), paper,
               float(np.mean(secs)), float(fds.std()), len(fds), {"frames": frames})
-    yield Row(proto, clip, cond, label, "FD_cm", "cm", float(fds.mean() * CMU_UNIT_CM),
-              None if paper is None else paper * CMU_UNIT_CM, float(np.mean(secs)),
-              float(fds.std() * CMU_UNIT_CM), len(fds))
+    yield Row(proto, clip, cond, label, "FD_cm", "cm", float(fds.mean() * CMU_CM_PER_UNIT),
+              None if paper is None else paper * CMU_CM_PER_UNIT, float(np.mean(secs)),
+              float(fds.std() * CMU_CM_PER_UNIT), len(fds))
 
 
 def _sequences(ctx: Context):
@@ -149,19 +148,25 @@ def _sequences(ctx: Context):
         if m.n_frames < frames:
             raise RuntimeError(f"{ours} has {m.n_frames} frames, need {frames}")
         m = m.slice(0, frames)
-        asf = m.with_positions(m.positions / CMU_UNIT_CM)
+        asf = m.with_positions(m.positions / CMU_CM_PER_UNIT)
         yield f"{ours} (for {paper_clip})", asf, paper_clip, frames, p, n_seg, paper
         if ctx.quick:
             return
 
 
-@protocol("slra-table2", "SLRA Table 2: eq.-7 noise (eps=1, sigma=1.2) on 3 CMU sequences; "
-                         "slra/tsvd/svt/rpca (+ our variants); FD in CMU units and cm; 10 seeds")
-def slra_table2(ctx: Context) -> Iterator[Row]:
+def _noisy_sequences(ctx: Context):
+    """:func:`_sequences` plus the eq.-7 noisy copies (2 seeds quick, else ``SEEDS``)."""
     ctx.need_data()
     n_seeds = 2 if ctx.quick else SEEDS
     for label, clean, paper_clip, frames, p, n_seg, paper in _sequences(ctx):
         noisy = [_slra_noise(clean, p, ctx.seed + s)[0] for s in range(n_seeds)]
+        yield label, clean, paper_clip, frames, p, n_seg, paper, noisy
+
+
+@protocol("slra-table2", "SLRA Table 2: eq.-7 noise (eps=1, sigma=1.2) on 3 CMU sequences; "
+                         "slra/tsvd/svt/rpca (+ our variants); FD in CMU units and cm; 10 seeds")
+def slra_table2(ctx: Context) -> Iterator[Row]:
+    for label, clean, paper_clip, frames, p, n_seg, paper, noisy in _noisy_sequences(ctx):
         cond = f"eq7 p={p}/{frames} segs={n_seg}"
         yield from _stat_rows("slra-table2", label, cond, "noisy-input",
                               [_fd(clean, n) for n in noisy], [0.0], None, frames)
@@ -174,10 +179,7 @@ def slra_table2(ctx: Context) -> Iterator[Row]:
 @protocol("slra-table3", "SLRA Table 3: FD vs segment count (200..1400-frame segments) on the "
                          "Table 2 sequences; 10 seeds")
 def slra_table3(ctx: Context) -> Iterator[Row]:
-    ctx.need_data()
-    n_seeds = 2 if ctx.quick else SEEDS
-    for label, clean, paper_clip, frames, p, n_seg, paper in _sequences(ctx):
-        noisy = [_slra_noise(clean, p, ctx.seed + s)[0] for s in range(n_seeds)]
+    for label, clean, paper_clip, frames, p, n_seg, paper, noisy in _noisy_sequences(ctx):
         grid = TABLE3[paper_clip]
         if ctx.quick:
             grid = tuple((frames // k, k, None) for k in (n_seg, max(1, n_seg // 2)))

@@ -231,9 +231,9 @@ def short(key: str) -> str:
 # ---------------------------------------------------------------------------------------
 def fill_linear(motion: Motion) -> tuple[np.ndarray, np.ndarray]:
     """Linear interpolation per marker, edges held (the package's one gap filler,
-    :func:`mocapkit.gaps.fill_linear`, without the gap policy); markers with < 2 observed
+    :func:`mocapkit.gaps.fill`, without the gap policy); markers with < 2 observed
     frames left missing."""
-    from ...gaps import fill_linear as _fill
+    from ...gaps import fill as _fill
 
     few = motion.observed.sum(axis=0) < 2
     X = _fill(motion.matrix(), motion.matrix_mask() & ~np.repeat(few, 3)[None, :])

@@ -40,6 +40,7 @@ from typing import Any, Iterator
 
 import numpy as np
 
+from ...solvers._linalg import blas_limit
 from ..core import Context, Row, protocol
 
 MSR_ACTIONS = ("high arm wave", "horizontal arm wave", "hammer", "hand catch", "forward punch",
@@ -49,17 +50,6 @@ MSR_ACTIONS = ("high arm wave", "horizontal arm wave", "hammer", "hand catch", "
 METHODS = ("amfs", "amfs-desc", "hod", "gpf", "concat", "laplacian", "spec", "udfs")
 NMC_PAPER = 0.9333
 _CACHE: dict[Any, Any] = {}
-
-
-def _one_thread():
-    try:
-        from threadpoolctl import threadpool_limits
-
-        return threadpool_limits(1)
-    except ImportError:                                    # pragma: no cover
-        import contextlib
-
-        return contextlib.nullcontext()
 
 
 def _motions(ctx: Context, which: str) -> list[tuple[str, Any, Any, Any]]:
@@ -161,7 +151,7 @@ def amfs_retrieval(ctx: Context) -> Iterator[Row]:
         secs: dict[str, list] = {m: [] for m in methods}
         info: dict[str, list] = {m: [] for m in methods}
         for db, q, tag in splits:
-            with _one_thread():
+            with blas_limit():
                 cb = GPFCodebook(n_words, seed=ctx.seed).fit([descs[i].gpf for i in db])
                 for m in methods:
                     t0 = time.perf_counter()
@@ -201,7 +191,7 @@ def _recognition(ctx: Context, name: str, splits: list[tuple[np.ndarray, np.ndar
     conf = np.zeros((len(classes), len(classes)), int)
     for tr, te, seed in splits:
         ptr, pte = [P[i] for i in tr], [P[i] for i in te]
-        with _one_thread():
+        with blas_limit():
             t0 = time.perf_counter()
             m = NMCClassifier(seed=seed, **nmc_kw).fit(ptr, labels[tr], test_seqs=pte)
             pred = m.predict()
@@ -382,7 +372,7 @@ def _recognise(ctx: Context, name: str, which: str, splits: list, cond: str, met
         err_by_group: dict[str, int] = {}
         for tr, te, tag in splits:
             for seed in seeds:
-                with _one_thread():
+                with blas_limit():
                     t0 = time.perf_counter()
                     if kind == "rocket":
                         X = D["X_start"] if params.get("heading") == "start" else D["X"]

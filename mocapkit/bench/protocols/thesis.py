@@ -244,26 +244,27 @@ def _n_repeats(ctx: Context) -> int:
     return 2 if ctx.quick else int(ctx.options.get("repeats", REPEATS))
 
 
+def _missing_protocol(name: str, ctx: Context, values: tuple, label: str, make) -> Iterator[Row]:
+    """Fig. 4.10/4.11 on every clip: one condition per value (``label % v``, ``make(v)``)."""
+    for ours, theirs, clean in _clips(ctx):
+        objs, notes = _method_objects(ours, clean, ctx)
+        conds = [(label % v, make(v)) for v in values]
+        yield from _evaluate(name, f"{ours} (for {theirs})", clean, conds, objs, notes,
+                             _n_repeats(ctx), ctx)
+
+
 @protocol("thesis-missing-random", "thesis Fig. 4.10/4.11: 6 CMU clips, 20-60% of markers missing "
                                    "per frame; psc/tsmc/trnn/svt/dynammo/spline; RMSE on missing (cm)")
 def missing_random(ctx: Context) -> Iterator[Row]:
     ratios = (0.2, 0.6) if ctx.quick else tuple(ctx.options.get("ratios", RATIOS))
-    for ours, theirs, clean in _clips(ctx):
-        objs, notes = _method_objects(ours, clean, ctx)
-        conds = [(f"mr={r:.1f}", _random_missing(r)) for r in ratios]
-        yield from _evaluate("thesis-missing-random", f"{ours} (for {theirs})", clean, conds,
-                             objs, notes, _n_repeats(ctx), ctx)
+    yield from _missing_protocol("thesis-missing-random", ctx, ratios, "mr=%.1f", _random_missing)
 
 
 @protocol("thesis-missing-blocks", "thesis Fig. 4.10/4.11: 6 CMU clips, 10 markers missing for "
                                    "20-60 consecutive frames; same methods; RMSE on missing (cm)")
 def missing_blocks(ctx: Context) -> Iterator[Row]:
     lengths = (20, 60) if ctx.quick else tuple(ctx.options.get("lengths", LENGTHS))
-    for ours, theirs, clean in _clips(ctx):
-        objs, notes = _method_objects(ours, clean, ctx)
-        conds = [(f"ml={L}", _block_missing(L)) for L in lengths]
-        yield from _evaluate("thesis-missing-blocks", f"{ours} (for {theirs})", clean, conds,
-                             objs, notes, _n_repeats(ctx), ctx)
+    yield from _missing_protocol("thesis-missing-blocks", ctx, lengths, "ml=%d", _block_missing)
 
 
 # --------------------------------------------------------------------------------------
@@ -379,7 +380,7 @@ def long_sequence(ctx: Context, frames: int):
 @protocol("thesis-runtime", "thesis Table 4.1: TSMC and TrNN seconds vs clip length (152..17,799 "
                             "frames, 20% missing markers), one BLAS thread; Matlab seconds as paper")
 def runtime(ctx: Context) -> Iterator[Row]:
-    from threadpoolctl import threadpool_limits
+    from ...solvers._linalg import blas_limit
 
     from ... import corrupt, denoise, metrics
 
@@ -400,7 +401,7 @@ def runtime(ctx: Context) -> Iterator[Row]:
         for label, method in todo.items():
             wall, cpu = np.inf, np.inf
             for _ in range(n_rep if frames < 10000 else 1):
-                with threadpool_limits(1), warnings.catch_warnings():
+                with blas_limit(), warnings.catch_warnings():
                     warnings.simplefilter("ignore")
                     c0 = time.process_time()
                     with Timer() as t:
@@ -411,7 +412,7 @@ def runtime(ctx: Context) -> Iterator[Row]:
             paper = p_tsmc if label.startswith("tsmc") else p_trnn
             yield Row("thesis-runtime", f"135_* ({action})", f"frames={frames}", label, "seconds",
                       "s", float(wall), paper, float(wall), None, 1,
-                      {"cpu_seconds": float(cpu), "iterations": info.get("iterations"),
+                      {"cpu_seconds": float(cpu), "iterations": info.get("n_iter"),
                        "converged": info.get("converged"),
                        "speedup_vs_paper": paper / wall if wall > 0 else None,
                        "speedup_vs_paper_cpu": paper / cpu if cpu > 0 else None,

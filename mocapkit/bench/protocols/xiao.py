@@ -177,7 +177,7 @@ def xiao_params(ctx: Context, **over: Any) -> dict[str, Any]:
 
 def fitted(name: str, params: dict, key: str, train: list) -> tuple[Any, float]:
     """(model, training seconds), cached per (method, params, training set)."""
-    from threadpoolctl import threadpool_limits
+    from ...solvers._linalg import blas_limit
 
     from ... import denoise
 
@@ -187,7 +187,7 @@ def fitted(name: str, params: dict, key: str, train: list) -> tuple[Any, float]:
     if k not in _MODELS:
         secs = 0.0
         if type(m).needs_training:
-            with threadpool_limits(1), Timer() as t:
+            with blas_limit(), Timer() as t:
                 m.fit([c[1] for c in train])
             secs = t.seconds
         if "n_jobs" in m.get_params():
@@ -197,9 +197,9 @@ def fitted(name: str, params: dict, key: str, train: list) -> tuple[Any, float]:
 
 
 def _denoise(method, noisy) -> tuple[Any, float]:
-    from threadpoolctl import threadpool_limits
+    from ...solvers._linalg import blas_limit
 
-    with warnings.catch_warnings(), threadpool_limits(1):
+    with warnings.catch_warnings(), blas_limit():
         warnings.simplefilter("ignore")
         with Timer() as t:
             out = method.denoise(noisy)
@@ -289,19 +289,25 @@ def _evaluate(ctx: Context, proto: str, action: str, cond: str, steps: list, tes
                   seconds=secs[label], std=float(v.std()), n=int(v.size), extra=e)
 
 
-@protocol("xiao-table1", "Xiao 2015 Table 1: run/dance/martial-arts x Gaussian/outlier/mixed noise, "
-                         "per-frame RMSE (cm) of xiao-sparse vs lou-chai, gaussian, wavelet, kalman-cv")
-def table1(ctx: Context) -> Iterator[Row]:
-    seeds = int(ctx.options.get("seeds", 1))
-    actions = ("dance",) if ctx.quick else ACTIONS
-    which = ("snr20", "outliers10", "mixed") if ctx.quick else None
+def _splits(ctx: Context, actions) -> Iterator[tuple[str, list, list, str]]:
+    """(action, train, test, cache key) for each action with both training and test clips;
+    ``ctx.quick``: one test clip of at most 400 frames."""
     for action in actions:
         train, test = split(action, ctx)
         if not train or not test:
             continue
         if ctx.quick:
             test = [(n, c.slice(0, min(c.n_frames, 400))) for n, c in test[:1]]
-        key = f"{action}:" + ",".join(n for n, _ in train)
+        yield action, train, test, f"{action}:" + ",".join(n for n, _ in train)
+
+
+@protocol("xiao-table1", "Xiao 2015 Table 1: run/dance/martial-arts x Gaussian/outlier/mixed noise, "
+                         "per-frame RMSE (cm) of xiao-sparse vs lou-chai, gaussian, wavelet, kalman-cv")
+def table1(ctx: Context) -> Iterator[Row]:
+    seeds = int(ctx.options.get("seeds", 1))
+    actions = ("dance",) if ctx.quick else ACTIONS
+    which = ("snr20", "outliers10", "mixed") if ctx.quick else None
+    for action, train, test, key in _splits(ctx, actions):
         xs, xsec = fitted("xiao-sparse", xiao_params(ctx), key, train)
         trained = {"xiao-sparse": (xs, xsec)}
         if "lou-chai" in _baselines(ctx):
@@ -336,13 +342,7 @@ def table2(ctx: Context) -> Iterator[Row]:
     seeds = int(ctx.options.get("seeds", 1))
     actions = ("dance",) if ctx.quick else tuple(ctx.options.get("table2_actions", ("run", "dance")))
     which = ("snr20", "outliers10") if ctx.quick else ("snr30", "outliers15", "mixed")
-    for action in actions:
-        train, test = split(action, ctx)
-        if not train or not test:
-            continue
-        if ctx.quick:
-            test = [(n, c.slice(0, min(c.n_frames, 400))) for n, c in test[:1]]
-        key = f"{action}:" + ",".join(n for n, _ in train)
+    for action, train, test, key in _splits(ctx, actions):
         base = xiao_params(ctx)
         probe = denoise.get("xiao-sparse", **base)
         K, M = int(probe.n_atoms), int(probe.window)

@@ -1,0 +1,102 @@
+"""Lagged windows of a time series and their overlap-add back to frames.
+
+A clip X (T, C) -- T frames, C channels, e.g. the (T, 3J) matrix of a motion in cm -- is
+cut into its S = T - M + 1 windows of M consecutive frames, stride 1; window s becomes
+the row ``X[s:s+M].ravel()`` of an (S, M C) matrix, frame after frame (Xiao et al.'s
+poselet groups, Sec. 3.1.3; the thesis' windows, Sec. 3.2; Lou & Chai's trajectory
+matrix, eqs. 1-2, up to a column permutation; the Hankel matrix of multichannel SSA).
+Going back, every frame is the sum (:func:`overlap_add`) or the mean
+(:func:`overlap_mean`) of its copies in the windows that cover it; :func:`counts` says
+how many do.
+
+>>> X = np.arange(8.0).reshape(4, 2)
+>>> lagged(X, 3)
+array([[0., 1., 2., 3., 4., 5.],
+       [2., 3., 4., 5., 6., 7.]])
+>>> overlap_mean(lagged(X, 3), 4, 3)
+array([[0., 1.],
+       [2., 3.],
+       [4., 5.],
+       [6., 7.]])
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .errors import MocapValueError
+
+__all__ = ["lagged", "counts", "window_starts", "overlap_add", "overlap_mean"]
+
+
+def lagged(X, M: int, *, view: bool = False) -> np.ndarray:
+    """Lagged windows (T, ...) -> (S, M * C), S = T - M + 1, C = prod(...), stride 1.
+
+    Row s is ``[x_s, x_{s+1}, ..., x_{s+M-1}]``, each frame flattened (C-order), frame
+    after frame. The dtype of X is kept (a boolean mask gives the windows' masks).
+    ``view=True`` returns a read-only zero-copy strided view (M times less memory; rows
+    overlap in memory), else a C-contiguous copy.
+
+    Raises MocapValueError when T < M (no complete window).
+    """
+    A = np.asarray(X)
+    M = int(M)
+    if M < 1:
+        raise MocapValueError(f"window length must be >= 1 frame, got {M}")
+    T = A.shape[0]
+    if T < M:
+        raise MocapValueError(f"need at least {M} frames for windows of {M}, got {T}")
+    A = np.ascontiguousarray(A.reshape(T, -1))
+    C = A.shape[1]
+    V = np.lib.stride_tricks.as_strided(A, shape=(T - M + 1, M * C),
+                                        strides=(A.strides[0], A.itemsize), writeable=False)
+    return V if view else V.copy()
+
+
+def counts(T: int, M: int) -> np.ndarray:
+    """n_t (T,) float: how many of the length-M windows (starts 0..T-M) contain frame t."""
+    S = T - M + 1
+    t = np.arange(T)
+    return (np.minimum(t, S - 1) - np.maximum(t - M + 1, 0) + 1).astype(float)
+
+
+def window_starts(T: int, M: int, stride: int) -> np.ndarray:
+    """First frames of windows taken every ``stride`` frames: 0, stride, 2 stride, ... and
+    always the last window T - M, so every frame is covered."""
+    S = T - M + 1
+    st = np.arange(0, S, max(1, int(stride)), dtype=np.int64)
+    if st[-1] != S - 1:
+        st = np.append(st, S - 1)
+    return st
+
+
+def overlap_add(R: np.ndarray, T: int, M: int, starts: np.ndarray | None = None,
+                weights: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Sum back to frames: R (S, M C) -> acc (T, C) and the number of copies per frame (T,).
+
+    ``starts`` (S,): first frame of every row of R (default: all windows, stride 1; see
+    :func:`window_starts`; must be distinct). ``weights`` (S,): each row counts with this weight
+    in both sums (e.g. a bool "this window was coded"). Loops over the M offsets, not
+    over windows.
+    """
+    S = R.shape[0]
+    R3 = R.reshape(S, M, -1)
+    acc = np.zeros((T, R3.shape[2]), dtype=np.float64)
+    cnt = np.zeros(T)
+    st = np.arange(S) if starts is None else np.asarray(starts, dtype=np.int64)
+    w = None if weights is None else np.asarray(weights)
+    for m in range(M):
+        if starts is None:
+            acc[m:m + S] += R3[:, m] if w is None else R3[:, m] * w[:, None]
+            cnt[m:m + S] += 1 if w is None else w
+        else:
+            acc[st + m] += R3[:, m] if w is None else R3[:, m] * w[:, None]
+            cnt[st + m] += 1 if w is None else w
+    return acc, cnt
+
+
+def overlap_mean(R: np.ndarray, T: int, M: int, starts: np.ndarray | None = None) -> np.ndarray:
+    """Inverse of :func:`lagged` by plain averaging (Xiao et al. Alg. 1 steps 5-6):
+    R (S, M C) -> (T, C), each frame the mean of its copies in the windows covering it
+    (``starts`` as in :func:`overlap_add`)."""
+    acc, cnt = overlap_add(R, T, M, starts)
+    return acc / cnt[:, None]
