@@ -84,9 +84,7 @@ class Auto(Denoiser):
 
     def __init__(self, min_noise_cm: float = 0.25, spike_rate: float = SPIKE_RATE,
                  long_gap_s: float = 0.1):
-        self.min_noise_cm = min_noise_cm
-        self.spike_rate = spike_rate
-        self.long_gap_s = long_gap_s
+        self._store_params(locals())
 
     def denoise(self, motion: Motion) -> Motion:
         from ..solvers._linalg import blas_limit

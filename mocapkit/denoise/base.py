@@ -241,6 +241,14 @@ class Denoiser:
         return {}
 
     # -- parameters (scikit-learn style) -------------------------------------------------
+    def _store_params(self, values: dict[str, Any]) -> None:
+        """Store every ``__init__`` parameter unchanged under its own name: call it as
+        ``self._store_params(locals())`` from ``__init__``. Like scikit-learn, ``__init__``
+        only stores; validation (``_parameter_constraints``) and work happen later, so
+        ``get_params``/``set_params``/``clone`` round-trip exactly."""
+        for name in self._param_names():
+            setattr(self, name, values[name])
+
     @classmethod
     def _param_names(cls) -> list[str]:
         sig = inspect.signature(cls.__init__)

@@ -315,22 +315,7 @@ class LouChai(Denoiser):
                  space: str = "position", fps: float | None = 30.0, frame: str = "body",
                  smooth_s: float = 0.5, normalize: bool = True, center: str = "mean",
                  mirror: bool = False, method: str = "auto", warn_convergence: bool = False):
-        self.window = window
-        self.energy = energy
-        self.n_bases = n_bases
-        self.lam = lam
-        self.p = p
-        self.max_iter = max_iter
-        self.tol = tol
-        self.space = space
-        self.fps = fps
-        self.frame = frame
-        self.smooth_s = smooth_s
-        self.normalize = normalize
-        self.center = center
-        self.mirror = mirror
-        self.method = method
-        self.warn_convergence = warn_convergence
+        self._store_params(locals())
 
     @classmethod
     def quick_params(cls) -> dict[str, Any]:

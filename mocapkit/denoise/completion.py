@@ -123,21 +123,7 @@ class TSMC(_MatrixCompletion):
                  rank: int | str | None = None, tol: float = 1e-4, max_iter: int = 500,
                  detect: bool = False, threshold_cm: float = 6.0, keep_observed: bool = False,
                  unit_cm: float = CMU_CM_PER_UNIT, mstep: str = "dct", seed: int = 0):
-        self.unit_cm = unit_cm
-        self.mstep = mstep
-        self.alpha = alpha
-        self.beta = beta
-        self.lam1 = lam1
-        self.lam2 = lam2
-        self.gamma = gamma
-        self.lam_max = lam_max
-        self.rank = rank
-        self.tol = tol
-        self.max_iter = max_iter
-        self.detect = detect
-        self.threshold_cm = threshold_cm
-        self.keep_observed = keep_observed
-        self.seed = seed
+        self._store_params(locals())
 
     def _solve(self, X, mask):
         A, info = _cp.tsmc(X, mask, rank=self.rank, alpha=float(self.alpha), beta=float(self.beta),
@@ -178,21 +164,7 @@ class TrNN(_MatrixCompletion):
                  tol: float = 1e-4, max_iter: int = 500, detect: bool = False,
                  threshold_cm: float = 6.0, keep_observed: bool = False,
                  unit_cm: float = CMU_CM_PER_UNIT, mstep: str = "dct", seed: int = 0):
-        self.unit_cm = unit_cm
-        self.mstep = mstep
-        self.r = r
-        self.d = d
-        self.lam = lam
-        self.mu = mu
-        self.rho = rho
-        self.eta = eta
-        self.eta_max = eta_max
-        self.tol = tol
-        self.max_iter = max_iter
-        self.detect = detect
-        self.threshold_cm = threshold_cm
-        self.keep_observed = keep_observed
-        self.seed = seed
+        self._store_params(locals())
 
     def _solve(self, X, mask):
         A, info = _cp.trnn(X, mask, r=int(self.r), d=self.d, lam=self.lam, mu=float(self.mu),
@@ -235,12 +207,7 @@ class DynaMMo(Denoiser):
 
     def __init__(self, k: int = 48, max_iter: int = 100, tol: float = 1e-4, estep: str = "fill",
                  detect: bool = False, threshold_cm: float = 6.0):
-        self.estep = estep
-        self.k = k
-        self.max_iter = max_iter
-        self.tol = tol
-        self.detect = detect
-        self.threshold_cm = threshold_cm
+        self._store_params(locals())
 
     @classmethod
     def quick_params(cls) -> dict[str, Any]:

@@ -189,11 +189,7 @@ class FillRigid(Denoiser):
 
     def __init__(self, clusters: Any = None, max_std_cm: float = 1.0, min_common_s: float = 0.5,
                  reference: str = "ends", min_donors: int = 3):
-        self.clusters = clusters
-        self.max_std_cm = max_std_cm
-        self.min_common_s = min_common_s
-        self.reference = reference
-        self.min_donors = min_donors
+        self._store_params(locals())
 
     def denoise(self, motion: Motion) -> Motion:
         _check(motion, self.name)
@@ -246,7 +242,7 @@ class FillPattern(Denoiser):
     _parameter_constraints = {"window_s": [Interval(Real, 0, None, closed="neither")]}
 
     def __init__(self, window_s: float = 1.0):
-        self.window_s = window_s
+        self._store_params(locals())
 
     def denoise(self, motion: Motion) -> Motion:
         _check(motion, self.name)
@@ -323,13 +319,7 @@ class FillPCA(Denoiser):
     def __init__(self, sigma_cm: float = 20.0, min_cum_sv: float = 0.99, mm_weight: float = 0.02,
                  frame: str = "heading", min_frames: int = 30, min_donors: int = 3,
                  end_correction: bool = True):
-        self.sigma_cm = sigma_cm
-        self.min_cum_sv = min_cum_sv
-        self.mm_weight = mm_weight
-        self.frame = frame
-        self.min_frames = min_frames
-        self.min_donors = min_donors
-        self.end_correction = end_correction
+        self._store_params(locals())
 
     def denoise(self, motion: Motion) -> Motion:
         _check(motion, self.name)

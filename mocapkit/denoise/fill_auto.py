@@ -251,10 +251,7 @@ class FillAuto(Denoiser):
 
     def __init__(self, candidates: Sequence[str] = DEFAULT_CANDIDATES,
                  max_error_cm: float | None = 5.0, rounds: int = 2, prior_frames: float = 20.0):
-        self.candidates = candidates
-        self.max_error_cm = max_error_cm
-        self.rounds = rounds
-        self.prior_frames = prior_frames
+        self._store_params(locals())
 
     @classmethod
     def quick_params(cls) -> dict:

@@ -91,10 +91,7 @@ class GaussianFilter(Denoiser):
 
     def __init__(self, window: int | None = None, sigma_frames: float | None = None,
                  median: int = 0, mode: str = "odd"):
-        self.window = window
-        self.sigma_frames = sigma_frames
-        self.median = median
-        self.mode = mode
+        self._store_params(locals())
 
     def kernel(self) -> tuple[float, int]:
         """(sigma, radius) in frames implied by the parameters."""
@@ -136,7 +133,7 @@ class SplineFill(Denoiser):
     _parameter_constraints = {"ends": [Options("nearest", "linear")]}
 
     def __init__(self, ends: str = "nearest"):
-        self.ends = ends
+        self._store_params(locals())
 
     def denoise(self, motion: Motion) -> Motion:
         X = filled_matrix(motion, self.name, kind=self._kind, ends=self.ends)
@@ -177,8 +174,7 @@ class ButterworthFilter(Denoiser):
     _parameter_constraints = {"cutoff_hz": [_POSITIVE], "order": [Interval(Integral, 1, None)]}
 
     def __init__(self, cutoff_hz: float = 6.0, order: int = 4):
-        self.cutoff_hz = cutoff_hz
-        self.order = order
+        self._store_params(locals())
 
     def denoise(self, motion: Motion) -> Motion:
         X = filled_matrix(motion, self.name)
@@ -204,8 +200,7 @@ class SavgolFilter(Denoiser):
     _parameter_constraints = {"window": [Odd(1)], "polyorder": [Interval(Integral, 0, None)]}
 
     def __init__(self, window: int = 11, polyorder: int = 3):
-        self.window = window
-        self.polyorder = polyorder
+        self._store_params(locals())
 
     def denoise(self, motion: Motion) -> Motion:
         X = filled_matrix(motion, self.name)
@@ -226,7 +221,7 @@ class MedianFilter(Denoiser):
     _parameter_constraints = {"window": [Odd(1)]}
 
     def __init__(self, window: int = 5):
-        self.window = window
+        self._store_params(locals())
 
     def denoise(self, motion: Motion) -> Motion:
         X = filled_matrix(motion, self.name)
@@ -270,9 +265,7 @@ class GCVSpline(Denoiser):
                               "min_scale_cm": [Interval(Real, 0, None)]}
 
     def __init__(self, order: int = 2, robust: bool = False, min_scale_cm: float = 1.0):
-        self.order = order
-        self.robust = robust
-        self.min_scale_cm = min_scale_cm
+        self._store_params(locals())
 
     def denoise(self, motion: Motion) -> Motion:
         require_observed_joints(motion, self.name)
@@ -351,11 +344,7 @@ class HampelFilter(Denoiser):
 
     def __init__(self, window: int = 7, n_sigmas: float = 3.0, scale: str = "both",
                  joint_test: bool = True, min_sigma_cm: float = 0.5):
-        self.window = window
-        self.n_sigmas = n_sigmas
-        self.scale = scale
-        self.joint_test = joint_test
-        self.min_sigma_cm = min_sigma_cm
+        self._store_params(locals())
 
     def flags(self, motion: Motion) -> np.ndarray:
         """(T, J) bool: observed joints the test rejects."""

@@ -134,12 +134,7 @@ class KalmanCV(Denoiser):
     def __init__(self, order: int = 2, measurement_sigma_cm: float | None = None,
                  process_noise: float | None = None, cutoff_hz: float | None = None,
                  gate: float | None = None, gate_max_run: int = 3):
-        self.order = order
-        self.measurement_sigma_cm = measurement_sigma_cm
-        self.process_noise = process_noise
-        self.cutoff_hz = cutoff_hz
-        self.gate = gate
-        self.gate_max_run = gate_max_run
+        self._store_params(locals())
 
     @_linalg.one_blas_thread
     def denoise(self, motion: Motion) -> Motion:
@@ -190,9 +185,7 @@ class KalmanIdentity(Denoiser):
 
     def __init__(self, process_sigma_cm: float | None = None, cutoff_hz: float | None = None,
                  measurement_sigma_cm: float | None = None):
-        self.process_sigma_cm = process_sigma_cm
-        self.cutoff_hz = cutoff_hz
-        self.measurement_sigma_cm = measurement_sigma_cm
+        self._store_params(locals())
 
     @_linalg.one_blas_thread
     def denoise(self, motion: Motion) -> Motion:
@@ -284,14 +277,7 @@ class KalmanLearned(Denoiser):
     def __init__(self, order: int = 1, energy: float = 1.0, n_components: int | None = None,
                  ridge: float = 1.0, q_scale: float = 3.0, frame: str = "body",
                  smooth_s: float = 0.5, measurement_sigma_cm: float | None = None):
-        self.order = order
-        self.energy = energy
-        self.n_components = n_components
-        self.ridge = ridge
-        self.q_scale = q_scale
-        self.frame = frame
-        self.smooth_s = smooth_s
-        self.measurement_sigma_cm = measurement_sigma_cm
+        self._store_params(locals())
 
     @classmethod
     def quick_params(cls) -> dict[str, Any]:

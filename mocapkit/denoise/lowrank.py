@@ -168,10 +168,7 @@ class TSVD(Denoiser):
 
     def __init__(self, k: int = 10, center: str = "none", max_iter: int = 100,
                  keep_observed: bool = False):
-        self.k = k
-        self.keep_observed = keep_observed
-        self.center = center
-        self.max_iter = max_iter
+        self._store_params(locals())
 
     def denoise(self, motion: Motion) -> Motion:
         X, mask, lin = _inputs(motion, self.name)
@@ -218,13 +215,7 @@ class SVT(Denoiser):
     def __init__(self, tau: float | None = None, delta: float | None = None,
                  noise_cm: float | None = None, center: str = "mean", tol: float = 1e-4,
                  max_iter: int = 500, keep_observed: bool = False):
-        self.keep_observed = keep_observed
-        self.tau = tau
-        self.delta = delta
-        self.noise_cm = noise_cm
-        self.center = center
-        self.tol = tol
-        self.max_iter = max_iter
+        self._store_params(locals())
 
     def denoise(self, motion: Motion) -> Motion:
         X, mask, lin = _inputs(motion, self.name)
@@ -273,13 +264,7 @@ class RPCA(Denoiser):
     def __init__(self, lam: float | None = None, center: str = "none", tol: float = 1e-7,
                  max_iter: int = 500, rho: float = 1.5, missing: str = "linear",
                  keep_observed: bool = False):
-        self.keep_observed = keep_observed
-        self.missing = missing
-        self.lam = lam
-        self.center = center
-        self.tol = tol
-        self.max_iter = max_iter
-        self.rho = rho
+        self._store_params(locals())
 
     def denoise(self, motion: Motion) -> Motion:
         _check_frames(motion.n_frames, self.name, "the clip")
@@ -337,16 +322,7 @@ class SLRA(Denoiser):
                  lam: float | None = None, center: str = "none", tol: float = 1e-7,
                  max_iter: int = 500, rho: float = 1.5, missing: str = "linear",
                  keep_observed: bool = False):
-        self.keep_observed = keep_observed
-        self.missing = missing
-        self.segment = segment
-        self.overlap = overlap
-        self.n_segments = n_segments
-        self.lam = lam
-        self.center = center
-        self.tol = tol
-        self.max_iter = max_iter
-        self.rho = rho
+        self._store_params(locals())
 
     @classmethod
     def quick_params(cls) -> dict[str, Any]:

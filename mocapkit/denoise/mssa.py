@@ -47,8 +47,7 @@ class MSSA(Denoiser):
                               "sigma_cm": [Interval(Real, 0, None), None]}
 
     def __init__(self, window_s: float = 0.13, sigma_cm: float | None = None):
-        self.window_s = window_s
-        self.sigma_cm = sigma_cm
+        self._store_params(locals())
 
     def denoise(self, motion: Motion) -> Motion:
         require_observed_joints(motion, self.name)

@@ -122,19 +122,7 @@ class _NeuralDenoiser(Denoiser):
                  steps_perceptual: int | None = None, steps_denoise: int | None = None,
                  seed: int = 0, threads: int | None = None, device: str = "cpu", progress: bool = False,
                  warn: bool = True, train_options: dict[str, Any] | None = None):
-        self.model = model
-        self.postprocess = postprocess
-        self.hidden = hidden
-        self.epochs_perceptual = epochs_perceptual
-        self.epochs_denoise = epochs_denoise
-        self.steps_perceptual = steps_perceptual
-        self.steps_denoise = steps_denoise
-        self.seed = seed
-        self.threads = threads
-        self.device = device
-        self.progress = progress
-        self.warn = warn
-        self.train_options = train_options
+        self._store_params(locals())
 
     @classmethod
     def quick_params(cls) -> dict[str, Any]:

@@ -159,20 +159,7 @@ class PSC(Denoiser):
                  detect: bool = True, n_iter: int = 5, dict_steps: int = 3,
                  tol: float = 1e-3, train_missing: tuple[float, float] = (0.1, 0.6),
                  max_windows: int = 3000, refine: bool = True, seed: int = 0):
-        self.refine = refine
-        self.window = window
-        self.n_atoms = n_atoms
-        self.lam = lam
-        self.n_neighbors = n_neighbors
-        self.sigma = sigma
-        self.threshold_cm = threshold_cm
-        self.detect = detect
-        self.n_iter = n_iter
-        self.dict_steps = dict_steps
-        self.tol = tol
-        self.train_missing = train_missing
-        self.max_windows = max_windows
-        self.seed = seed
+        self._store_params(locals())
 
     @classmethod
     def quick_params(cls) -> dict[str, Any]:

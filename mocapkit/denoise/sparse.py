@@ -260,24 +260,7 @@ class XiaoSparse(Denoiser):
                  n_jobs: int = 1, code_iter: int = 12, admm_iter: int = 24, smooth_frame: bool = True,
                  frame_smooth_s: float = 0.1, l1_stride: int = 2, warn_convergence: bool = False,
                  seed: int = 0):
-        self.window = window
-        self.n_atoms = n_atoms
-        self.sparsity = sparsity
-        self.n_iter = n_iter
-        self.noise = noise
-        self.lam = lam
-        self.lam_factor = lam_factor
-        self.lam_l1 = lam_l1
-        self.center = center
-        self.max_train_windows = max_train_windows
-        self.n_jobs = n_jobs
-        self.code_iter = code_iter
-        self.admm_iter = admm_iter
-        self.smooth_frame = smooth_frame
-        self.frame_smooth_s = frame_smooth_s
-        self.l1_stride = l1_stride
-        self.warn_convergence = warn_convergence
-        self.seed = seed
+        self._store_params(locals())
 
     @classmethod
     def quick_params(cls) -> dict[str, Any]:

@@ -104,10 +104,7 @@ class WaveletDenoiser(Denoiser):
 
     def __init__(self, wavelet: str = "bior3.5", level: int | None = None,
                  threshold_scale: float = 1.0, mode: str = "soft"):
-        self.wavelet = wavelet
-        self.level = level
-        self.threshold_scale = threshold_scale
-        self.mode = mode
+        self._store_params(locals())
 
     def denoise(self, motion: Motion) -> Motion:
         from .filters import filled_matrix
