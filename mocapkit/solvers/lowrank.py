@@ -18,7 +18,15 @@ Randomised / partial SVDs are not used (measured on a 200 x 93 CMU segment, one 
 Gram + full ``eigh`` takes 0.60 ms, a rank-k randomised SVD with one power iteration
 0.16 / 0.33 / 0.87 / 1.6 ms at k = 5 / 20 / 40 / 60, while the IALM rank climbs to 59
 (tol 1e-7) or 21 (tol 1e-4) -- the saving is limited to the first ~15 iterations, and
-short segments (m < 93) already work on the cheap m x m Gram matrix.
+short segments (m < 93) already work on the cheap m x m Gram matrix.  A certified
+warm-started Rayleigh-Ritz step (previous iteration's Ritz vectors, up to 2 subspace
+steps, a per-matrix proof that no singular value above tau is missed, exact ``eigh``
+otherwise) was built and measured (issue 21, 2026-12-02): it is certifiable only in the
+first ~10 of ~38 IALM iterations (once tau reaches the continuous part of the spectrum the
+Ritz vectors next to tau converge 2-4x per step), skips 10-20 % of the ``eigh`` calls, and
+measured within run-to-run noise (slra 5k-100k frames: +10-20 % at paper settings, -4 to
+-18 % for the 24-frame overlap variant), so it was not kept.  LAPACK's 93 x 93 ``eigh``
+(0.7-0.9 ms) remains the floor of an exact SVT at ~5-7k frames/s.
 
 References
 ----------
