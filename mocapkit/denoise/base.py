@@ -34,7 +34,6 @@ from __future__ import annotations
 
 import contextvars
 import functools
-import inspect
 import json
 import os
 from pathlib import Path
@@ -42,6 +41,7 @@ from typing import Any, Callable, ClassVar, Iterable, Sequence
 
 import numpy as np
 
+from .._params import init_param_names, store_params
 from ..errors import MocapFormatError, MocapValueError, NotFittedError
 from ..motion import Motion
 from . import constraints
@@ -242,18 +242,15 @@ class Denoiser:
 
     # -- parameters (scikit-learn style) -------------------------------------------------
     def _store_params(self, values: dict[str, Any]) -> None:
-        """Store every ``__init__`` parameter unchanged under its own name: call it as
-        ``self._store_params(locals())`` from ``__init__``. Like scikit-learn, ``__init__``
-        only stores; validation (``_parameter_constraints``) and work happen later, so
+        """Store every ``__init__`` parameter unchanged (:func:`mocapkit._params.store_params`):
+        call it as ``self._store_params(locals())``. Like scikit-learn, ``__init__`` only
+        stores; validation (``_parameter_constraints``) and work happen later, so
         ``get_params``/``set_params``/``clone`` round-trip exactly."""
-        for name in self._param_names():
-            setattr(self, name, values[name])
+        store_params(self, values)
 
     @classmethod
     def _param_names(cls) -> list[str]:
-        sig = inspect.signature(cls.__init__)
-        return [p.name for p in sig.parameters.values()
-                if p.name != "self" and p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)]
+        return init_param_names(cls)
 
     def get_params(self) -> dict[str, Any]:
         return {k: getattr(self, k) for k in self._param_names()}

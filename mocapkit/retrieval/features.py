@@ -63,6 +63,7 @@ from typing import Iterable, Sequence
 import numpy as np
 
 from .. import gaps
+from .._params import store_params
 from ..errors import MocapValueError
 from ..frames import find_hips, up_axis_of
 from ..motion import Motion
@@ -428,13 +429,7 @@ class GPFCodebook:
     def __init__(self, n_words: int = 128, *, n_neighbors: int = 5, lam: float = 1e-2,
                  pooling: str = "max", levels: Sequence[int] = (1,), max_frames: int = 20000,
                  seed: int = 0):
-        self.n_words = n_words
-        self.n_neighbors = n_neighbors
-        self.lam = lam
-        self.pooling = pooling
-        self.levels = tuple(levels)
-        self.max_frames = max_frames
-        self.seed = seed
+        store_params(self, locals(), tuples=("levels",))
 
     def fit(self, frames: Iterable[np.ndarray]) -> "GPFCodebook":
         from sklearn.cluster import KMeans

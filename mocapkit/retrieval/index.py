@@ -41,6 +41,7 @@ from typing import Iterable, Sequence
 
 import numpy as np
 
+from .._params import store_params
 from ..errors import MocapError, MocapFormatError, MocapValueError, NotFittedError
 from ..motion import Motion
 from . import amfs as A
@@ -97,16 +98,7 @@ class RetrievalModel:
                  seed: int = 0):
         if method not in METHODS:
             raise MocapValueError(f"unknown retrieval method {method!r}; choose from {', '.join(METHODS)}")
-        self.method = method
-        self.d = d
-        self.n_words = n_words
-        self.k = k
-        self.mu = mu
-        self.r = r
-        self.n_clusters = n_clusters
-        self.d_grid = tuple(d_grid)
-        self.max_fit = max_fit
-        self.seed = seed
+        store_params(self, locals(), tuples=("d_grid",))
 
     # -- views ---------------------------------------------------------------------------
     def _views(self, descs: Sequence[Descriptor]) -> list[np.ndarray]:
