@@ -825,8 +825,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("file", help="motion file to classify (with 'train': folder of labelled clips)")
     s.add_argument("-o", "--output", help="with 'train': model file to write")
     s.add_argument("--method", choices=("minirocket", "skeleton", "nmc"), default="minirocket",
-                   help="with 'train': minirocket (default; MiniRocket features + ridge), skeleton "
-                        "(hand-made features + logistic regression) or nmc (the thesis' NMC)")
+                   help="with 'train': minirocket (default; MultiRocket + HYDRA features of joints and "
+                        "arms + ridge), skeleton (hand-made features + logistic regression) or nmc (the thesis' NMC)")
     s.add_argument("--C", type=float, default=1.0,
                    help="with 'train --method skeleton|nmc': inverse L2 strength (default 1)")
     s.add_argument("--json", action="store_true")

@@ -338,7 +338,8 @@ def test_rocket_save_load_round_trip_and_joint_set_error(rng, tmp_path):
     tr, ytr = _toy_motions(rng)
     te, _ = _toy_motions(rng, n_per=3)
     m = rk.RocketClassifier(n_features=300, seed=0, n_seeds=2).fit(tr, ytr)
-    assert len(m.rockets_) == 4 and m.coef_.shape[1] == 4 * m.rockets_[0].n_features_out
+    assert len(m.rockets_) == 4 and len(m.hydras_) == 4              # toy skeleton: joints view only
+    assert m.coef_.shape[1] == 4 * m.rockets_[0].n_features_out + 4 * m.hydras_[0].n_features_out
     path = m.save(tmp_path / "r.npz")
     back = load_model(path)
     assert isinstance(back, rk.RocketClassifier) and back.params() == m.params()
@@ -387,7 +388,7 @@ def test_train_classifier_on_hdm05_and_mismatch_with_kinect_model(shared_data, t
     for asf in root.glob("*.asf"):
         for cls in lib.iterdir():
             (cls / asf.name).symlink_to(asf)
-    res = train_classifier(lib, tmp_path / "h.npz", progress=False, n_features=1000)   # default method, smaller
+    res = train_classifier(lib, tmp_path / "h.npz", progress=False, n_features=500)   # default method, smaller
     assert res["method"] == "minirocket" and res["n_train"] == 15 and res["train_accuracy"] == 1.0
     test = sorted((root / "kickLFront1Reps").glob("HDM_dg_*.amc"))[0]
     assert cli.main(["classify", str(tmp_path / "h.npz"), str(test), "--json"]) == 0
@@ -500,3 +501,82 @@ def test_version_1_rocket_model_files_still_load(rng, tmp_path):
         else:
             with pytest.raises(MocapFormatError, match="v7 is not supported"):
                 load_model(p)
+
+
+def test_hydra_counts_equal_loops(rng):
+    """HYDRA's soft max / hard min counts equal explicit loops over time, group and kernel."""
+    X = rng.normal(size=(3, 4, 20))
+    h = rk.Hydra(k=3, g=2, max_channels=2, seed=5).fit(X)
+    assert h.dilations_.tolist() == [1, 2]          # floor(log2(19 / 8)) = 1
+    F = h.transform(X)
+    assert F.shape == (3, h.n_features_out) == (3, 2 * 2 * 2 * 3)
+    ref = []
+    for x in X:
+        row = []
+        for d, W in zip(h.dilations_, h.weights_):  # W (9, C, g k)
+            pad = 4 * d
+            xp = np.pad(x, ((0, 0), (pad, pad)))
+            Z = np.array([[sum(W[t, c, j] * xp[c, i + t * d] for t in range(9) for c in range(4))
+                           for j in range(6)] for i in range(20)])          # (L, g k)
+            cmax, cmin = np.zeros(6), np.zeros(6)
+            for i in range(20):
+                for gi in range(2):
+                    z = Z[i, 3 * gi:3 * gi + 3]
+                    cmax[3 * gi + np.argmax(z)] += z.max()
+                    cmin[3 * gi + np.argmin(z)] += 1
+            row += [*cmax, *cmin]
+        ref.append(row)
+    assert np.allclose(F, np.sqrt(np.maximum(np.array(ref), 0)), atol=1e-10)
+    assert ((np.abs(h.weights_).sum(1) > 0).sum(1) == 2).all()    # each group reads 2 channels
+    assert np.allclose(np.abs(h.weights_).sum(1)[h.weights_.any(1)], 1.0)   # |w| sums to 1 per channel
+    with pytest.raises(MocapValueError, match="shape"):
+        h.transform(X[:, :3])
+
+
+def test_arm_view_is_shoulder_relative_and_arm_length_normalised(rng):
+    X = rng.normal(size=(2, 24, 16))                # 8 joints, joint-major x, y, z
+    kp = np.array([1, 2, 3, 4, 5, 6, 7])            # head, l shoulder/elbow/wrist, r shoulder/elbow/wrist
+    V = rk.arm_view(X, kp)
+    assert V.shape == (2, 18, 16)
+    J = X.reshape(2, 8, 3, 16)
+    arm = np.median(np.linalg.norm(J[:, 3] - J[:, 2], axis=1) + np.linalg.norm(J[:, 4] - J[:, 3], axis=1), axis=1)
+    assert np.allclose(V[:, 3:6], (J[:, 4] - J[:, 2]) / arm[:, None, None])     # left wrist - shoulder
+    assert np.allclose(V[:, 15:18], (J[:, 7] - J[:, 1]) / np.median(
+        np.linalg.norm(J[:, 6] - J[:, 5], axis=1) + np.linalg.norm(J[:, 7] - J[:, 6], axis=1), axis=1)[:, None, None])
+    moved = (J * 2.5 + rng.normal(size=(1, 1, 3, 1))).reshape(2, 24, 16)  # bigger body elsewhere
+    assert np.allclose(rk.arm_view(moved, kp), V)
+
+
+def test_rocket_views_and_hydra_save_load_round_trip(rng, tmp_path):
+    X = rng.normal(size=(24, 24, 32)).cumsum(2) * 0.1
+    y = np.repeat(["a", "b", "c"], 8)
+    X[y == "b", 12:15] += np.sin(np.linspace(0, 6, 32))       # the left wrist draws
+    kp = np.array([1, 2, 3, 4, 5, 6, 7])
+    m = rk.RocketClassifier(n_features=168, views=("joints", "arms"), hydra=True, augment=1).fit_series(
+        X, y, keypoints=kp)
+    assert m.views_ == ["joints", "arms"] and len(m.rockets_) == 4 and len(m.hydras_) == 4
+    assert m.coef_.shape[1] == sum(r.n_features_out for r in m.rockets_ + m.hydras_)
+    back = load_model(m.save(tmp_path / "v.npz"))
+    assert back.params() == m.params() and back.views_ == m.views_
+    assert np.array_equal(back.decision_series(X), m.decision_series(X))
+    plain = rk.RocketClassifier(n_features=168, views=("joints", "arms"), hydra=False, augment=0).fit_series(X, y)
+    assert plain.views_ == ["joints"] and not plain.hydras_    # no keypoints: the arm view is left out
+    with pytest.raises(MocapValueError, match="unknown views"):
+        rk.RocketClassifier(views=("legs",)).fit_series(X, y)
+
+
+def test_version_2_rocket_model_files_load_with_the_joints_view_only(rng, tmp_path):
+    """A v2 file (no views / hydra / keypoints stored) predicts as the joints-view model it was."""
+    tr, ytr = _toy_motions(rng, n_per=4)
+    m = rk.RocketClassifier(n_features=200, views=("joints",), hydra=False, augment=0, seed=0).fit(tr, ytr)
+    with np.load(m.save(tmp_path / "v3.npz")) as z:
+        st = {k: z[k] for k in z.files if k != "keypoints"}
+    head = json.loads(str(st["header"]))
+    del head["params"]["views"], head["params"]["hydra"]
+    head["version"] = 2
+    st["header"] = np.array(json.dumps(head))
+    np.savez(tmp_path / "v2.npz", **st)
+    back = load_model(tmp_path / "v2.npz")
+    assert back.views == ("joints",) and back.views_ == ["joints"] and not back.hydra
+    X = np.stack([m.series(x) for x in tr])
+    assert np.array_equal(back.decision_series(X), m.decision_series(X))

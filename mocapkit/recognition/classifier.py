@@ -23,8 +23,8 @@ classes, parameters and (from this version on) the joint names of the training s
 Model files and the CLI (:func:`train_classifier`, :func:`~mocapkit.recognition.model_file.load_model`,
 :func:`classify`):
 ``mocapkit classify train`` trains the **MiniRocket/MultiRocket** classifier by default
-(:class:`mocapkit.recognition.rocket.RocketClassifier`: MultiRocket poolings, augmented
-training set, leave-one-clip-out ridge; ``method='skeleton'`` this
+(:class:`mocapkit.recognition.rocket.RocketClassifier`: MultiRocket poolings on the joint
+and arm views, augmented training set, leave-one-clip-out ridge; ``method='skeleton'`` this
 classifier, ``method='nmc'`` the thesis' NMC, :class:`mocapkit.recognition.nmc.NMCClassifier`,
 inductive). :func:`~mocapkit.recognition.model_file.load_model` (the CLI's loader; it
 dispatches on the header format each classifier module registers, and

@@ -24,6 +24,12 @@ else prepare's extent-based size), optionally Gaussian-smoothed (``smooth_s`` se
 then linearly resampled to ``length`` samples over the clip's duration. Channels are the
 joint coordinates, ``3 J`` of them, joint-major (x, y, z of the root first).
 
+Views (``views``): ``'joints'`` = these series; ``'arms'`` = :func:`arm_view` of them, 18
+channels (per side elbow - shoulder, wrist - shoulder, wrist - head, divided by that arm's
+length: the hand path about the shoulder, which is what tells the one-arm drawing actions
+apart), for skeletons whose keypoints :func:`series_keypoints` finds (Kinect 20 joints, CMU,
+HDM05; left out otherwise). Each view gets its own transforms; features are concatenated.
+
 Transform (:class:`MiniRocket`)
 -------------------------------
 84 fixed kernels of length 9: weights -1 everywhere except 2 at three of the nine
@@ -47,9 +53,12 @@ weights at tap ``t``.
 Classifier (:class:`RocketClassifier`)
 --------------------------------------
 Defaults (chosen by inner validation on training clips only, see
-``benchmarks/run_recognition.py --select`` and ``docs/results/recognition.md``): MultiRocket
-poolings, 5,000 (kernel, bias) pairs per representation (series and first difference:
-~40,000 features), and ``augment = 2`` perturbed copies of every training clip
+``benchmarks/run_recognition.py --select``, ``benchmarks/run_recognition_explore.py`` and
+``docs/results/recognition.md``): the joints and arms views, MultiRocket poolings, 5,000
+(kernel, bias) pairs per representation (series and first difference) and view (~80,000
+features), plus :class:`Hydra` counts of every view and its difference (``hydra=True``;
+HYDRA + MultiRocket as in Dempster et al. 2023; ~25,000 features), and ``augment = 2``
+perturbed copies of every training clip
 (:func:`augment_series`: time crop/extension up to +-10 % at each end, a smooth speed
 warp, and a turn about the vertical axis of up to +-15 deg). The transform's biases are
 taken from the original clips; the copies only add training rows. Features standardised,
@@ -64,9 +73,10 @@ grid), so it is a calibrated-ish probability, not a raw ridge score. All random 
 come from ``numpy.random.default_rng``: the same data and seed give the same model and
 predictions.
 
-Model files: format ``mocapkit-minirocket`` version 2 (parameters, transforms ``r{i}_``,
-linear read-out). Version-1 files (MiniRocket PPV, no augmentation) still load and
-predict as before; other versions are refused with :class:`~mocapkit.errors.MocapFormatError`.
+Model files: format ``mocapkit-minirocket`` version 3 (parameters, transforms ``r{i}_`` /
+``h{i}_``, the arm ``keypoints``, linear read-out). Version-2 files (joints view only) and
+version-1 files (MiniRocket PPV, no augmentation) still load and predict as before; other
+versions are refused with :class:`~mocapkit.errors.MocapFormatError`.
 
 A model remembers the joint names of its training skeleton; classifying a motion of
 another joint set raises :class:`~mocapkit.errors.MocapValueError` naming both. Models
@@ -86,17 +96,19 @@ from ..motion import Motion
 from .model_file import (check_joint_set, joint_set_of, load_model, read_head, register_format,
                          write_model)
 
-__all__ = ["trajectories", "MiniRocket", "RocketClassifier", "fit_dilations", "golden_quantiles",
+__all__ = ["trajectories", "MiniRocket", "Hydra", "arm_view", "series_keypoints", "RocketClassifier", "fit_dilations", "golden_quantiles",
            "augment_series", "ridge_group_loo", "KERNEL_INDICES", "MODEL_FORMAT"]
 
 KERNEL_LENGTH = 9
 KERNEL_INDICES = np.array(list(itertools.combinations(range(KERNEL_LENGTH), 3)), dtype=np.int64)  # (84, 3)
 N_KERNELS = len(KERNEL_INDICES)
 MODEL_FORMAT = "mocapkit-minirocket"
-MODEL_FORMAT_VERSION = 2
+MODEL_FORMAT_VERSION = 3
 # settings of version-1 model files (MiniRocket PPV, one transform, no augmentation), which
 # stored no ``augment`` / ``n_seeds``: they still load and predict as before
 V1_PARAMS = {"pooling": ["ppv"], "n_features": 10_000, "augment": 0, "n_seeds": 1}
+# settings of version-1/2 files, which stored no ``views`` / ``hydra``: the joints view, no HYDRA
+V2_PARAMS = {"views": ["joints"], "hydra": False}
 _CHUNK = 64                           # samples per block in the transform (bounds memory)
 
 
@@ -192,12 +204,12 @@ def _tap_weights(masks: np.ndarray) -> np.ndarray:
 
 
 def _convolve(X: np.ndarray, dilation: int, W: np.ndarray) -> np.ndarray:
-    """Zero-padded ("same") multichannel convolution of all 84 kernels: (n, L, 84)."""
+    """Zero-padded ("same") multichannel convolution of the kernels W (9, C, K): (n, L, K)."""
     n, C, L = X.shape
     pad = (KERNEL_LENGTH - 1) * dilation // 2
     Xp = np.zeros((n, L + 2 * pad, C))
     Xp[:, pad:pad + L] = X.transpose(0, 2, 1)
-    out = np.zeros((n, L, N_KERNELS))
+    out = np.zeros((n, L, W.shape[2]))
     for t in range(KERNEL_LENGTH):
         out += Xp[:, t * dilation:t * dilation + L] @ W[t]
     return out
@@ -354,6 +366,125 @@ def _difference(X: np.ndarray) -> np.ndarray:
     return np.concatenate([D[:, :, :1], D], axis=2)
 
 
+# ------------------------------------------------------------------------------ HYDRA
+class Hydra:
+    """HYDRA dictionary-convolution counts of multichannel series (n, C, L).
+
+    Paper: A. Dempster, D. F. Schmidt, G. I. Webb, "HYDRA: Competing convolutional kernels
+    for fast and accurate time series classification", Data Min. Knowl. Disc. 2023
+    (Sec. 3; multivariate variant of the authors' ``hydra_multivariate`` code): ``g`` groups
+    of ``k`` random kernels of length 9 (weights N(0, 1), mean removed, divided by their
+    absolute sum), dilations ``2^0 .. 2^floor(log2((L - 1) / 8))``, zero ("same") padding;
+    each group reads a random subset of ``max_channels`` channels (the per-channel
+    convolutions summed). At every time step the kernels of a group compete: the
+    arg-max kernel adds its response to its count ("soft max count"), the arg-min kernel
+    adds 1 ("hard min count"). Features ``sqrt(max(count, 0))`` (the paper's sparse
+    scaling, before the classifier's standardisation): ``2 g k`` per dilation.
+    """
+
+    def __init__(self, *, k: int = 8, g: int = 64, max_channels: int = 3, seed: int = 0):
+        self.k, self.g, self.max_channels, self.seed = int(k), int(g), int(max_channels), seed
+
+    def fit(self, X: np.ndarray) -> "Hydra":
+        X = np.asarray(X, dtype=np.float64)
+        if X.ndim != 3 or X.shape[2] < KERNEL_LENGTH:
+            raise MocapValueError(f"HYDRA needs series (n, channels, length >= 9), got shape {X.shape}")
+        _, C, L = X.shape
+        rng = np.random.default_rng(self.seed)
+        self.dilations_ = 2 ** np.arange(int(np.log2((L - 1) / (KERNEL_LENGTH - 1))) + 1)
+        W = rng.standard_normal((len(self.dilations_), KERNEL_LENGTH, C, self.g * self.k))
+        W -= W.mean(1, keepdims=True)
+        W /= np.abs(W).sum(1, keepdims=True)
+        mask = np.zeros((len(self.dilations_), C, self.g))
+        for di in range(len(self.dilations_)):
+            for gi in range(self.g):
+                mask[di, rng.choice(C, min(C, self.max_channels), replace=False), gi] = 1.0
+        self.weights_ = W * np.repeat(mask, self.k, axis=2)[:, None]
+        self.n_channels_, self.length_ = int(C), int(L)
+        return self
+
+    @property
+    def n_features_out(self) -> int:
+        return 2 * len(self.dilations_) * self.g * self.k
+
+    def transform(self, X: np.ndarray) -> np.ndarray:
+        """Features (n, 2 g k per dilation), dilation-major, then (max, min) counts, group, kernel."""
+        if not hasattr(self, "weights_"):
+            raise NotFittedError("HYDRA is not fitted")
+        X = np.asarray(X, dtype=np.float64)
+        if X.ndim != 3 or X.shape[1:] != (self.n_channels_, self.length_):
+            raise MocapValueError(f"series must have shape (n, {self.n_channels_}, {self.length_}), got {X.shape}")
+        n, L = len(X), self.length_
+        out = np.empty((n, self.n_features_out))
+        oh = np.arange(self.k)
+        for a in range(0, n, _CHUNK):
+            Xc = X[a:a + _CHUNK]
+            m, col = len(Xc), 0
+            for d, W in zip(self.dilations_, self.weights_):
+                Z = _convolve(Xc, int(d), W).reshape(m, L, self.g, self.k)
+                top = Z.argmax(3)[..., None] == oh                           # (m, L, g, k)
+                cmax = (top * Z.max(3)[..., None]).sum(1)
+                cmin = (Z.argmin(3)[..., None] == oh).sum(1)
+                out[a:a + m, col:col + 2 * self.g * self.k] = np.concatenate(
+                    [cmax.reshape(m, -1), cmin.reshape(m, -1)], axis=1)
+                col += 2 * self.g * self.k
+        return np.sqrt(np.maximum(out, 0.0))
+
+    def state(self, prefix: str) -> dict[str, np.ndarray]:
+        return {f"{prefix}dilations": self.dilations_, f"{prefix}weights": self.weights_,
+                f"{prefix}shape": np.array([self.n_channels_, self.length_, self.k, self.g])}
+
+    @classmethod
+    def from_state(cls, st: dict, prefix: str, seed: int = 0) -> "Hydra":
+        C, L, k, g = (int(v) for v in st[f"{prefix}shape"])
+        h = cls(k=k, g=g, seed=seed)
+        h.dilations_ = st[f"{prefix}dilations"].astype(np.int64)
+        h.weights_ = st[f"{prefix}weights"].astype(np.float64)
+        h.n_channels_, h.length_ = C, L
+        return h
+
+
+# ------------------------------------------------------------------------------ views
+ARM_KEYPOINTS = ("head", "lshoulder", "lelbow", "lwrist", "rshoulder", "relbow", "rwrist")
+VIEWS = ("joints", "arms")
+
+
+def series_keypoints(skeleton) -> np.ndarray | None:
+    """Channel-joint indices (in :func:`trajectories`' root-first joint order) of
+    :data:`ARM_KEYPOINTS`, or None when the skeleton's keypoints are not found."""
+    from ..retrieval.features import KEYPOINTS, find_keypoints
+
+    idx = find_keypoints(skeleton)
+    if idx is None:
+        return None
+    r = int(np.flatnonzero(skeleton.parents < 0)[0])
+    order = [r] + [j for j in range(skeleton.n_joints) if j != r]
+    pos = {j: i for i, j in enumerate(order)}
+    kp = dict(zip(KEYPOINTS, (pos[int(j)] for j in idx)))
+    return np.array([kp[k] for k in ARM_KEYPOINTS], dtype=np.int64)
+
+
+def arm_view(X: np.ndarray, keypoints: np.ndarray) -> np.ndarray:
+    """Hand-relative arm trajectories (n, 18, L) of joint series X (n, 3J, L).
+
+    Per side: elbow - shoulder, wrist - shoulder and wrist - head, divided by that arm's
+    length in the clip (median over time of |shoulder - elbow| + |elbow - wrist|): the
+    path of the hand about the shoulder, independent of body position and arm length
+    (the one-arm drawing actions differ in that path only). ``keypoints``: the indices of
+    :data:`ARM_KEYPOINTS` (:func:`series_keypoints`). The joints other than the root are
+    root-relative in X, so their differences are the differences of positions.
+    """
+    J = lambda j: X[:, 3 * int(j):3 * int(j) + 3]          # noqa: E731
+    head = J(keypoints[0])
+    parts = []
+    for sh, el, wr in (keypoints[1:4], keypoints[4:7]):
+        S, E, W = J(sh), J(el), J(wr)
+        arm = np.median(np.linalg.norm(E - S, axis=1) + np.linalg.norm(W - E, axis=1), axis=1)
+        arm = np.maximum(arm, 1e-6)[:, None, None]
+        parts += [(E - S) / arm, (W - S) / arm, (W - head) / arm]
+    return np.concatenate(parts, axis=1)
+
+
 # ------------------------------------------------------------------------ augmentation
 def augment_series(X: np.ndarray, copies: int, rng: np.random.Generator, *, time_warp: float = 0.1,
                    rot_deg: float = 15.0) -> tuple[np.ndarray, np.ndarray]:
@@ -468,6 +599,12 @@ class RocketClassifier:
         0 = none); ``time_warp`` and ``rot_deg`` their time-warp and rotation ranges.
     n_seeds : transforms with seeds ``seed, seed + 2, ...`` whose features are concatenated
         (1 = one transform per representation).
+    views : inputs, each with its own transforms, features concatenated: ``'joints'`` (the
+        3J joint trajectories of :func:`trajectories`) and ``'arms'`` (:func:`arm_view`:
+        hand paths about the shoulders and the head, per arm length; needs the skeleton's
+        keypoints, :func:`series_keypoints`, and is left out without them).
+    hydra : add :class:`Hydra` counts of every view and its first difference (HYDRA +
+        MultiRocket, Dempster et al. 2023 Sec. 5).
     alphas : ridge penalties tried by leave-one-clip-out (:func:`ridge_group_loo`).
     seed : random state of the transform and the augmentation.
     """
@@ -476,6 +613,7 @@ class RocketClassifier:
                  pooling: Sequence[str] = POOLINGS, max_channels: int = 9, diff: bool = True,
                  smooth_s: float = 0.0, heading: str = "auto", augment: int = 2,
                  time_warp: float = 0.1, rot_deg: float = 15.0, n_seeds: int = 1,
+                 views: Sequence[str] = ("joints", "arms"), hydra: bool = True,
                  alphas: Sequence[float] = tuple(np.logspace(-3, 5, 17)), seed: int = 0):
         self.length = length
         self.n_features = n_features
@@ -489,6 +627,8 @@ class RocketClassifier:
         self.time_warp = time_warp
         self.rot_deg = rot_deg
         self.n_seeds = n_seeds
+        self.views = tuple(views)
+        self.hydra = hydra
         self.alphas = tuple(float(a) for a in alphas)
         self.seed = seed
 
@@ -498,7 +638,8 @@ class RocketClassifier:
                 "pooling": list(self.pooling), "max_channels": int(self.max_channels), "diff": bool(self.diff),
                 "smooth_s": float(self.smooth_s), "heading": str(self.heading),
                 "augment": int(self.augment), "time_warp": float(self.time_warp), "rot_deg": float(self.rot_deg),
-                "n_seeds": int(self.n_seeds), "alphas": list(self.alphas), "seed": int(self.seed)}
+                "n_seeds": int(self.n_seeds), "views": list(self.views), "hydra": bool(self.hydra),
+                "alphas": list(self.alphas), "seed": int(self.seed)}
 
     # -- input ---------------------------------------------------------------------
     def series(self, motion: Motion) -> np.ndarray:
@@ -516,12 +657,13 @@ class RocketClassifier:
             raise MocapValueError(f"{len(motions)} motions but {len(labels)} labels")
         joints = joint_set_of(motions)
         X = np.stack([self.series(m) for m in motions])
-        self.fit_series(X, labels)
+        self.fit_series(X, labels, keypoints=series_keypoints(motions[0].skeleton) if len(motions) else None)
         self.joints_ = np.array(joints, dtype=str)
         return self
 
-    def fit_series(self, X: np.ndarray, labels: Sequence) -> "RocketClassifier":
-        """Fit on series (n, C, length) already made by :meth:`series`."""
+    def fit_series(self, X: np.ndarray, labels: Sequence, keypoints=None) -> "RocketClassifier":
+        """Fit on series (n, C, length) already made by :meth:`series`; ``keypoints``
+        (:func:`series_keypoints`) enable the ``'arms'`` view, which is left out without them."""
         y = np.asarray([str(v) for v in labels])
         X = np.asarray(X, dtype=np.float64)
         if len(X) != len(y):
@@ -530,13 +672,12 @@ class RocketClassifier:
             raise MocapValueError("a classifier needs at least two different labels")
         if int(self.n_seeds) < 1 or int(self.augment) < 0:
             raise MocapValueError(f"n_seeds must be >= 1 and augment >= 0, got {self.n_seeds}, {self.augment}")
-        kw = dict(n_features=self.n_features, max_dilations=self.max_dilations, pooling=self.pooling,
-                  max_channels=self.max_channels)
-        self.rockets_ = []
-        for k in range(int(self.n_seeds)):               # biases from the original clips only
-            self.rockets_.append(MiniRocket(seed=self.seed + 2 * k, **kw).fit(X))
-            if self.diff:
-                self.rockets_.append(MiniRocket(seed=self.seed + 2 * k + 1, **kw).fit(_difference(X)))
+        bad = [v for v in self.views if v not in VIEWS]
+        if bad or not self.views:
+            raise MocapValueError(f"unknown views {bad or '(none)'}; choose from {', '.join(VIEWS)}")
+        self.keypoints_ = np.zeros(0, np.int64) if keypoints is None else np.asarray(keypoints, np.int64)
+        self.views_ = [v for v in self.views if v != "arms" or len(self.keypoints_)]
+        self._fit_transforms(X)                          # biases from the original clips only
         rng = np.random.default_rng([int(self.seed), 7])
         Xa, owner = augment_series(X, int(self.augment), rng, time_warp=float(self.time_warp),
                                    rot_deg=float(self.rot_deg))
@@ -566,14 +707,45 @@ class RocketClassifier:
         self.joints_ = np.array([], dtype=str)
         return self
 
+    def _view(self, X: np.ndarray, view: str) -> np.ndarray:
+        return X if view == "joints" else arm_view(X, self.keypoints_)
+
+    def _plan(self) -> list[tuple[int, int, bool, str, int]]:
+        """(view index, seed index, on the difference, 'r' / 'h', seed) of every transform,
+        in feature order; view 0 keeps the seeds of version-2 files."""
+        out = []
+        for vi in range(len(self.views_)):
+            for k in range(int(self.n_seeds)):
+                for d in ((False, True) if self.diff else (False,)):
+                    out.append((vi, k, d, "r", self.seed + 100 * vi + 2 * k + int(d)))
+                    if self.hydra:
+                        out.append((vi, k, d, "h", self.seed + 100 * vi + 2 * k + int(d) + 50))
+        return out
+
+    def _fit_transforms(self, X: np.ndarray) -> None:
+        kw = dict(n_features=self.n_features, max_dilations=self.max_dilations, pooling=self.pooling,
+                  max_channels=self.max_channels)
+        self.rockets_, self.hydras_ = [], []
+        for vi, _, d, kind, seed in self._plan():
+            V = self._view(X, self.views_[vi])
+            V = _difference(V) if d else V
+            if kind == "r":
+                self.rockets_.append(MiniRocket(seed=seed, **kw).fit(V))
+            else:
+                self.hydras_.append(Hydra(seed=seed).fit(V))
+
     def _features(self, X: np.ndarray) -> np.ndarray:
-        D = _difference(X) if self.diff else None
-        step = 2 if self.diff else 1
-        F = []
-        for k in range(0, len(self.rockets_), step):
-            F.append(self.rockets_[k].transform(X))
-            if self.diff:
-                F.append(self.rockets_[k + 1].transform(D))
+        views = [self._view(X, v) for v in self.views_]
+        diffs = [_difference(V) for V in views] if self.diff else []
+        F, ir, ih = [], 0, 0
+        for vi, _, d, kind, _ in self._plan():
+            V = diffs[vi] if d else views[vi]
+            if kind == "r":
+                F.append(self.rockets_[ir].transform(V))
+                ir += 1
+            else:
+                F.append(self.hydras_[ih].transform(V))
+                ih += 1
         return np.concatenate(F, axis=1)
 
     def _check(self) -> None:
@@ -620,27 +792,31 @@ class RocketClassifier:
         self._check()
         header = {"format": MODEL_FORMAT, "version": MODEL_FORMAT_VERSION, "params": self.params(),
                   "alpha": self.alpha_, "temperature": self.temperature_}
-        arrays: dict = {}
+        arrays: dict = {"keypoints": self.keypoints_}
         for i, r in enumerate(self.rockets_):
             arrays.update(r.state(f"r{i}_"))
+        for i, h in enumerate(self.hydras_):
+            arrays.update(h.state(f"h{i}_"))
         return write_model(self, path, header, arrays, overwrite=overwrite)
 
     @classmethod
     def from_arrays(cls, header: dict, st: dict, path) -> "RocketClassifier":
         version = header.get("version")
         params = dict(header.get("params", {}))
-        if version == 1:                 # v1 files: MiniRocket PPV, one transform, no augmentation
-            params = {**V1_PARAMS, **params}
-        m = read_head(cls(**params), header, st, path, version if version in (1, MODEL_FORMAT_VERSION)
+        if version in (1, 2):            # v1: MiniRocket PPV, no augmentation; v1-2: joints view only
+            params = {**(V1_PARAMS if version == 1 else {}), **V2_PARAMS, **params}
+        m = read_head(cls(**params), header, st, path, version if version in (1, 2, MODEL_FORMAT_VERSION)
                       else MODEL_FORMAT_VERSION)
         rp = dict(n_features=m.n_features, max_dilations=m.max_dilations, pooling=m.pooling,
                   max_channels=m.max_channels)
-        m.rockets_ = []
-        i = 0
-        for k in range(int(m.n_seeds)):
-            for off in ((0, 1) if m.diff else (0,)):
-                m.rockets_.append(MiniRocket.from_state(st, f"r{i}_", dict(rp, seed=m.seed + 2 * k + off)))
-                i += 1
+        m.keypoints_ = st["keypoints"].astype(np.int64) if "keypoints" in st else np.zeros(0, np.int64)
+        m.views_ = [v for v in m.views if v != "arms" or len(m.keypoints_)]
+        m.rockets_, m.hydras_ = [], []
+        for _, _, _, kind, seed in m._plan():
+            if kind == "r":
+                m.rockets_.append(MiniRocket.from_state(st, f"r{len(m.rockets_)}_", dict(rp, seed=seed)))
+            else:
+                m.hydras_.append(Hydra.from_state(st, f"h{len(m.hydras_)}_", seed))
         m.alpha_ = float(header["alpha"])
         m.temperature_ = float(header["temperature"])
         return m

@@ -279,10 +279,8 @@ def _with_hole_error(info: GCVInfo, Y: np.ndarray, W: np.ndarray, s: np.ndarray,
     the clip's pooled value for holes of its length (factor-2 bins) as
     ``(n e^2 + prior pool^2) / (n + prior)`` (n: samples validated): a 1-frame hole is
     judged mostly by all 1-frame holes, a long one mostly where it is (the holes a
-    robust fit leaves are where the motion is hardest to follow). Replaced: the clip's
-    hole pattern shifted by a third of the clip, which put hidden samples next to real
-    holes and so tested longer holes than the real ones (missing30 overestimated 1.2-2.7x
-    in docs/results/auto.md), and missed that rejected runs sit in fast motion.
+    robust fit leaves are where the motion is hardest to follow). (The shifted hole pattern
+    used before tested longer holes than the real ones: missing30 overestimated 1.2-2.7x.)
 
     Sets ``hole_error`` (C,) -- RMS over each column's holes -- and ``hole_map`` (T, C),
     the estimated RMS error of every filled sample (0 on trusted ones).

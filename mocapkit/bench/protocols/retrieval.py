@@ -301,7 +301,7 @@ def _recog_data(ctx: Context, which: str) -> dict:
     """Clips, labels, groups and per-clip inputs of every recognition method (cached)."""
     from ...errors import MocapError
     from ...recognition.classifier import SMOOTH_S, sequence_features
-    from ...recognition.rocket import trajectories
+    from ...recognition.rocket import series_keypoints, trajectories
     from ...retrieval.features import prepare
 
     key = ("recog", str(ctx.data_dir), which)
@@ -339,7 +339,8 @@ def _recog_data(ctx: Context, which: str) -> dict:
     out = {"paths": d["path"], "labels": np.array(d["label"]), "groups": np.array(d["group"]),
            "X": np.stack(d["series"]), "X_start": None if which != "msr" else np.stack(d["series_start"]),
            "prep": d["prep"], "feat": np.stack(d["feat"]), "skipped": skipped,
-           "s_series": t_series / n, "s_feat": t_feat / n, "list": None if keep is None else len(keep)}
+           "s_series": t_series / n, "s_feat": t_feat / n, "list": None if keep is None else len(keep),
+           "keypoints": series_keypoints(_motions(ctx, which)[0][3].skeleton)}
     _CACHE[key] = out
     return out
 
@@ -377,7 +378,7 @@ def _recognise(ctx: Context, name: str, which: str, splits: list, cond: str, met
                     if kind == "rocket":
                         X = D["X_start"] if params.get("heading") == "start" else D["X"]
                         kw = {k: v for k, v in params.items() if k != "heading"}
-                        m = RocketClassifier(seed=seed, **kw).fit_series(X[tr], y[tr])
+                        m = RocketClassifier(seed=seed, **kw).fit_series(X[tr], y[tr], keypoints=D["keypoints"])
                         t_fit = time.perf_counter() - t0
                         t0 = time.perf_counter()
                         pred = m.predict_series(X[te])
