@@ -52,6 +52,7 @@ from typing import Sequence
 import numpy as np
 import scipy.sparse as sp
 
+from .._params import store_params
 from ..errors import MocapValueError, NotFittedError
 from ..motion import Motion
 from ..retrieval.features import PLANES, Prepared, orientation_bins, prepare, sliding_windows
@@ -269,19 +270,7 @@ class NMCClassifier:
                  max_iter: int = 150, eta: float = 0.5, transductive: bool = True,
                  bow_levels: Sequence[int] = (1, 2), C: float = 10.0,
                  block_weights: Sequence[float] = (1.0, 1.0), seed: int = 0):
-        self.window = window
-        self.stride = stride
-        self.n_clusters = n_clusters
-        self.lam1 = lam1
-        self.lam2 = lam2
-        self.n_neighbors = n_neighbors
-        self.max_iter = max_iter
-        self.eta = eta
-        self.transductive = transductive
-        self.bow_levels = tuple(bow_levels)
-        self.C = C
-        self.block_weights = tuple(block_weights)
-        self.seed = seed
+        store_params(self, locals(), tuples=("bow_levels", "block_weights"))
 
     def _windows(self, seqs: Sequence) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         feats, owner, pos = [], [], []

@@ -91,6 +91,7 @@ from typing import Sequence
 
 import numpy as np
 
+from .._params import store_params
 from ..errors import MocapFormatError, MocapValueError, NotFittedError
 from ..motion import Motion
 from .model_file import (check_joint_set, joint_set_of, load_model, read_head, register_format,
@@ -264,11 +265,7 @@ class MiniRocket:
 
     def __init__(self, *, n_features: int = 10_000, max_dilations: int = 32,
                  pooling: Sequence[str] = ("ppv",), max_channels: int = 9, seed: int = 0):
-        self.n_features = n_features
-        self.max_channels = max_channels
-        self.max_dilations = max_dilations
-        self.pooling = tuple(pooling)
-        self.seed = seed
+        store_params(self, locals(), tuples=("pooling",))
 
     def fit(self, X: np.ndarray) -> "MiniRocket":
         X = np.asarray(X, dtype=np.float64)
@@ -615,22 +612,8 @@ class RocketClassifier:
                  time_warp: float = 0.1, rot_deg: float = 15.0, n_seeds: int = 1,
                  views: Sequence[str] = ("joints", "arms"), hydra: bool = True,
                  alphas: Sequence[float] = tuple(np.logspace(-3, 5, 17)), seed: int = 0):
-        self.length = length
-        self.n_features = n_features
-        self.max_dilations = max_dilations
-        self.pooling = tuple(pooling)
-        self.max_channels = max_channels
-        self.diff = diff
-        self.smooth_s = smooth_s
-        self.heading = heading
-        self.augment = augment
-        self.time_warp = time_warp
-        self.rot_deg = rot_deg
-        self.n_seeds = n_seeds
-        self.views = tuple(views)
-        self.hydra = hydra
+        store_params(self, locals(), tuples=("pooling", "views"))
         self.alphas = tuple(float(a) for a in alphas)
-        self.seed = seed
 
     def params(self) -> dict:
         return {"length": int(self.length), "n_features": int(self.n_features),
