@@ -43,20 +43,21 @@ C3D = "markers/kineticstoolkit/kinematics_basket_sprint.c3d"
 ``<method>@c3d`` (frames = the file's own)."""
 
 
-def _rss_now() -> int:
+def _status_bytes(key: str) -> int:
+    """A /proc/self/status size field (``"VmRSS:"`` now, ``"VmHWM:"`` peak) in bytes; 0 if absent."""
     with open("/proc/self/status") as f:
         for line in f:
-            if line.startswith("VmRSS:"):
+            if line.startswith(key):
                 return int(line.split()[1]) * 1024
     return 0
+
+
+def _rss_now() -> int:
+    return _status_bytes("VmRSS:")
 
 
 def _rss_peak() -> int:
-    with open("/proc/self/status") as f:
-        for line in f:
-            if line.startswith("VmHWM:"):
-                return int(line.split()[1]) * 1024
-    return 0
+    return _status_bytes("VmHWM:")
 
 
 def _reset_peak() -> bool:

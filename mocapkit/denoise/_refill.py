@@ -20,9 +20,8 @@ from ..solvers.info import SolveInfo
 from .base import Denoiser, report_convergence
 
 
-def check_motion(motion: Any, method: str) -> Motion:
-    if not isinstance(motion, Motion):
-        raise MocapValueError(f"{method}: expected a Motion, got {type(motion).__name__}")
+def check_motion(motion: Motion, method: str) -> Motion:
+    """``motion`` if it has an observed sample (the base class already checked the type)."""
     if not motion.observed.any():
         raise MocapValueError(f"{method}: the motion has no observed entries")
     return motion

@@ -32,7 +32,6 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import MocapValueError
 from ..gaps import find_gaps
 from ..motion import Motion
 from ..rigid import REFERENCES, find_clusters, parse_clusters, rigid_fill
@@ -54,11 +53,6 @@ def _result(motion: Motion, X: np.ndarray, filled: np.ndarray, counts: dict[str,
     if len(counts) > 1:
         src["fill_detail"] = counts
     return Motion(X, motion.skeleton, motion.fps, obs, src, motion.filled)
-
-
-def _check(motion: Motion, method: str) -> None:
-    if not isinstance(motion, Motion):
-        raise MocapValueError(f"{method}: expected a Motion, got {type(motion).__name__}")
 
 
 # -- pattern fill --------------------------------------------------------------------------
@@ -192,7 +186,6 @@ class FillRigid(Denoiser):
         self._store_params(locals())
 
     def denoise(self, motion: Motion) -> Motion:
-        _check(motion, self.name)
         if motion.observed.all():
             return motion
         cl = discover_clusters(motion, self.clusters, max_std_cm=self.max_std_cm,
@@ -245,7 +238,6 @@ class FillPattern(Denoiser):
         self._store_params(locals())
 
     def denoise(self, motion: Motion) -> Motion:
-        _check(motion, self.name)
         if motion.observed.all():
             return motion
         X, f = pattern_fill(motion.positions, motion.observed,
@@ -322,7 +314,6 @@ class FillPCA(Denoiser):
         self._store_params(locals())
 
     def denoise(self, motion: Motion) -> Motion:
-        _check(motion, self.name)
         if motion.observed.all():
             return motion
         X, f, info = pca_fill(motion.positions, motion.observed, sigma_cm=float(self.sigma_cm),

@@ -83,9 +83,7 @@ def _check_frames(n: int, method: str, what: str) -> None:
 
 def _inputs(motion: Motion, method: str) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
     """(T, 3J) data with missing entries as NaN, its mask (None when complete), linear fill."""
-    if not isinstance(motion, Motion):
-        raise MocapValueError(f"{method}: expected a Motion, got {type(motion).__name__}")
-    X = motion.matrix()
+    X = motion.matrix()                    # (a Motion: checked by the base class)
     mask = motion.matrix_mask()
     if not mask.any():
         raise MocapValueError(f"{method}: the motion has no observed entries")
