@@ -107,7 +107,7 @@ def make_trainer(a, log=None):
         params[k] = json.loads(v)
     cfg = TrainConfig.from_params(**params)
     src = SyntheticSource(motions, C.CMU_21, cfg.clip_frames, augment=cfg.augment, mask_input=cfg.mask_input,
-                          base_sigma=cfg.base_sigma)
+                          base_sigma=cfg.base_sigma, base_filter=cfg.base_filter)
     tr = Trainer(src, cfg, checkpoint=work / "ckpt.pt", progress=False, log=log)
     info = {"motions": names, "held_out": [f.stem for f in held], "held_out_subjects": list(HOLDOUT_SUBJECTS)}
     return tr, info

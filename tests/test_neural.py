@@ -93,6 +93,23 @@ def test_attach_dropped_is_exact_for_a_rigid_motion():
     np.testing.assert_allclose(out[:, 4], P[:, 4], atol=1e-9)       # d: rotation about z is minimal here
 
 
+def test_attach_dropped_keeps_the_inputs_own_motion_of_a_dropped_joint():
+    # d wiggles about c (a hand about its wrist): the rigid rule cannot follow it, the
+    # input's smoothed offset does; where d is not observed the rigid rule fills in
+    rest_off = np.array([[0, 0, 0], [0, 10, 0], [0, 5, 0], [0, 5, 0], [3, 0, 0]], float)
+    sk = Skeleton(("root", "a", "b", "c", "d"), [-1, 0, 1, 2, 3], rest_off)
+    T = 120
+    P = np.repeat(sk.rest_positions()[None], T, axis=0)
+    P[:, 4, 2] += 2.0 * np.sin(np.linspace(0, 3 * np.pi, T))
+    rigid = C.attach_dropped(P[:, [0, 1, 3]], sk, ["root", "a", "c"])
+    assert np.abs(rigid[:, 4] - P[:, 4]).max() > 1.5
+    obs = np.ones((T, 5), bool)
+    obs[50:60, 4] = False
+    out = C.attach_dropped(P[:, [0, 1, 3]], sk, ["root", "a", "c"], source=P, source_observed=obs)
+    np.testing.assert_allclose(out[obs[:, 4], 4], P[obs[:, 4], 4], atol=0.02)
+    np.testing.assert_allclose(out[50:60, 4], rigid[50:60, 4])
+
+
 def test_model_input_bridges_masks_and_splits_base():
     Z = np.arange(10.0)[:, None] * np.ones((1, 6))          # 2 joints, linear in time
     obs = np.ones((10, 2), bool)
@@ -119,6 +136,29 @@ def test_base_smooth_removes_a_spike_and_keeps_a_line():
     assert np.abs(b[15:26] - x[15:26]).max() < 0.25
     np.testing.assert_allclose(b[4:15], x[4:15], atol=1e-4)
     np.testing.assert_allclose(b[26:-4], x[26:-4], atol=1e-4)
+
+
+def test_gcv_base_smooths_noise_keeps_a_clean_curve_and_ignores_missing():
+    rng = np.random.default_rng(0)
+    t = np.linspace(0, 4 * np.pi, 200)[:, None]
+    clean = np.hstack([np.sin(t), np.cos(0.5 * t), 0.1 * t])
+    noisy = clean + rng.normal(0, 0.1, clean.shape)
+    b = C.base_smooth(noisy, 1.0, kind="gcv")
+    rms = lambda e: float(np.sqrt(np.mean(e ** 2)))
+    assert rms(b - clean) < 0.4 * rms(noisy - clean)           # GCV removes most of the noise
+    assert rms(C.base_smooth(clean, 1.0, kind="gcv") - clean) < 1e-3     # and keeps a clean curve
+    obs = np.ones(clean.shape, bool)
+    obs[50:60, 0] = False
+    bad = noisy.copy()
+    bad[50:60, 0] = 99.0                                     # garbage where missing is not fitted
+    bm = C.base_smooth(bad, 1.0, kind="gcv", observed=obs)
+    assert np.abs(bm[50:60, 0] - clean[50:60, 0]).max() < 0.3
+    joint = obs.all(axis=1, keepdims=True)                   # (T, 1): the one joint's mask
+    Xb = C.model_input(bad, joint, fill=True, mask=False, base_sigma=1.0, base_filter="gcv")
+    np.testing.assert_allclose((Xb[:, :3] + Xb[:, 3:6])[joint[:, 0]], bad[joint[:, 0]], atol=1e-12)
+    assert np.abs(Xb[50:60, :3] - clean[50:60]).max() < 0.3   # the base never saw the garbage
+    with pytest.raises(MocapValueError, match="base filter"):
+        C.base_smooth(noisy, 1.0, kind="kalman")
 
 
 def test_mirror_permutation_swaps_left_and_right():

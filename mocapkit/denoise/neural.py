@@ -65,7 +65,8 @@ from ..motion import Motion
 from ..neural import pretrained_path, require_torch
 from .base import Denoiser, register, register_model_format
 from . import constraints
-from .constraints import Integral, Interval, Numbers, Real
+from .constraints import Integral, Interval, Numbers, Options, Real
+from ..neural.clips import BASE_FILTERS
 
 _POSITIVE = Interval(Real, 0, None, closed="neither")
 
@@ -76,7 +77,7 @@ _RUN_PARAMS = ("model", "postprocess", "progress", "warn", "train_options")
 #: files store them flat in their ``denoiser_params``)
 _GROUPED = ("dropout", "batch_size", "lambdas_perceptual", "lambdas_denoise", "lr_perceptual", "lr_denoise",
             "random_offsets", "residual", "fill_input", "mask_input", "augment", "lr_schedule",
-            "base_sigma", "grad_clip", "reproduction", "wide_fc")
+            "base_sigma", "base_filter", "grad_clip", "reproduction", "wide_fc")
 
 
 class _NeuralDenoiser(Denoiser):
@@ -105,6 +106,7 @@ class _NeuralDenoiser(Denoiser):
         "lambdas_perceptual": [Numbers(3)], "lambdas_denoise": [Numbers(4)],
         "lr_perceptual": [_POSITIVE], "lr_denoise": [_POSITIVE],
         "base_sigma": [Interval(Real, 0, None)], "grad_clip": [Interval(Real, 0, None)],
+        "base_filter": [Options(*BASE_FILTERS)],
         **{k: [bool] for k in ("random_offsets", "residual", "fill_input", "mask_input", "augment", "wide_fc")},
     }
 

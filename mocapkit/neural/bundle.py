@@ -323,7 +323,8 @@ class Bundle:
         Z = C.model_input(self.norm_in.forward(local.reshape(T, -1)), observed,
                           fill=bool(p.get("fill_input", False)), mask=bool(p.get("mask_input", False)),
                           base_sigma=float(p.get("base_sigma", 0.0) or 0.0),
-                          highpass_gain=float(p.get("highpass_gain", 1.0) or 1.0))
+                          highpass_gain=float(p.get("highpass_gain", 1.0) or 1.0),
+                          base_filter=str(p.get("base_filter", "lowpass")))
         f = int(self.meta["clip_frames"])
         W, starts, left = C.split_clips(Z, f, int(self.meta["clip_hop"]))
         if network:
@@ -362,7 +363,7 @@ class Bundle:
         """Refine a whole motion.
 
         Same topology: returns a Motion with the input's skeleton, frames and fps (joints
-        outside the model's subset attached rigidly, :func:`clips.attach_dropped`).
+        outside the model's subset follow their kept ancestor, :func:`clips.attach_dropped`).
         Different topology: a Motion on the model's output skeleton, same frames and fps.
         ``network=False`` skips the network (a residual model's input low-pass alone, for
         measuring what the network adds).
@@ -385,7 +386,7 @@ class Bundle:
 
             sigma = estimate_noise(motion.matrix(), motion.matrix_mask(), pool="all", fallback=0.0)
             full = C.attach_dropped(out, motion.skeleton, self.joints_out, source=motion.positions,
-                                    source_observed=motion.observed, noise_cm=sigma, fps=motion.fps)
+                                    source_observed=motion.observed)
             full = clean_blend(full, motion.positions, motion.observed, sigma,
                                float(self.meta.get("clean_blend_cm", CLEAN_BLEND_CM)))
             src = dict(motion.source)

@@ -80,7 +80,7 @@ OPERATING_POINT: dict[str, Any] = dict(
     lambdas_perceptual=(1.0, 1e-4, 1e-4), lambdas_denoise=(1.0, 1e-3, 1e-3, 10.0),
     lr_perceptual=1e-3, lr_denoise=1e-3, lr_schedule="cosine", lr_floor=0.05, grad_clip=1.0,
     reproduction="rms",
-    residual=True, fill_input=True, mask_input=True, base_sigma=1.0, augment=True,
+    residual=True, fill_input=True, mask_input=True, base_sigma=1.0, base_filter="gcv", augment=True,
     scale_range=(0.85, 1.15), random_offsets=True, noise=NOISE_MIX_V2)
 """Settings of the shipped models (issue 20; benchmarks/train_neural.py) and the defaults
 of :func:`train_cli`: the paper's losses and lambdas (eq. 3 as the per-clip RMS), hidden
@@ -129,6 +129,7 @@ class TrainConfig:
     lr_schedule: str = "constant"
     lr_floor: float = 0.05
     base_sigma: float = 0.0
+    base_filter: str = "lowpass"
     grad_clip: float = 0.0
     reproduction: str = "mse"
     wide_fc: bool = False
@@ -175,7 +176,7 @@ class SyntheticSource:
 
     def __init__(self, motions: Sequence[Motion], joints: Sequence[str] = C.CMU_21,
                  f: int = C.CLIP_FRAMES, *, augment: bool = False, mask_input: bool = False,
-                 base_sigma: float = 0.0):
+                 base_sigma: float = 0.0, base_filter: str = "lowpass"):
         if not motions:
             raise MocapValueError("training needs at least one motion")
         self.joints = list(joints)
@@ -213,6 +214,7 @@ class SyntheticSource:
         self.n = 3 * len(self.joints)
         self.mask_input = bool(mask_input)
         self.base_sigma = float(base_sigma)
+        self.base_filter = str(base_filter)
         self.m = self.n * (2 if base_sigma > 0 else 1) + (len(self.joints) if mask_input else 0)
         self.joints_in = self.joints_out = self.joints
 
@@ -311,7 +313,8 @@ class SyntheticSource:
                                      fallback=C.joint_mean_track(P))
             Z = self.norm.forward((P - ref[:, None]).reshape(self.f, -1))
             xin.append(C.model_input(Z, obs, fill=getattr(cfg, "fill_input", False), mask=self.mask_input,
-                                     base_sigma=self.base_sigma, highpass_gain=cfg.highpass_gain))
+                                     base_sigma=self.base_sigma, highpass_gain=cfg.highpass_gain,
+                                     base_filter=self.base_filter))
             T = X - ref[:, None]
             xc.append(self.norm.forward(T.reshape(self.f, -1)))
             refs.append(T)
@@ -680,7 +683,8 @@ def train_motions(motions: Sequence[Motion], config: TrainConfig, *, joints: Seq
                   training_info: dict | None = None) -> Bundle:
     """Train BRA-P (``config.perceptual``) or BRA on clean motions; returns the Bundle."""
     src = SyntheticSource(motions, joints, config.clip_frames, augment=config.augment,
-                          mask_input=config.mask_input, base_sigma=config.base_sigma)
+                          mask_input=config.mask_input, base_sigma=config.base_sigma,
+                          base_filter=config.base_filter)
     tr = Trainer(src, config, checkpoint=checkpoint, progress=progress, log=log)
     if resume and checkpoint is not None and Path(checkpoint).is_file():
         tr.load_checkpoint(checkpoint)
