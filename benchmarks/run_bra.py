@@ -113,7 +113,7 @@ def heldout_markdown(rows: list[dict]) -> tuple[str, dict]:
                 f"{ok(verdict['ratio_met'])}); below gaussian {g:.3f} ({ok(verdict['below_gaussian'])}) and "
                 f"kalman-cv {k:.3f} ({ok(verdict['below_kalman'])})."
                 + (f" The network's own share: the pipeline without it (`bra-p base only`: the "
-                   f"input's median-5 + Gaussian low-pass, dropped joints, clean blend) gives {bo:.3f} cm."
+                   f"input's GCV smoothing spline, dropped joints, clean blend) gives {bo:.3f} cm."
                    if bo is not None else "")]
     return "\n".join(out), verdict
 

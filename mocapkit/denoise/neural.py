@@ -19,7 +19,8 @@ Other Table 2 ablations are training options: EBD = ``bra`` with
 Data handling (``mocapkit.neural.clips``): 60 fps, the 21-joint CMU subset, root-local
 ground frame, mean/std normalisation, 120-frame clips overlapping by 60 with a linear
 cross-fade; the output has the input's skeleton, frames and fps, joints outside the
-subset attached rigidly to their nearest refined ancestor. A motion whose skeleton lacks
+subset follow their nearest refined ancestor (with the input's own GCV-smoothed offset
+where it observes them, :func:`mocapkit.neural.clips.attach_dropped`). A motion whose skeleton lacks
 one of the 21 joints is refused with a MocapValueError naming them.
 
 Without a trained model, ``bra-p`` and ``bra`` load the ONNX networks shipped in
@@ -27,7 +28,7 @@ Without a trained model, ``bra-p`` and ``bra`` load the ONNX networks shipped in
 by ``benchmarks/train_neural.py``, measured in ``docs/results/bra.md``), so they need no
 training step. ``fit(motions)`` trains a new model on clean motions with torch
 (defaults: the shipped models' settings, :data:`mocapkit.neural.train.OPERATING_POINT`
--- residual output on a light low-pass of the input, bridged + masked input,
+-- residual output on the input's GCV smoothing spline, bridged + masked input,
 augmentation, cosine learning rate -- and the paper's 300 epochs per network: hours on
 a CPU; ``train_options=dict(residual=False, fill_input=False, mask_input=False,
 base_sigma=0, augment=False, lr_schedule='constant', grad_clip=0, reproduction='mse')``

@@ -324,7 +324,8 @@ class Bundle:
                           fill=bool(p.get("fill_input", False)), mask=bool(p.get("mask_input", False)),
                           base_sigma=float(p.get("base_sigma", 0.0) or 0.0),
                           highpass_gain=float(p.get("highpass_gain", 1.0) or 1.0),
-                          base_filter=str(p.get("base_filter", "lowpass")))
+                          base_filter=str(p.get("base_filter", "lowpass")),
+                          reference=C.reference_channels(ref, K, self.norm_in))
         f = int(self.meta["clip_frames"])
         W, starts, left = C.split_clips(Z, f, int(self.meta["clip_hop"]))
         if network:
@@ -365,7 +366,7 @@ class Bundle:
         Same topology: returns a Motion with the input's skeleton, frames and fps (joints
         outside the model's subset follow their kept ancestor, :func:`clips.attach_dropped`).
         Different topology: a Motion on the model's output skeleton, same frames and fps.
-        ``network=False`` skips the network (a residual model's input low-pass alone, for
+        ``network=False`` skips the network (a residual model's base filter alone, for
         measuring what the network adds).
         """
         C.check_joints(motion.skeleton, self.joints_in)
@@ -405,8 +406,8 @@ def clean_blend(out: np.ndarray, inp: np.ndarray, observed: np.ndarray, noise_cm
     ``w inp + (1 - w) out`` with ``w = 1 / (1 + (noise_cm / sigma0)^2)``, ``noise_cm`` the
     input's robust noise estimate (:func:`mocapkit.signal.estimate_noise`, ``pool="all"``).
 
-    The network corrects a light low-pass of its input (:func:`clips.model_input`), which
-    costs a clean fast motion up to ~0.6 cm; a clean capture (estimated noise ~0.05 cm,
+    The network corrects a smoothed input (:func:`clips.model_input`; the low-pass base
+    of the earlier models costs a clean fast motion up to ~0.6 cm); a clean capture (estimated noise ~0.05 cm,
     w ~ 0.97) thus comes back as it was, while at 1 cm noise w = 0.08 and at 3 cm 0.01
     (the network's result). ``sigma0 <= 0`` turns the blend off. Missing samples keep the
     network's value.

@@ -84,8 +84,9 @@ OPERATING_POINT: dict[str, Any] = dict(
     scale_range=(0.85, 1.15), random_offsets=True, noise=NOISE_MIX_V2)
 """Settings of the shipped models (issue 20; benchmarks/train_neural.py) and the defaults
 of :func:`train_cli`: the paper's losses and lambdas (eq. 3 as the per-clip RMS), hidden
-256, residual output on a
-light low-pass of the input, bridged + masked input, augmentation, cosine learning rate."""
+256, residual output on the input's GCV smoothing spline (``base_filter="gcv"``; the
+models before it corrected a median-5 + Gaussian low-pass), bridged + masked input,
+augmentation, cosine learning rate."""
 
 
 @dataclass
@@ -191,6 +192,7 @@ class SyntheticSource:
         self.bones = C.bones_of(self.parents)
         self.mirror = mirror_permutation(self.joints)     # None: some sided joint has no partner
         self.local: list[np.ndarray] = []
+        self.tracks: list[np.ndarray] = []           # the horizontal root paths taken off
         self.names: list[str] = []
         for m in motions:
             P, obs = C.prepare_positions(m, self.joints, C.FPS)
@@ -200,6 +202,7 @@ class SyntheticSource:
             L = P - ref[:, None, :]
             L, _ = C.pad_edges(L, self.f)
             self.local.append(L)
+            self.tracks.append(C.pad_edges(ref, self.f)[0])
             self.names.append(str(m.source.get("path", f"motion{len(self.names)}")))
         self.clips = [(i, int(s)) for i, L in enumerate(self.local) for s in C.training_windows(len(L), self.f)]
         allX = np.concatenate([L.reshape(len(L), -1) for L in self.local], axis=0)
@@ -222,8 +225,11 @@ class SyntheticSource:
     def n_clips(self) -> int:
         return len(self.clips)
 
-    def _clean(self, rng: np.random.Generator, B: int, cfg: "TrainConfig", queue: list) -> np.ndarray:
-        out = []
+    def _clean(self, rng: np.random.Generator, B: int, cfg: "TrainConfig", queue: list
+               ) -> tuple[np.ndarray, np.ndarray]:
+        """B clean root-local clips (B, f, K, 3) and their horizontal root paths (B, f, 3)
+        (the world frame of :func:`clips.model_input`'s GCV base), augmented alike."""
+        out, paths = [], []
         for _ in range(B):
             if cfg.random_offsets:
                 lens = np.array([len(L) - self.f + 1 for L in self.local], dtype=float)
@@ -234,14 +240,16 @@ class SyntheticSource:
                     queue.extend(int(k) for k in rng.permutation(len(self.clips)))
                 i, s = self.clips[queue.pop()]
             out.append(self.local[i][s:s + self.f])
-        X = np.stack(out)                                          # (B, f, K, 3)
+            paths.append(self.tracks[i][s:s + self.f])
+        X = np.concatenate([np.stack(out), np.stack(paths)[:, :, None]], axis=2)   # (B, f, K + 1, 3)
         if getattr(cfg, "augment", False):
             X = self.augment(X, rng, cfg.scale_range)
-        return X
+        return X[:, :, :-1], X[:, :, -1]
 
     def augment(self, X: np.ndarray, rng: np.random.Generator, scale_range=(0.85, 1.15)) -> np.ndarray:
         """Rotate (B, f, K, 3) root-local clips about the vertical, mirror half of them
-        left/right, scale them (vectorised; the root stays on the vertical axis)."""
+        left/right, scale them (vectorised; the root stays on the vertical axis). A
+        (K + 1)-th point (the root path, :meth:`_clean`) is mirrored onto itself."""
         B = len(X)
         X = np.array(X, dtype=np.float64)
         flip = rng.random(B) < 0.5
@@ -249,7 +257,8 @@ class SyntheticSource:
             if self.mirror is None:
                 raise MocapValueError("augmentation mirrors left and right: every sided model joint "
                                       f"needs a partner by name ({', '.join(self.joints)})")
-            Y = X[flip][:, :, self.mirror]
+            perm = self.mirror if X.shape[2] == len(self.mirror) else np.append(self.mirror, len(self.mirror))
+            Y = X[flip][:, :, perm]
             Y[..., C.MIRROR_AXIS] *= -1.0
             X[flip] = Y
         th = rng.uniform(0.0, 2 * np.pi, B)
@@ -269,7 +278,7 @@ class SyntheticSource:
         return L / std
 
     def clean_batch(self, rng, B, cfg: TrainConfig, queue: list) -> dict[str, np.ndarray]:
-        X = self._clean(rng, B, cfg, queue)                      # (B, f, K, 3)
+        X, _ = self._clean(rng, B, cfg, queue)                   # (B, f, K, 3)
         Z = self.norm.forward(X.reshape(B, self.f, -1))
         return {"x_clean": Z, "ref": self.ref_lengths(X, self.norm.std)}
 
@@ -304,9 +313,9 @@ class SyntheticSource:
         return P, obs
 
     def noisy_batch(self, rng, B, cfg: TrainConfig, queue: list) -> dict[str, np.ndarray]:
-        clean = self._clean(rng, B, cfg, queue)
+        clean, paths = self._clean(rng, B, cfg, queue)
         xin, xc, refs = [], [], []
-        for X in clean:
+        for X, path in zip(clean, paths):
             kind, ratio, level = cfg.noise[int(rng.integers(len(cfg.noise)))]
             P, obs = self.corrupt(X, kind, ratio, level, rng)
             ref = C.ground_reference(P[:, 0], obs[:, 0], sigma=cfg.reference_sigma,
@@ -314,7 +323,8 @@ class SyntheticSource:
             Z = self.norm.forward((P - ref[:, None]).reshape(self.f, -1))
             xin.append(C.model_input(Z, obs, fill=getattr(cfg, "fill_input", False), mask=self.mask_input,
                                      base_sigma=self.base_sigma, highpass_gain=cfg.highpass_gain,
-                                     base_filter=self.base_filter))
+                                     base_filter=self.base_filter,
+                                     reference=C.reference_channels(ref + path, len(self.joints), self.norm)))
             T = X - ref[:, None]
             xc.append(self.norm.forward(T.reshape(self.f, -1)))
             refs.append(T)

@@ -255,7 +255,7 @@ HELDOUT_BASELINES = ("gaussian", "kalman-cv", "gcv-spline", "butterworth", "savg
 
 
 class _BaseOnly:
-    """The shipped bra-p pipeline without its network: the residual base (input low-pass,
+    """The shipped bra-p pipeline without its network: the residual base (the input's GCV spline,
     :func:`mocapkit.neural.clips.base_smooth`), dropped joints and clean blend; shows what
     the network itself adds."""
 
