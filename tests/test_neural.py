@@ -95,7 +95,7 @@ def test_attach_dropped_is_exact_for_a_rigid_motion():
 
 def test_attach_dropped_keeps_the_inputs_own_motion_of_a_dropped_joint():
     # d wiggles about c (a hand about its wrist): the rigid rule cannot follow it, the
-    # input's smoothed offset does; where d is not observed the rigid rule fills in
+    # input's smoothed track does; where d is not observed the rigid rule fills in
     rest_off = np.array([[0, 0, 0], [0, 10, 0], [0, 5, 0], [0, 5, 0], [3, 0, 0]], float)
     sk = Skeleton(("root", "a", "b", "c", "d"), [-1, 0, 1, 2, 3], rest_off)
     T = 120
