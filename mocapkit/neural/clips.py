@@ -339,6 +339,20 @@ def body_size(P: np.ndarray, observed: np.ndarray | None = None) -> float:
     return float(np.median(np.sqrt(d2.sum(axis=1) / n[:, 0])))
 
 
+def turn(P: np.ndarray, angle, up: int = UP_AXIS) -> np.ndarray:
+    """Points P (..., 3) turned about axis ``up`` by ``angle`` radians (a scalar, or an
+    array broadcasting against P's leading axes, e.g. (B, 1, 1) for a batch of clips):
+    ``h0' = cos a h0 + sin a h1``, ``h1' = -sin a h0 + cos a h1`` on the two horizontal
+    axes. Returns a new array."""
+    h0, h1 = [a for a in range(3) if a != up]
+    out = np.array(P, dtype=np.float64, copy=True)
+    c, s = np.cos(angle), np.sin(angle)
+    a, b = out[..., h0].copy(), out[..., h1].copy()
+    out[..., h0] = c * a + s * b
+    out[..., h1] = -s * a + c * b
+    return out
+
+
 MIRROR_AXIS = 0
 """Horizontal axis negated by the left/right mirror augmentation (x of Y-up CMU data)."""
 

@@ -261,12 +261,7 @@ class SyntheticSource:
             Y = X[flip][:, :, perm]
             Y[..., C.MIRROR_AXIS] *= -1.0
             X[flip] = Y
-        th = rng.uniform(0.0, 2 * np.pi, B)
-        h = [a for a in range(3) if a != C.UP_AXIS]
-        c, s_ = np.cos(th)[:, None, None], np.sin(th)[:, None, None]
-        a, b = X[..., h[0]].copy(), X[..., h[1]].copy()
-        X[..., h[0]] = c * a + s_ * b
-        X[..., h[1]] = -s_ * a + c * b
+        X = C.turn(X, rng.uniform(0.0, 2 * np.pi, B)[:, None, None])
         lo, hi = scale_range
         X *= rng.uniform(lo, hi, B)[:, None, None, None]
         return X
