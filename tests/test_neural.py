@@ -429,3 +429,17 @@ def test_train_cli_small_run_writes_checkpoint_and_resumes(tmp_path):
                  random_offsets=True, progress=False, log=logs.append, exclude=["16_15"], resume=True)
     assert any("resumed from" in s and "step 3" in s for s in logs)
     assert Bundle.load(out).meta["training"]["steps_denoise"] == 5
+
+
+def test_project_bones_makes_every_bone_its_median_length_and_keeps_a_rigid_clip():
+    rng = np.random.default_rng(0)
+    parents = np.array([-1, 0, 1, 1, 3])
+    P = np.cumsum(rng.normal(size=(50, 5, 3)), axis=1)           # bones of varying length
+    Q = C.project_bones(P, parents)
+    L = np.linalg.norm(Q[:, 1:] - Q[:, parents[1:]], axis=2)
+    want = np.median(np.linalg.norm(P[:, 1:] - P[:, parents[1:]], axis=2), axis=0)
+    np.testing.assert_allclose(L, np.broadcast_to(want, L.shape), atol=1e-9)
+    np.testing.assert_array_equal(Q[:, 0], P[:, 0])              # the root stays
+    rest = np.array([[0, 0, 0], [0, 10, 0], [0, 5, 0], [3, 5, 0], [0, 9, 0]], float)
+    R = np.repeat(rest[None], 7, axis=0) + rng.normal(size=(7, 1, 3))  # a rigid clip, moving
+    np.testing.assert_allclose(C.project_bones(R, parents), R, atol=1e-9)

@@ -41,10 +41,14 @@ for a run (model, post-processing, width, training length, seed, threads, device
 ``postprocess=None`` uses the model's own setting: the shipped bra-p skips the
 perceptual post-processing D_p(E_p(.)) (measured: it adds the perceptual autoencoder's
 reconstruction error, docs/results/bra.md), i.e. it is Table 2's BRA-P-D trained with the
-perceptual loss; ``postprocess=True`` applies it. ``turns`` (default 4): the network's
+perceptual loss; ``postprocess=True`` applies it. ``turns`` (default 1): the network's
 output is averaged over that many rotations of the clip about the vertical
 (:meth:`mocapkit.neural.bundle.Bundle.run_turned`; networks trained with rotation
-augmentation only), ``turns=1`` runs it once, 4x faster.
+augmentation only); ``turns=4`` measured 1 % lower error on the held-out subjects at 4x
+the network time (docs/results/bra.md), so one pass is the default. ``constant_bones`` (default
+True): the network's bones are set to their median length over the clip
+(:func:`mocapkit.neural.clips.project_bones`; skeleton bones are rigid, the network's
+residual error stretches them frame by frame).
 
 Guard rails: inputs outside 24-1000 fps, without the 21 joints, or with a body far from
 the training bodies' size get one MocapValueError; a result that moves the observed
@@ -76,7 +80,7 @@ _POSITIVE = Interval(Real, 0, None, closed="neither")
 
 #: constructor parameters that choose how a trained model runs (not training settings):
 #: every other parameter is a :class:`mocapkit.neural.train.TrainConfig` field
-_RUN_PARAMS = ("model", "postprocess", "turns", "progress", "warn", "train_options")
+_RUN_PARAMS = ("model", "postprocess", "turns", "constant_bones", "progress", "warn", "train_options")
 #: the TrainConfig fields that were constructor parameters before ``train_options`` (model
 #: files store them flat in their ``denoiser_params``)
 _GROUPED = ("dropout", "batch_size", "lambdas_perceptual", "lambdas_denoise", "lr_perceptual", "lr_denoise",
@@ -95,6 +99,7 @@ class _NeuralDenoiser(Denoiser):
 
     _parameter_constraints = {
         "model": [str, os.PathLike, None], "postprocess": [bool, None], "turns": [Interval(Integral, 1, None)],
+        "constant_bones": [bool],
         "hidden": [Interval(Integral, 1, None)],
         "epochs_perceptual": [Interval(Real, 0, None)], "epochs_denoise": [Interval(Real, 0, None)],
         "steps_perceptual": [Interval(Integral, 0, None), None],
@@ -123,7 +128,8 @@ class _NeuralDenoiser(Denoiser):
             p["train_options"] = {**(p.get("train_options") or {}), **grouped}
         return {k: v for k, v in p.items() if k in cls._param_names()}
 
-    def __init__(self, *, model: str | None = None, postprocess: bool | None = None, turns: int = 4, hidden: int = 256,
+    def __init__(self, *, model: str | None = None, postprocess: bool | None = None, turns: int = 1,
+                 constant_bones: bool = True, hidden: int = 256,
                  epochs_perceptual: float = 300.0, epochs_denoise: float = 300.0,
                  steps_perceptual: int | None = None, steps_denoise: int | None = None,
                  seed: int = 0, threads: int | None = None, device: str = "cpu", progress: bool = False,
@@ -189,7 +195,8 @@ class _NeuralDenoiser(Denoiser):
 
         b = self._bundle()
         post = None if self.postprocess is None else (bool(self.postprocess) and self._perceptual)
-        out = b.refine(motion, postprocess=post, threads=self.threads, turns=int(self.turns))
+        out = b.refine(motion, postprocess=post, threads=self.threads, turns=int(self.turns),
+                       constant_bones=bool(self.constant_bones))
         check_training_match(self, motion, out, warn=bool(self.warn), stacklevel=4)
         return out  # checked by the guard
 

@@ -315,8 +315,8 @@ class Bundle:
         the positions); others, and ``turns=1``, run once. Measured on 9 held-out clips
         at 3 cm noise (a bra-p checkpoint at 4,800 steps): 1.050 cm with one pass, 1.037
         with 2 turns, 1.032 with 4 (mixed noise 1.158 / 1.150 / 1.143); the shipped bra-p
-        on the 30 held-out motions of ``bra-heldout``: 0.952 with one pass, 0.943 with 4.
-        4 turns cost 4 network passes.
+        on the 30 held-out motions of ``bra-heldout`` (constant bones): 0.946 with one
+        pass, 0.936 with 4. 4 turns cost 4 network passes.
         """
         p = self.meta.get("params", {})
         turns = max(int(turns or 1), 1)
@@ -331,12 +331,14 @@ class Bundle:
         return np.mean([_turn(y, -a, n_out, up) for y, a in zip(Y, angles)], axis=0)
 
     def refine_local(self, P: np.ndarray, observed: np.ndarray, *, postprocess: bool | None = None,
-                     threads: int | None = None, network: bool = True, turns: int = 1) -> np.ndarray:
+                     threads: int | None = None, network: bool = True, turns: int = 1,
+                     constant_bones: bool = False) -> np.ndarray:
         """Refine 60-fps positions of the input joints (T, K_in, 3) cm -> (T, K_out, 3) cm.
 
         ``P`` may hold NaN where ``observed`` is False. Horizontal reference, normalisation,
         clipping and the cross-fade reassembly are done here (module :mod:`clips`);
-        ``turns``: :meth:`run_turned`.
+        ``turns``: :meth:`run_turned`; ``constant_bones``: the output's bones are set to
+        their median lengths (:func:`clips.project_bones`).
         """
         P = np.asarray(P, dtype=np.float64)
         T, K, _ = P.shape
@@ -359,7 +361,8 @@ class Bundle:
         else:                     # the residual base alone (what the network corrects)
             Y = W[..., :3 * len(self.joints_out)]
         out = self.norm_out.inverse(C.overlap_add(Y, starts, T, left))
-        return out.reshape(T, -1, 3) + ref[:, None, :]
+        out = out.reshape(T, -1, 3) + ref[:, None, :]
+        return C.project_bones(out, self.parents_out) if constant_bones and network else out
 
     #: the input's body may be this much smaller or larger than the training bodies
     SCALE_RANGE = (0.4, 2.5)
@@ -386,7 +389,7 @@ class Bundle:
                 f"(metres or millimetres read as cm?) or train on such data")
 
     def refine(self, motion: Motion, *, postprocess: bool | None = None, threads: int | None = None,
-               network: bool = True, turns: int = 1) -> Motion:
+               network: bool = True, turns: int = 1, constant_bones: bool = False) -> Motion:
         """Refine a whole motion.
 
         Same topology: returns a Motion with the input's skeleton, frames and fps (joints
@@ -407,7 +410,8 @@ class Bundle:
         P, obs = C.prepare_positions(motion, self.joints_in, fps)
         if not obs.any():
             raise MocapValueError("the motion has no observed value of the model's joints")
-        out = self.refine_local(P, obs, postprocess=postprocess, threads=threads, network=network, turns=turns)
+        out = self.refine_local(P, obs, postprocess=postprocess, threads=threads, network=network, turns=turns,
+                                constant_bones=constant_bones)
         out = _resample_back(out, fps, motion.fps, motion.n_frames)
         if self.same_topology or all(j in motion.skeleton.names for j in self.joints_out):
             from ..signal import estimate_noise

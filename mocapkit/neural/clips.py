@@ -353,6 +353,43 @@ def turn(P: np.ndarray, angle, up: int = UP_AXIS) -> np.ndarray:
     return out
 
 
+def project_bones(P: np.ndarray, parents: np.ndarray) -> np.ndarray:
+    """Positions (T, K, 3) with every bone set to its median length over the clip.
+
+    From the root outward, each child is moved along the direction from its parent's new
+    position to its own old one, to the bone's median length in ``P``: the bones of a
+    skeleton are rigid, and a denoiser's residual error stretches them frame by frame.
+    Measured with the shipped bra-p on 5 CMU clips of *training* subjects (05_05, 07_03,
+    131_08, 135_05, 01_01; 60 fps; Table 1's conditions, 21 joints): bone error B 2.12 ->
+    0.86 (1 dB), 0.70 -> 0.24 (20 dB), 1.48 -> 0.45 cm (40 % missing + 15 dB), R 3.04 ->
+    3.01, 0.69 -> 0.68, 1.78 -> 1.68 cm, and 0.88 -> 0.87 cm RMSE at 3 cm noise.
+    ``parents`` (K,): parent index per joint, -1 for the root(s).
+    """
+    P = np.asarray(P, dtype=np.float64)
+    parents = np.asarray(parents, dtype=np.int64)
+    if P.shape[1] < 2:
+        return P.copy()
+    kids = [[] for _ in parents]
+    for j, q in enumerate(parents):
+        if q >= 0:
+            kids[q].append(j)
+    order = [int(r) for r in np.flatnonzero(parents < 0)]
+    for j in order:                                     # breadth first: parents before children
+        order.extend(kids[j])
+    has = parents >= 0
+    L = np.full(len(parents), np.nan)
+    L[has] = np.nanmedian(np.linalg.norm(P[:, has] - P[:, parents[has]], axis=2), axis=0)
+    Q = P.copy()
+    for j in order:
+        q = parents[j]
+        if q < 0 or not np.isfinite(L[j]):
+            continue
+        d = P[:, j] - Q[:, q]
+        n = np.linalg.norm(d, axis=1, keepdims=True)
+        Q[:, j] = np.where(n > 1e-9, Q[:, q] + d * (L[j] / np.maximum(n, 1e-9)), P[:, j])
+    return Q
+
+
 MIRROR_AXIS = 0
 """Horizontal axis negated by the left/right mirror augmentation (x of Y-up CMU data)."""
 

@@ -305,7 +305,7 @@ def heldout(ctx: Context) -> Iterator[Row]:
     leaked = sorted(trained_on & {n for n, _ in motions})
     if leaked:
         raise MocapValueError(f"{HELDOUT_NAME}: the bra-p model was trained on {leaked}")
-    methods: list[tuple[str, Any]] = [("bra-p", brap), ("bra-p 1 turn", denoise.get("bra-p", turns=1, warn=False)),
+    methods: list[tuple[str, Any]] = [("bra-p", brap), ("bra-p 4 turns", denoise.get("bra-p", turns=4, warn=False)),
                                       ("bra", denoise.get("bra", warn=False))]
     post = brap._bundle().meta.get("postprocess", True)
     methods.append(("bra-p+pp" if not post else "bra-p-d", denoise.get("bra-p", postprocess=not post, warn=False)))
