@@ -19,8 +19,8 @@ Other Table 2 ablations are training options: EBD = ``bra`` with
 Data handling (``mocapkit.neural.clips``): 60 fps, the 21-joint CMU subset, root-local
 ground frame, mean/std normalisation, 120-frame clips overlapping by 60 with a linear
 cross-fade; the output has the input's skeleton, frames and fps, joints outside the
-subset follow their nearest refined ancestor (with the input's own GCV-smoothed offset
-where it observes them, :func:`mocapkit.neural.clips.attach_dropped`). A motion whose skeleton lacks
+subset are the input's own GCV-smoothed tracks where it observes them, else carried by
+their nearest refined ancestor (:func:`mocapkit.neural.clips.attach_dropped`). A motion whose skeleton lacks
 one of the 21 joints is refused with a MocapValueError naming them.
 
 Without a trained model, ``bra-p`` and ``bra`` load the ONNX networks shipped in

@@ -323,7 +323,7 @@ class Bundle:
         if turns == 1 or not p.get("augment"):
             return self.run_windows(W, **kw)
         up = int(self.meta.get("up_axis", C.UP_AXIS))
-        n_pos = 3 * len(self.joints_in) * (2 if float(p.get("base_sigma", 0.0) or 0.0) > 0 else 1)
+        n_pos = self.input_channels - (len(self.joints_in) if p.get("mask_input") else 0)   # not the mask
         angles = 2 * np.pi * np.arange(turns) / turns
         stack = np.concatenate([_turn(W, a, n_pos, up) for a in angles])
         Y = self.run_windows(stack, **kw).reshape(turns, len(W), *W.shape[1:2], -1)

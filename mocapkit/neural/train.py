@@ -257,7 +257,7 @@ class SyntheticSource:
             if self.mirror is None:
                 raise MocapValueError("augmentation mirrors left and right: every sided model joint "
                                       f"needs a partner by name ({', '.join(self.joints)})")
-            perm = self.mirror if X.shape[2] == len(self.mirror) else np.append(self.mirror, len(self.mirror))
+            perm = np.append(self.mirror, len(self.mirror))[:X.shape[2]]     # the path maps to itself
             Y = X[flip][:, :, perm]
             Y[..., C.MIRROR_AXIS] *= -1.0
             X[flip] = Y
