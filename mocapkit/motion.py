@@ -59,7 +59,13 @@ class Motion:
     filled: np.ndarray | None = None
 
     def __post_init__(self) -> None:
-        P = np.array(self.positions, dtype=np.float64, copy=True)
+        P = self.positions
+        # a frozen array (read-only, owning its data: another Motion's, or a reader's that
+        # handed it over) is shared, not copied -- a 200,000-frame clip is 140 MB a copy
+        shared = (isinstance(P, np.ndarray) and P.dtype == np.float64 and P.base is None
+                  and not P.flags.writeable and P.flags.c_contiguous)
+        if not shared:
+            P = np.array(P, dtype=np.float64, copy=True)
         if P.ndim != 3 or P.shape[2] != 3:
             raise MocapValueError(f"positions must have shape (T, J, 3), got {P.shape}")
         T, J, _ = P.shape
@@ -79,7 +85,12 @@ class Motion:
             if obs.shape != (T, J):
                 raise MocapValueError(f"observed mask must have shape ({T}, {J}), got {obs.shape}")
             obs = obs.astype(bool) & finite
-        P[~obs] = np.nan
+        hidden = ~obs
+        if hidden.any():
+            if shared and not np.isnan(P[hidden]).all():
+                P = P.copy()                          # something must become NaN
+            if P.flags.writeable:
+                P[hidden] = np.nan
         if self.filled is None:
             fil = np.zeros((T, J), dtype=bool)
         else:
