@@ -39,6 +39,33 @@ def test_rts_equals_dense_posterior(rng, n, p):
         np.testing.assert_allclose(xf[:, 0], mu, atol=1e-8)
 
 
+def test_steady_state_lti_path_equals_dense_and_per_frame(rng, monkeypatch):
+    """Every frame observed, no gate: after the covariances settle both RTS passes run as
+    constant-gain filters (rts._rts2_steady, lfilter); the means equal the dense posterior
+    and the per-frame recursion."""
+    from mocapkit.signal import rts
+
+    T, B = 150, 3
+    F = np.array([[1.0, 1.0], [0.0, 1.0]])
+    q = rng.uniform(0.01, 0.5, B)
+    Q = q[:, None, None] * np.array([[1 / 3, 1 / 2], [1 / 2, 1.0]])
+    Y = np.cumsum(rng.normal(size=(T, B)), axis=0) + rng.normal(size=(T, B))
+    M = np.ones((T, B), bool)
+    R = rng.uniform(0.5, 2.0, B)
+    x0 = np.c_[Y[0], np.zeros(B)]
+    P0 = np.broadcast_to(np.diag([4.0, 1.0]), (B, 2, 2)).copy()
+    assert rts._rts2_steady(Y, R, (1.0, 1.0, 0.0, 1.0) + tuple(Q[:, i, j] for i, j in ((0, 0), (0, 1), (1, 1))),
+                            x0, P0) is not None                  # the path is taken
+    xs, _ = signal.rts_smoother(Y, M, F=F, Q=Q, R=R, x0=x0, P0=P0)
+    for b in range(B):
+        mu, _ = _dense_posterior(Y[:, b:b + 1], M[:, b:b + 1], F=F, Q=Q[b], R=R[b:b + 1],
+                                 H=np.eye(1, 2), x0=x0[b], P0=P0[b])
+        np.testing.assert_allclose(xs[:, b], mu, atol=1e-8)
+    monkeypatch.setattr(rts, "_rts2_steady", lambda *a: None)
+    ref, _ = signal.rts_smoother(Y, M, F=F, Q=Q, R=R, x0=x0, P0=P0)
+    np.testing.assert_allclose(xs, ref, rtol=0, atol=1e-9)
+
+
 def test_generic_batched_vector_path_equals_dense(rng):
     """B > 1 filters with vector observations (p <= n): the generic gain-form path."""
     T, n, p = 8, 3, 2

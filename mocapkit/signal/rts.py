@@ -13,7 +13,9 @@ Three code paths, same result (tests compare each with a dense solve):
 
 * p = 1, n <= 2, H = first state, shared F (per-coordinate constant-velocity or
   random-walk filters): the 2 x 2 algebra written out on (B,) component arrays, RTS
-  gains for all frames in one vectorised step (:func:`_rts_scalar`);
+  gains for all frames in one vectorised step (:func:`_rts_scalar`); with every frame
+  observed and no gate, the frames after the covariances settle run as constant-gain
+  filters (``lfilter``, :func:`_rts2_steady`);
 * p > n, or a single vector-observed model (B = 1) without gate (e.g. a PCA-latent
   pose model): :func:`_rts_multi` -- information or Woodbury form, Hᵀ W H
   precomputed per mask pattern, covariances reused once the Riccati recursion is
@@ -428,6 +430,10 @@ def _rts_scalar(Y, M, F, Q, R, x0, P0, gt):
         return xs[:, :, None], used
     f00, f01, f10, f11 = (float(v) for v in F.ravel())
     fq = (f00, f01, f10, f11) + tuple(np.ascontiguousarray(Q[:, i, j]) for i, j in ((0, 0), (0, 1), (1, 1)))
+    if gt is None and used.all():
+        xs = _rts2_steady(Y, R, fq, x0, P0)
+        if xs is not None:
+            return xs, used
     x0_, x1_ = x0[:, 0].copy(), x0[:, 1].copy()
     pc = (P0[:, 0, 0].copy(), P0[:, 0, 1].copy(), P0[:, 1, 1].copy())
     XF = np.empty((T, 2, B))
@@ -457,6 +463,118 @@ def _rts_scalar(Y, M, F, Q, R, x0, P0, gt):
             PF[t] = pc
     _rts2_backward(XF, used, R, fq, marks, None if PF is None else (PF, PN))
     return np.moveaxis(XF, 1, 2), used
+
+
+_STEADY_TOL = 1e-13
+"""Relative change of every covariance component below which :func:`_rts2_steady` takes
+the gains as constant."""
+
+
+def _rts2_steady(Y: np.ndarray, R: np.ndarray, fq: tuple, x0: np.ndarray,
+                 P0: np.ndarray) -> np.ndarray | None:
+    """:func:`_rts_scalar` (n = 2) for a batch observed in every frame, without a gate:
+    (T, B, 2) smoothed means, or None when the covariances do not settle within the
+    first half of the clip.
+
+    Why: the covariance recursion does not depend on the data, and with every frame
+    observed it converges geometrically to its steady state (the Riccati fixed point)
+    within tens to hundreds of frames. From the frame ``tc`` where every component has
+    settled (relative change < :data:`_STEADY_TOL`, plus two frames) the Kalman gain K and
+    the smoother gain G are constant, so both passes are linear time-invariant
+    recursions, run by ``scipy.signal.lfilter`` (C) per channel instead of a Python loop
+    over frames (200,000 frames x 87 channels: 16 s -> about 1 s):
+
+    * forward, ``x_t = A x_{t-1} + K y_t`` with ``A = (I - K e0^T) F``: each state is a
+      second-order filter of y, ``(adj(I - A z^-1) K) / det(I - A z^-1)``, started from
+      the exact states of frames tc-1, tc-2 (``lfiltic``);
+    * backward, ``s_t = G s_{t+1} + (I - G F) x_t`` (``s_{T-1} = x_{T-1}``): two inputs,
+      two outputs, run on the reversed frames from zero.
+
+    Frames before tc go through the exact per-frame recursions. Agrees with the per-frame
+    path to ~1e-12 relative (tests/test_rts.py)."""
+    from scipy.signal import lfilter, lfiltic
+
+    T, B = Y.shape
+    f00, f01, f10, f11 = fq[:4]
+    if T < 64:
+        return None
+    pc = (P0[:, 0, 0].copy(), P0[:, 0, 1].copy(), P0[:, 1, 1].copy())
+    PP, PF = [], []                                  # predicted / filtered, frames 0..tc
+    tc = None
+    for t in range(T // 2):
+        if t > 0:
+            pc = _cv2_predict(pc, fq)
+        PP.append(pc)
+        new = _cv2_update(pc, 1.0 / (pc[0] + R))
+        if t > 0 and all(np.all(np.abs(a - b) <= _STEADY_TOL * np.abs(b)) for a, b in zip(new, PF[-1])):
+            tc = t + 2
+            PF.append(new)
+            break
+        PF.append(new)
+        pc = new
+    if tc is None or tc >= T - 2:
+        return None
+    for _ in range(len(PF), tc + 1):                 # two more settled frames
+        pc = _cv2_predict(PF[-1], fq)
+        PP.append(pc)
+        PF.append(_cv2_update(pc, 1.0 / (pc[0] + R)))
+    # channel-major (B, 2, T): each channel's filters read and write contiguous rows
+    Yc = np.ascontiguousarray(Y.T)
+    XF = np.empty((B, 2, T))
+    a0, a1 = x0[:, 0].copy(), x0[:, 1].copy()
+    for t in range(tc):                              # exact forward frames
+        if t > 0:
+            a0, a1 = f00 * a0 + f01 * a1, f10 * a0 + f11 * a1
+        p00, p01 = PP[t][0], PP[t][1]
+        inv_s = 1.0 / (p00 + R)
+        nu = Yc[:, t] - a0
+        a0, a1 = a0 + p00 * inv_s * nu, a1 + p01 * inv_s * nu
+        XF[:, 0, t] = a0; XF[:, 1, t] = a1
+    # steady gains (B,): K from the settled predicted covariance, G from filtered / predicted
+    p00, p01, p11 = PP[tc]
+    k0, k1 = p00 / (p00 + R), p01 / (p00 + R)
+    A00, A01 = (1 - k0) * f00, (1 - k0) * f01                  # (I - K e0^T) F
+    A10, A11 = f10 - k1 * f00, f11 - k1 * f01
+    q00, q01, q11 = PF[tc]
+    c00 = q00 * f00 + q01 * f01; c01 = q00 * f10 + q01 * f11   # Pf F^T
+    c10 = q01 * f00 + q11 * f01; c11 = q01 * f10 + q11 * f11
+    det = p00 * p11 - p01 * p01                                # Pp (steady) inverse
+    i00, i01, i11 = p11 / det, -p01 / det, p00 / det
+    g00 = c00 * i00 + c01 * i01; g01 = c00 * i01 + c01 * i11
+    g10 = c10 * i00 + c11 * i01; g11 = c10 * i01 + c11 * i11
+    # u = (I - G F) x
+    h00 = 1 - (g00 * f00 + g01 * f10); h01 = -(g00 * f01 + g01 * f11)
+    h10 = -(g10 * f00 + g11 * f10); h11 = 1 - (g10 * f01 + g11 * f11)
+    XS = np.empty((B, 2, T))
+    for b in range(B):                               # a loop over channels, not frames
+        den = np.array([1.0, -(A00[b] + A11[b]), A00[b] * A11[b] - A01[b] * A10[b]])
+        y = Yc[b, tc:]
+        for i, num in enumerate(([k0[b], A01[b] * k1[b] - A11[b] * k0[b]],
+                                 [k1[b], A10[b] * k0[b] - A00[b] * k1[b]])):
+            zi = lfiltic(num, den, XF[b, i, [tc - 1, tc - 2]], Yc[b, [tc - 1, tc - 2]])
+            XF[b, i, tc:] = lfilter(num, den, y, zi=zi)[0]
+        x0r, x1r = XF[b, 0, tc:][::-1], XF[b, 1, tc:][::-1]      # reversed, frames T-1 .. tc
+        u0 = h00[b] * x0r + h01[b] * x1r
+        u1 = h10[b] * x0r + h11[b] * x1r
+        u0[0], u1[0] = x0r[0], x1r[0]                 # s_{T-1} = x_{T-1}
+        gd = np.array([1.0, -(g00[b] + g11[b]), g00[b] * g11[b] - g01[b] * g10[b]])
+        XS[b, 0, tc:] = (lfilter([1.0, -g11[b]], gd, u0) + lfilter([0.0, g01[b]], gd, u1))[::-1]
+        XS[b, 1, tc:] = (lfilter([0.0, g10[b]], gd, u0) + lfilter([1.0, -g00[b]], gd, u1))[::-1]
+    s0, s1 = XS[:, 0, tc].copy(), XS[:, 1, tc].copy()
+    for t in range(tc - 1, -1, -1):                  # exact backward frames
+        q00, q01, q11 = PF[t]
+        p00, p01, p11 = PP[t + 1]
+        c00 = q00 * f00 + q01 * f01; c01 = q00 * f10 + q01 * f11
+        c10 = q01 * f00 + q11 * f01; c11 = q01 * f10 + q11 * f11
+        det = p00 * p11 - p01 * p01
+        i00, i01, i11 = p11 / det, -p01 / det, p00 / det
+        G00 = c00 * i00 + c01 * i01; G01 = c00 * i01 + c01 * i11
+        G10 = c10 * i00 + c11 * i01; G11 = c10 * i01 + c11 * i11
+        d0 = s0 - (f00 * XF[:, 0, t] + f01 * XF[:, 1, t])
+        d1 = s1 - (f10 * XF[:, 0, t] + f11 * XF[:, 1, t])
+        s0, s1 = XF[:, 0, t] + G00 * d0 + G01 * d1, XF[:, 1, t] + G10 * d0 + G11 * d1
+        XS[:, 0, t] = s0; XS[:, 1, t] = s1
+    return np.transpose(XS, (2, 0, 1))               # (T, B, 2), a view
 
 
 def _cv2_predict(pc: tuple, fq: tuple) -> tuple:
