@@ -410,7 +410,7 @@ def apply_policy(inp, out, *, evidence: str, method: str, policy: GapPolicy | No
     """
     pol = policy or current_policy()
     obs_in = inp.observed
-    P = np.array(out.positions, dtype=float)
+    P = out.positions                       # read-only; copied below only if samples are dropped
     has = out.observed.copy()
     miss = ~obs_in
     want = miss & has
@@ -458,7 +458,11 @@ def apply_policy(inp, out, *, evidence: str, method: str, policy: GapPolicy | No
     src = dict(out.source)
     src.pop("fill_codes", None)
     src["gap_report"] = report
-    P[~keep] = np.nan
+    drop = ~keep & has
+    if drop.any():
+        P = P.copy()
+        P[drop] = np.nan
+        P.setflags(write=False)             # handed over: the Motion shares it
     return type(out)(P, out.skeleton, out.fps, keep, src, filled)     # a Motion (no import: motion uses fill)
 
 

@@ -131,9 +131,13 @@ class Motion:
                 f"{100 * self.missing_fraction:.1f}% missing{', ' + str(src) if src else ''})")
 
     # -- matrix view used by the papers -------------------------------------------------------
-    def matrix(self) -> np.ndarray:
-        """Frame-by-coordinate matrix (T, 3J), columns x0, y0, z0, x1, ... (cm; NaN = missing)."""
-        return self.positions.reshape(self.n_frames, -1).copy()
+    def matrix(self, copy: bool = True) -> np.ndarray:
+        """Frame-by-coordinate matrix (T, 3J), columns x0, y0, z0, x1, ... (cm; NaN = missing).
+
+        ``copy=False``: a read-only view of the positions (no copy of a long clip), for
+        code that only reads it."""
+        X = self.positions.reshape(self.n_frames, -1)
+        return X.copy() if copy else X
 
     def matrix_mask(self) -> np.ndarray:
         """Observed mask expanded to the (T, 3J) matrix layout."""

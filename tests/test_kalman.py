@@ -66,6 +66,26 @@ def test_steady_state_lti_path_equals_dense_and_per_frame(rng, monkeypatch):
     np.testing.assert_allclose(xs, ref, rtol=0, atol=1e-9)
 
 
+def test_steady_state_random_walk_path_equals_dense(rng):
+    """The one-state (random-walk) model, every frame observed: the constant-gain path
+    (rts._rts1_steady) equals the dense posterior."""
+    from mocapkit.signal import rts
+
+    T, B = 400, 3
+    F = np.array([[1.0]])
+    Q = rng.uniform(0.05, 0.5, B)[:, None, None]
+    Y = np.cumsum(rng.normal(size=(T, B)), axis=0) + rng.normal(size=(T, B))
+    M = np.ones((T, B), bool)
+    R = rng.uniform(0.5, 2.0, B)
+    x0, P0 = Y[:1].T.copy(), np.full((B, 1, 1), 4.0)
+    assert rts._rts1_steady(Y, R, 1.0, Q[:, 0, 0], x0[:, 0], P0[:, 0, 0]) is not None
+    xs, _ = signal.rts_smoother(Y, M, F=F, Q=Q, R=R, x0=x0, P0=P0)
+    for b in range(B):
+        mu, _ = _dense_posterior(Y[:, b:b + 1], M[:, b:b + 1], F=F, Q=Q[b], R=R[b:b + 1],
+                                 H=np.eye(1), x0=x0[b], P0=P0[b])
+        np.testing.assert_allclose(xs[:, b], mu, atol=1e-8)
+
+
 def test_generic_batched_vector_path_equals_dense(rng):
     """B > 1 filters with vector observations (p <= n): the generic gain-form path."""
     T, n, p = 8, 3, 2

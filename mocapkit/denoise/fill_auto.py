@@ -334,7 +334,7 @@ class FillAuto(Denoiser):
 
         Y = np.array(motion.positions)
         names = [n for n, _ in methods]
-        noise = estimate_noise(motion.matrix(), motion.matrix_mask(), pool="all", fallback=0.0)      # cm
+        noise = estimate_noise(motion.matrix(copy=False), motion.matrix_mask(), pool="all", fallback=0.0)      # cm
         codes = np.full(motion.observed.shape, -1, dtype=np.int8)
         emap = np.full(motion.observed.shape, np.nan)      # validated error per filled frame
         chosen = dict.fromkeys(names, 0)

@@ -47,7 +47,7 @@ def require_observed_joints(motion: Motion, method: str) -> None:
 def filled_matrix(motion: Motion, method: str, kind: str = "cubic", ends: str = "nearest") -> np.ndarray:
     """(T, 3J) matrix of ``motion`` with gaps filled by :func:`mocapkit.gaps.fill`."""
     require_observed_joints(motion, method)
-    return gaps.fill(motion.matrix(), motion.matrix_mask(), kind=kind, ends=ends)
+    return gaps.fill(motion.matrix(copy=False), motion.matrix_mask(), kind=kind, ends=ends)
 
 
 #: end handling of :func:`mocapkit.signal.gaussian`: 'odd' or a scipy.ndimage mode
@@ -269,7 +269,7 @@ class GCVSpline(Denoiser):
 
     def denoise(self, motion: Motion) -> Motion:
         require_observed_joints(motion, self.name)
-        X, M = motion.matrix(), motion.matrix_mask()
+        X, M = motion.matrix(copy=False), motion.matrix_mask()    # read only
         f, info = gcv_smooth(X, M, order=self.order, robust=bool(self.robust), group=3,
                              min_scale=float(self.min_scale_cm))
         return motion.with_matrix(f).with_source(gcv_spline=gcv_summary(info, motion.fps, self.order))

@@ -139,7 +139,7 @@ class KalmanCV(Denoiser):
     @_linalg.one_blas_thread
     def denoise(self, motion: Motion) -> Motion:
         require_observed_joints(motion, self.name)
-        X, M = motion.matrix(), motion.matrix_mask()
+        X, M = motion.matrix(copy=False), motion.matrix_mask()      # read only: no copy
         T, C = X.shape
         dt = 1.0 / motion.fps
         sigma = _noise_sigma(X, M, self.measurement_sigma_cm)
@@ -190,7 +190,7 @@ class KalmanIdentity(Denoiser):
     @_linalg.one_blas_thread
     def denoise(self, motion: Motion) -> Motion:
         require_observed_joints(motion, self.name)
-        X, M = motion.matrix(), motion.matrix_mask()
+        X, M = motion.matrix(copy=False), motion.matrix_mask()      # read only: no copy
         sigma = _noise_sigma(X, M, self.measurement_sigma_cm)
         dt = 1.0 / motion.fps
         if self.process_sigma_cm is not None:

@@ -281,7 +281,7 @@ class PSC(Denoiser):
         frame = _local_frame(motion, known)
         P = np.where(known[..., None], motion.positions, 0.0)
         L = frame.to_local(P)
-        L_lin = frame.to_local(gaps.fill(motion.matrix(), np.repeat(known, 3, axis=1),
+        L_lin = frame.to_local(gaps.fill(motion.matrix(copy=False), np.repeat(known, 3, axis=1),
                                          never_observed=0.0).reshape(P.shape))
         acc = np.zeros_like(L)
         cnt = np.zeros(L.shape[:2])

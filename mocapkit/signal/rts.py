@@ -15,7 +15,7 @@ Three code paths, same result (tests compare each with a dense solve):
   random-walk filters): the 2 x 2 algebra written out on (B,) component arrays, RTS
   gains for all frames in one vectorised step (:func:`_rts_scalar`); with every frame
   observed and no gate, the frames after the covariances settle run as constant-gain
-  filters (``lfilter``, :func:`_rts2_steady`);
+  filters (``lfilter``, :func:`_rts2_steady`, :func:`_rts1_steady`);
 * p > n, or a single vector-observed model (B = 1) without gate (e.g. a PCA-latent
   pose model): :func:`_rts_multi` -- information or Woodbury form, Hᵀ W H
   precomputed per mask pattern, covariances reused once the Riccati recursion is
@@ -404,6 +404,10 @@ def _rts_scalar(Y, M, F, Q, R, x0, P0, gt):
     if n == 1:
         f = float(F[0, 0])
         q = np.ascontiguousarray(Q[:, 0, 0])
+        if gt is None and used.all():
+            xs = _rts1_steady(Y, R, f, q, x0[:, 0], P0[:, 0, 0])
+            if xs is not None:
+                return xs[:, :, None], used
         x = x0[:, 0].copy()
         P = P0[:, 0, 0].copy()
         xf = np.empty((T, B)); Pf = np.empty((T, B)); Pp = np.empty((T, B))
@@ -518,8 +522,8 @@ def _rts2_steady(Y: np.ndarray, R: np.ndarray, fq: tuple, x0: np.ndarray,
         pc = _cv2_predict(PF[-1], fq)
         PP.append(pc)
         PF.append(_cv2_update(pc, 1.0 / (pc[0] + R)))
-    # channel-major (B, 2, T): each channel's filters read and write contiguous rows
-    Yc = np.ascontiguousarray(Y.T)
+    # channel-major (B, 2, T): each channel's filters write contiguous rows (the input
+    # columns are read strided: a transposed copy would cost the input's size again)
     XF = np.empty((B, 2, T))
     a0, a1 = x0[:, 0].copy(), x0[:, 1].copy()
     for t in range(tc):                              # exact forward frames
@@ -527,7 +531,7 @@ def _rts2_steady(Y: np.ndarray, R: np.ndarray, fq: tuple, x0: np.ndarray,
             a0, a1 = f00 * a0 + f01 * a1, f10 * a0 + f11 * a1
         p00, p01 = PP[t][0], PP[t][1]
         inv_s = 1.0 / (p00 + R)
-        nu = Yc[:, t] - a0
+        nu = Y[t] - a0
         a0, a1 = a0 + p00 * inv_s * nu, a1 + p01 * inv_s * nu
         XF[:, 0, t] = a0; XF[:, 1, t] = a1
     # steady gains (B,): K from the settled predicted covariance, G from filtered / predicted
@@ -545,15 +549,15 @@ def _rts2_steady(Y: np.ndarray, R: np.ndarray, fq: tuple, x0: np.ndarray,
     # u = (I - G F) x
     h00 = 1 - (g00 * f00 + g01 * f10); h01 = -(g00 * f01 + g01 * f11)
     h10 = -(g10 * f00 + g11 * f10); h11 = 1 - (g10 * f01 + g11 * f11)
-    XS = np.empty((B, 2, T))
+    XS = XF                                          # smoothed means overwrite the filtered ones
     for b in range(B):                               # a loop over channels, not frames
         den = np.array([1.0, -(A00[b] + A11[b]), A00[b] * A11[b] - A01[b] * A10[b]])
-        y = Yc[b, tc:]
+        y = Y[tc:, b]
         for i, num in enumerate(([k0[b], A01[b] * k1[b] - A11[b] * k0[b]],
                                  [k1[b], A10[b] * k0[b] - A00[b] * k1[b]])):
-            zi = lfiltic(num, den, XF[b, i, [tc - 1, tc - 2]], Yc[b, [tc - 1, tc - 2]])
+            zi = lfiltic(num, den, XF[b, i, [tc - 1, tc - 2]], Y[[tc - 1, tc - 2], b])
             XF[b, i, tc:] = lfilter(num, den, y, zi=zi)[0]
-        x0r, x1r = XF[b, 0, tc:][::-1], XF[b, 1, tc:][::-1]      # reversed, frames T-1 .. tc
+        x0r, x1r = XF[b, 0, tc:][::-1].copy(), XF[b, 1, tc:][::-1].copy()   # reversed, T-1 .. tc
         u0 = h00[b] * x0r + h01[b] * x1r
         u1 = h10[b] * x0r + h11[b] * x1r
         u0[0], u1[0] = x0r[0], x1r[0]                 # s_{T-1} = x_{T-1}
@@ -575,6 +579,60 @@ def _rts2_steady(Y: np.ndarray, R: np.ndarray, fq: tuple, x0: np.ndarray,
         s0, s1 = XF[:, 0, t] + G00 * d0 + G01 * d1, XF[:, 1, t] + G10 * d0 + G11 * d1
         XS[:, 0, t] = s0; XS[:, 1, t] = s1
     return np.transpose(XS, (2, 0, 1))               # (T, B, 2), a view
+
+
+def _rts1_steady(Y: np.ndarray, R: np.ndarray, f: float, q: np.ndarray, x0: np.ndarray,
+                 P0: np.ndarray) -> np.ndarray | None:
+    """:func:`_rts_scalar` for one state (n = 1) observed in every frame, without a gate:
+    (T, B) smoothed means, or None when the variance does not settle within the first half
+    of the clip. As :func:`_rts2_steady`: exact recursions up to the frame ``tc`` where
+    the variances have settled, then the constant-gain forward filter
+    ``x_t = (1 - k) f x_{t-1} + k y_t`` and backward smoother
+    ``s_t = G s_{t+1} + (1 - G f) x_t`` by ``lfilter`` per channel."""
+    from scipy.signal import lfilter, lfiltic
+
+    T, B = Y.shape
+    if T < 64:
+        return None
+    P = P0.copy()
+    PP, PF = [], []
+    tc = None
+    for t in range(T // 2):
+        if t > 0:
+            P = f * f * PF[-1] + q
+        PP.append(P)
+        PF.append(P - P * P / (P + R))
+        if t > 0 and np.all(np.abs(PF[-1] - PF[-2]) <= _STEADY_TOL * np.abs(PF[-2])):
+            tc = t + 2
+            break
+    if tc is None or tc >= T - 2:
+        return None
+    for _ in range(len(PF), tc + 1):
+        P = f * f * PF[-1] + q
+        PP.append(P)
+        PF.append(P - P * P / (P + R))
+    XF = np.empty((B, T))                            # channel-major, as _rts2_steady
+    x = x0.copy()
+    for t in range(tc):                              # exact forward frames
+        if t > 0:
+            x = f * x
+        x = x + PP[t] / (PP[t] + R) * (Y[t] - x)
+        XF[:, t] = x
+    k = PP[tc] / (PP[tc] + R)
+    G = PF[tc] * f / PP[tc]
+    for b in range(B):                               # a loop over channels, not frames
+        num, den = [k[b]], [1.0, -(1.0 - k[b]) * f]
+        zi = lfiltic(num, den, XF[b, [tc - 1]], Y[[tc - 1], b])
+        XF[b, tc:] = lfilter(num, den, Y[tc:, b], zi=zi)[0]
+        u = (1.0 - G[b] * f) * XF[b, tc:][::-1]
+        u[0] = XF[b, -1]                              # s_{T-1} = x_{T-1}
+        XF[b, tc:] = lfilter([1.0], [1.0, -G[b]], u)[::-1]
+    s = XF[:, tc].copy()
+    for t in range(tc - 1, -1, -1):                  # exact backward frames
+        g = PF[t] * f / PP[t + 1]
+        s = XF[:, t] + g * (s - f * XF[:, t])
+        XF[:, t] = s
+    return XF.T                                      # (T, B), a view
 
 
 def _cv2_predict(pc: tuple, fq: tuple) -> tuple:

@@ -224,7 +224,7 @@ def gcv_smooth(X, mask=None, *, order: int = 2, s: float | np.ndarray | None = N
                               f"no observed sample")
     s_fixed = None if s is None else np.broadcast_to(np.asarray(s, float), (C,)).copy()
     from ..gaps import fill                           # the one gap filler
-    Y0 = fill(np.where(M, Y, np.nan), M)
+    Y0 = fill(Y, M)                                  # a copy; samples outside M interpolated
     W = M.astype(float)
     f, s_ = _select_and_fit(Y0, W, order, s_fixed, Y0)
     n_iter = 0
