@@ -253,7 +253,8 @@ class FillPCA(Denoiser):
 
     Translation and heading are taken out by a visibility-robust template fit, coordinates
     are normalised, markers weighted by ``exp(-d^2 / 2 sigma^2)`` (distance to the missing
-    marker, sigma 20 cm = the paper's 200 mm), the PCA of the weighted complete frames keeps
+    marker, sigma 20 cm = the paper's 200 mm, widened up to 40 cm for a marker whose 3
+    nearest markers lie farther than 2 sigma), the PCA of the weighted complete frames keeps
     99 % of the cumulative singular values, and each gap frame's scores are fitted by least
     squares to the coordinates observed there. The fill meant for long and edge gaps of a
     moving subject. **Fallback:** frames of a gap for which no donor set of >= ``min_donors``

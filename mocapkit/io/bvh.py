@@ -541,7 +541,8 @@ def _parse_fast(path, raw: bytes):
 
     The header goes through :func:`_parse_header` (any error there: None, so the line
     parser reports it exactly as before); the frame lines are converted in blocks of
-    :data:`_BLOCK_BYTES` by ``np.fromstring`` with the token count of every line taken
+    :data:`_BLOCK_BYTES` by ``np.loadtxt`` (:meth:`_BodyReader._clean_block`); a block it
+    refuses is re-read by ``np.fromstring`` with the token count of every line taken
     from the bytes, and every error the line parser reports is reported the same way
     (same message, same line number, same precedence).
     """

@@ -539,13 +539,7 @@ def _rts2_steady(Y: np.ndarray, R: np.ndarray, fq: tuple, x0: np.ndarray,
     k0, k1 = p00 / (p00 + R), p01 / (p00 + R)
     A00, A01 = (1 - k0) * f00, (1 - k0) * f01                  # (I - K e0^T) F
     A10, A11 = f10 - k1 * f00, f11 - k1 * f01
-    q00, q01, q11 = PF[tc]
-    c00 = q00 * f00 + q01 * f01; c01 = q00 * f10 + q01 * f11   # Pf F^T
-    c10 = q01 * f00 + q11 * f01; c11 = q01 * f10 + q11 * f11
-    det = p00 * p11 - p01 * p01                                # Pp (steady) inverse
-    i00, i01, i11 = p11 / det, -p01 / det, p00 / det
-    g00 = c00 * i00 + c01 * i01; g01 = c00 * i01 + c01 * i11
-    g10 = c10 * i00 + c11 * i01; g11 = c10 * i01 + c11 * i11
+    g00, g01, g10, g11 = _gain2(PF[tc], PP[tc], fq[:4])       # steady: Pp[tc+1] = Pp[tc]
     # u = (I - G F) x
     h00 = 1 - (g00 * f00 + g01 * f10); h01 = -(g00 * f01 + g01 * f11)
     h10 = -(g10 * f00 + g11 * f10); h11 = 1 - (g10 * f01 + g11 * f11)
@@ -566,14 +560,7 @@ def _rts2_steady(Y: np.ndarray, R: np.ndarray, fq: tuple, x0: np.ndarray,
         XS[b, 1, tc:] = (lfilter([0.0, g10[b]], gd, u0) + lfilter([1.0, -g00[b]], gd, u1))[::-1]
     s0, s1 = XS[:, 0, tc].copy(), XS[:, 1, tc].copy()
     for t in range(tc - 1, -1, -1):                  # exact backward frames
-        q00, q01, q11 = PF[t]
-        p00, p01, p11 = PP[t + 1]
-        c00 = q00 * f00 + q01 * f01; c01 = q00 * f10 + q01 * f11
-        c10 = q01 * f00 + q11 * f01; c11 = q01 * f10 + q11 * f11
-        det = p00 * p11 - p01 * p01
-        i00, i01, i11 = p11 / det, -p01 / det, p00 / det
-        G00 = c00 * i00 + c01 * i01; G01 = c00 * i01 + c01 * i11
-        G10 = c10 * i00 + c11 * i01; G11 = c10 * i01 + c11 * i11
+        G00, G01, G10, G11 = _gain2(PF[t], PP[t + 1], fq[:4])
         d0 = s0 - (f00 * XF[:, 0, t] + f01 * XF[:, 1, t])
         d1 = s1 - (f10 * XF[:, 0, t] + f11 * XF[:, 1, t])
         s0, s1 = XF[:, 0, t] + G00 * d0 + G01 * d1, XF[:, 1, t] + G10 * d0 + G11 * d1
@@ -654,6 +641,21 @@ def _cv2_update(pc: tuple, inv_s: np.ndarray) -> tuple:
     return p00 - k0 * p00, p01 - k0 * p01, p11 - k1 * p01
 
 
+def _gain2(pf: tuple, pp: tuple, f: tuple) -> tuple:
+    """RTS gain ``G = Pf F^T Pp^-1`` of the 2 x 2 model from the components (p00, p01,
+    p11) of the filtered and next predicted covariances (arrays of any shape) and F's
+    (f00, f01, f10, f11); returns (g00, g01, g10, g11)."""
+    f00, f01, f10, f11 = f
+    a00, a01, a11 = pf
+    c00 = a00 * f00 + a01 * f01; c01 = a00 * f10 + a01 * f11      # Pf Fᵀ (2x2, not symmetric)
+    c10 = a01 * f00 + a11 * f01; c11 = a01 * f10 + a11 * f11
+    b00, b01, b11 = pp
+    det = b00 * b11 - b01 * b01
+    i00, i01, i11 = b11 / det, -b01 / det, b00 / det
+    return (c00 * i00 + c01 * i01, c00 * i01 + c01 * i11,
+            c10 * i00 + c11 * i01, c10 * i01 + c11 * i11)
+
+
 def _rts2_backward(XF: np.ndarray, used: np.ndarray, R: np.ndarray, fq: tuple,
                    marks: dict, stored: tuple | None = None) -> None:
     """RTS backward pass of :func:`_rts_scalar`, overwriting the filtered means XF (T, 2, B)
@@ -682,14 +684,8 @@ def _rts2_backward(XF: np.ndarray, used: np.ndarray, R: np.ndarray, fq: tuple,
                 PF[t - lo] = pc
                 pc = _cv2_predict(pc, fq)
                 PN[t - lo] = pc
-        a00, a01, a11 = PF[:, 0], PF[:, 1], PF[:, 2]
-        c00 = a00 * f00 + a01 * f01; c01 = a00 * f10 + a01 * f11      # Pf Fᵀ (2x2, not symmetric)
-        c10 = a01 * f00 + a11 * f01; c11 = a01 * f10 + a11 * f11
-        b00, b01, b11 = PN[:, 0], PN[:, 1], PN[:, 2]
-        det = b00 * b11 - b01 * b01
-        i00, i01, i11 = b11 / det, -b01 / det, b00 / det
-        g00 = c00 * i00 + c01 * i01; g01 = c00 * i01 + c01 * i11
-        g10 = c10 * i00 + c11 * i01; g11 = c10 * i01 + c11 * i11
+        g00, g01, g10, g11 = _gain2((PF[:, 0], PF[:, 1], PF[:, 2]), (PN[:, 0], PN[:, 1], PN[:, 2]),
+                                    (f00, f01, f10, f11))
         # predicted means x_pred[t+1] = F x_f[t]
         xp0 = f00 * XF[lo:hi, 0] + f01 * XF[lo:hi, 1]
         xp1 = f10 * XF[lo:hi, 0] + f11 * XF[lo:hi, 1]
