@@ -121,10 +121,12 @@ _INSIDE = contextvars.ContextVar("mocapkit_denoise_depth", default=0)
 def _recentre_offset(motion: Motion) -> np.ndarray:
     """(3,) offset, a whole number of RECENTRE_STEP_CM per axis, that brings the centre of
     the observed capture volume within half a step of the origin (0 for normal data)."""
-    P = motion.positions[motion.observed]
-    if len(P) == 0:
+    if not motion.observed.any():
         return np.zeros(3)
-    centre = 0.5 * (P.min(axis=0) + P.max(axis=0))
+    # NaN where unobserved (a Motion's rule), so fmin / fmax reduce the observed samples
+    # without gathering them into a copy
+    P = motion.positions.reshape(-1, 3)
+    centre = 0.5 * (np.fmin.reduce(P, axis=0) + np.fmax.reduce(P, axis=0))
     if np.abs(centre).max() <= RECENTRE_BEYOND_CM:
         return np.zeros(3)
     return np.round(centre / RECENTRE_STEP_CM) * RECENTRE_STEP_CM
