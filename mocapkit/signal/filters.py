@@ -22,7 +22,7 @@ from typing import Literal
 import numpy as np
 
 from ..errors import MocapValueError
-from ._arrays import as_2d, require_finite, restore
+from ._arrays import as_2d, by_channel_blocks, require_finite, restore
 
 __all__ = ["gaussian", "butterworth", "savgol", "median", "hampel", "hampel_residuals"]
 
@@ -158,7 +158,7 @@ def butterworth(X, /, *, fs: float, cutoff_hz: float, order: int = 4, axis: int 
             f"Use a lower order or the 'gaussian' method for such short clips")
     n = max(min_pad, int(round(fs / cutoff_hz))) if padlen is None else int(padlen)
     P, n = _pad_trend(A, n, max(2, int(round(fs / cutoff_hz / 2))))
-    Y = sosfiltfilt(sos, P, axis=0, padtype=None)[n:n + T]
+    Y = by_channel_blocks(lambda B: sosfiltfilt(sos, B, axis=-1, padtype=None), P)[n:n + T]
     return restore(Y, shape, axis)
 
 

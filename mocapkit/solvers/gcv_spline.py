@@ -98,6 +98,11 @@ def cutoff_hz(s: np.ndarray | float, order: int, fps: float) -> np.ndarray:
     return np.arccos(c) / (2 * np.pi) * fps
 
 
+#: frequencies per block of :func:`_choose_s` (on a 100,000-frame clip the whole
+#: (grid, n) gain matrix took 54x the time of a 10,000-frame one)
+_FREQ_BLOCK = 4096
+
+
 def _choose_s(Yd: np.ndarray, lam: np.ndarray, n_obs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Per-channel s minimising (W2) on the grid, refined by a parabola in log s.
 
@@ -105,9 +110,12 @@ def _choose_s(Yd: np.ndarray, lam: np.ndarray, n_obs: np.ndarray) -> tuple[np.nd
     and the minimum log GCV score (C,) (comparable between penalty orders).
     """
     n = Yd.shape[0]
-    G = 1.0 / (1.0 + _GRID[:, None] * lam[None, :])            # (grid, n)
-    rss = ((1.0 - G) ** 2) @ (Yd ** 2)                           # (grid, C)
-    tr = G.sum(axis=1)                                           # (grid,)
+    rss = np.zeros((len(_GRID), Yd.shape[1]))                    # (grid, C)
+    tr = np.zeros(len(_GRID))                                    # (grid,)
+    for a in range(0, n, _FREQ_BLOCK):       # blocks of frequencies: (grid, block) stays in cache
+        G = 1.0 / (1.0 + _GRID[:, None] * lam[None, a:a + _FREQ_BLOCK])
+        rss += ((1.0 - G) ** 2) @ (Yd[a:a + _FREQ_BLOCK] ** 2)
+        tr += G.sum(axis=1)
     # Garcia (2010) eq. 9: RSS over the observed samples, tr(H)/n over all of them
     score = np.log(rss / n_obs + 1e-300) - 2 * np.log(np.maximum(1 - tr / n, 1e-12))[:, None]
     i = np.clip(np.argmin(score, axis=0), 1, len(_GRID) - 2)
