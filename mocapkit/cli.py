@@ -876,6 +876,7 @@ def _no_hugepages() -> None:
     switch as numpy's ``NUMPY_MADVISE_HUGEPAGE=0``, which the user's setting overrides."""
     if os.environ.get("NUMPY_MADVISE_HUGEPAGE") is not None:
         return
+    os.environ["NUMPY_MADVISE_HUGEPAGE"] = "0"          # worker processes (batch) inherit it
     try:
         from numpy._core.multiarray import _set_madvise_hugepage
     except ImportError:                       # another numpy layout: keep its default
