@@ -486,7 +486,8 @@ def _rts2_steady(Y: np.ndarray, R: np.ndarray, fq: tuple, x0: np.ndarray,
     settled (relative change < :data:`_STEADY_TOL`, plus two frames) the Kalman gain K and
     the smoother gain G are constant, so both passes are linear time-invariant
     recursions, run by ``scipy.signal.lfilter`` (C) per channel instead of a Python loop
-    over frames (200,000 frames x 87 channels: 16 s -> about 1 s):
+    over frames (kalman-cv on 200,000 frames x 87 channels, the whole ``denoise``:
+    16.2 s -> 6.1 s):
 
     * forward, ``x_t = A x_{t-1} + K y_t`` with ``A = (I - K e0^T) F``: each state is a
       second-order filter of y, ``(adj(I - A z^-1) K) / det(I - A z^-1)``, started from
@@ -495,7 +496,7 @@ def _rts2_steady(Y: np.ndarray, R: np.ndarray, fq: tuple, x0: np.ndarray,
       two outputs, run on the reversed frames from zero.
 
     Frames before tc go through the exact per-frame recursions. Agrees with the per-frame
-    path to ~1e-12 relative (tests/test_rts.py)."""
+    path to ~1e-12 relative (tests/test_kalman.py)."""
     from scipy.signal import lfilter, lfiltic
 
     T, B = Y.shape
