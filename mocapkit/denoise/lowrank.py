@@ -83,7 +83,7 @@ def _check_frames(n: int, method: str, what: str) -> None:
 
 def _inputs(motion: Motion, method: str) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
     """(T, 3J) data with missing entries as NaN, its mask (None when complete), linear fill."""
-    X = motion.matrix()                    # (a Motion: checked by the base class)
+    X = motion.matrix(copy=False)          # read only (the solvers copy what they change)
     mask = motion.matrix_mask()
     if not mask.any():
         raise MocapValueError(f"{method}: the motion has no observed entries")
