@@ -87,8 +87,10 @@ def _inputs(motion: Motion, method: str) -> tuple[np.ndarray, np.ndarray | None,
     mask = motion.matrix_mask()
     if not mask.any():
         raise MocapValueError(f"{method}: the motion has no observed entries")
+    if mask.all():                         # complete: the linear fill is the data itself
+        return X, None, X
     lin = gaps.fill(X, mask, never_observed=0.0)
-    return X, (None if mask.all() else mask), lin
+    return X, mask, lin
 
 
 def _centre(X: np.ndarray, mask: np.ndarray | None, how: str) -> np.ndarray:
