@@ -152,16 +152,6 @@ def apply_rigid(R: np.ndarray, t: np.ndarray, X: np.ndarray) -> np.ndarray:
 
 
 # -- clusters -----------------------------------------------------------------------------
-def outside_range(d: np.ndarray, lo: np.ndarray, hi: np.ndarray, slack_cm: float = 5.0) -> np.ndarray:
-    """True where a distance ``d`` leaves the range ``[lo, hi]`` seen in the data by more
-    than ``max(slack_cm, 25 % of the range)`` (all cm, broadcast); False where ``d`` is NaN.
-    The one plausibility rule of the fills: a filled marker must keep its distances to the
-    markers seen beside it inside what the capture showed."""
-    slack = np.maximum(float(slack_cm), 0.25 * (hi - lo))
-    with np.errstate(invalid="ignore"):
-        return (d < lo - slack) | (d > hi + slack)
-
-
 def distance_stats(P: np.ndarray, observed: np.ndarray, *, chunk: int = 2048,
                    return_range: bool = False):
     """Mean and standard deviation of every pairwise marker distance over the frames where

@@ -45,6 +45,7 @@ def test_steady_state_lti_path_equals_dense_and_per_frame(rng, monkeypatch):
     and the per-frame recursion."""
     from mocapkit.signal import rts
 
+    monkeypatch.setattr(rts, "_STEADY_MIN_FRAMES", 64)      # short, for the dense solve
     T, B = 150, 3
     F = np.array([[1.0, 1.0], [0.0, 1.0]])
     q = rng.uniform(0.01, 0.5, B)
@@ -66,11 +67,12 @@ def test_steady_state_lti_path_equals_dense_and_per_frame(rng, monkeypatch):
     np.testing.assert_allclose(xs, ref, rtol=0, atol=1e-9)
 
 
-def test_steady_state_random_walk_path_equals_dense(rng):
+def test_steady_state_random_walk_path_equals_dense(rng, monkeypatch):
     """The one-state (random-walk) model, every frame observed: the constant-gain path
     (rts._rts1_steady) equals the dense posterior."""
     from mocapkit.signal import rts
 
+    monkeypatch.setattr(rts, "_STEADY_MIN_FRAMES", 64)      # short, for the dense solve
     T, B = 400, 3
     F = np.array([[1.0]])
     Q = rng.uniform(0.05, 0.5, B)[:, None, None]

@@ -517,7 +517,7 @@ def attach_dropped(kept: np.ndarray, skeleton: Skeleton, joints: Sequence[str], 
     if not drop or len(src) < 8:                # the spline needs 8 frames
         return rigid
     M = np.repeat(obs[:, drop], 3, axis=1)
-    fit, _ = gcv_smooth(np.where(M, src[:, drop].reshape(len(src), -1), np.nan), M, validate=False)
+    fit, _ = gcv_smooth(src[:, drop].reshape(len(src), -1), M, validate=False)   # M: what it may use
     out = rigid.copy()
     ok = obs[:, drop]
     sub = out[:, drop]

@@ -469,9 +469,16 @@ def _rts_scalar(Y, M, F, Q, R, x0, P0, gt):
     return np.moveaxis(XF, 1, 2), used
 
 
+_STEADY_MIN_FRAMES = 1024
+"""Shortest clip given to :func:`_rts2_steady` / :func:`_rts1_steady`. On CMU clips the
+covariances settled after 30-250 frames (kalman-cv, 0.5-3 cm noise, 30 and 120 fps), but a
+clip of a few hundred frames often does not settle within its first half, and then the
+covariance steps tried are done again by the per-frame path; short clips take that path
+directly (they are fast either way)."""
+
 _STEADY_TOL = 1e-13
-"""Relative change of every covariance component below which :func:`_rts2_steady` takes
-the gains as constant."""
+"""Relative change of every covariance component below which :func:`_rts2_steady` and
+:func:`_rts1_steady` take the gains as constant."""
 
 
 def _rts2_steady(Y: np.ndarray, R: np.ndarray, fq: tuple, x0: np.ndarray,
@@ -481,8 +488,8 @@ def _rts2_steady(Y: np.ndarray, R: np.ndarray, fq: tuple, x0: np.ndarray,
     first half of the clip.
 
     Why: the covariance recursion does not depend on the data, and with every frame
-    observed it converges geometrically to its steady state (the Riccati fixed point)
-    within tens to hundreds of frames. From the frame ``tc`` where every component has
+    observed it converges geometrically to its steady state (the Riccati fixed point):
+    30-250 frames on CMU clips (:data:`_STEADY_MIN_FRAMES`). From the frame ``tc`` where every component has
     settled (relative change < :data:`_STEADY_TOL`, plus two frames) the Kalman gain K and
     the smoother gain G are constant, so both passes are linear time-invariant
     recursions, run by ``scipy.signal.lfilter`` (C) per channel instead of a Python loop
@@ -501,28 +508,20 @@ def _rts2_steady(Y: np.ndarray, R: np.ndarray, fq: tuple, x0: np.ndarray,
 
     T, B = Y.shape
     f00, f01, f10, f11 = fq[:4]
-    if T < 64:
+    if T < _STEADY_MIN_FRAMES:
         return None
-    pc = (P0[:, 0, 0].copy(), P0[:, 0, 1].copy(), P0[:, 1, 1].copy())
-    PP, PF = [], []                                  # predicted / filtered, frames 0..tc
+    PP = [(P0[:, 0, 0].copy(), P0[:, 0, 1].copy(), P0[:, 1, 1].copy())]   # predicted, frames 0..tc
+    PF = [_cv2_update(PP[0], 1.0 / (PP[0][0] + R))]                         # filtered
     tc = None
-    for t in range(T // 2):
-        if t > 0:
-            pc = _cv2_predict(pc, fq)
-        PP.append(pc)
-        new = _cv2_update(pc, 1.0 / (pc[0] + R))
-        if t > 0 and all(np.all(np.abs(a - b) <= _STEADY_TOL * np.abs(b)) for a, b in zip(new, PF[-1])):
-            tc = t + 2
-            PF.append(new)
+    for t in range(1, T // 2 + 3):                   # the covariances only: (B,) vectors
+        PP.append(_cv2_predict(PF[-1], fq))
+        PF.append(_cv2_update(PP[-1], 1.0 / (PP[-1][0] + R)))
+        if tc is None and all(np.all(np.abs(a - b) <= _STEADY_TOL * np.abs(b)) for a, b in zip(PF[-1], PF[-2])):
+            tc = t + 2                               # settled at t; two more frames to be sure
+        if t == tc:
             break
-        PF.append(new)
-        pc = new
-    if tc is None or tc >= T - 2:
+    if tc is None or tc >= T - 2 or len(PF) < tc + 1:
         return None
-    for _ in range(len(PF), tc + 1):                 # two more settled frames
-        pc = _cv2_predict(PF[-1], fq)
-        PP.append(pc)
-        PF.append(_cv2_update(pc, 1.0 / (pc[0] + R)))
     # channel-major (B, 2, T): each channel's filters write contiguous rows (the input
     # columns are read strided: a transposed copy would cost the input's size again)
     XF = np.empty((B, 2, T))
@@ -544,8 +543,7 @@ def _rts2_steady(Y: np.ndarray, R: np.ndarray, fq: tuple, x0: np.ndarray,
     # u = (I - G F) x
     h00 = 1 - (g00 * f00 + g01 * f10); h01 = -(g00 * f01 + g01 * f11)
     h10 = -(g10 * f00 + g11 * f10); h11 = 1 - (g10 * f01 + g11 * f11)
-    XS = XF                                          # smoothed means overwrite the filtered ones
-    for b in range(B):                               # a loop over channels, not frames
+    for b in range(B):           # a loop over channels, not frames; smoothed means overwrite XF
         den = np.array([1.0, -(A00[b] + A11[b]), A00[b] * A11[b] - A01[b] * A10[b]])
         y = Y[tc:, b]
         for i, num in enumerate(([k0[b], A01[b] * k1[b] - A11[b] * k0[b]],
@@ -557,16 +555,16 @@ def _rts2_steady(Y: np.ndarray, R: np.ndarray, fq: tuple, x0: np.ndarray,
         u1 = h10[b] * x0r + h11[b] * x1r
         u0[0], u1[0] = x0r[0], x1r[0]                 # s_{T-1} = x_{T-1}
         gd = np.array([1.0, -(g00[b] + g11[b]), g00[b] * g11[b] - g01[b] * g10[b]])
-        XS[b, 0, tc:] = (lfilter([1.0, -g11[b]], gd, u0) + lfilter([0.0, g01[b]], gd, u1))[::-1]
-        XS[b, 1, tc:] = (lfilter([0.0, g10[b]], gd, u0) + lfilter([1.0, -g00[b]], gd, u1))[::-1]
-    s0, s1 = XS[:, 0, tc].copy(), XS[:, 1, tc].copy()
+        XF[b, 0, tc:] = (lfilter([1.0, -g11[b]], gd, u0) + lfilter([0.0, g01[b]], gd, u1))[::-1]
+        XF[b, 1, tc:] = (lfilter([0.0, g10[b]], gd, u0) + lfilter([1.0, -g00[b]], gd, u1))[::-1]
+    s0, s1 = XF[:, 0, tc].copy(), XF[:, 1, tc].copy()
     for t in range(tc - 1, -1, -1):                  # exact backward frames
         G00, G01, G10, G11 = _gain2(PF[t], PP[t + 1], fq[:4])
         d0 = s0 - (f00 * XF[:, 0, t] + f01 * XF[:, 1, t])
         d1 = s1 - (f10 * XF[:, 0, t] + f11 * XF[:, 1, t])
         s0, s1 = XF[:, 0, t] + G00 * d0 + G01 * d1, XF[:, 1, t] + G10 * d0 + G11 * d1
-        XS[:, 0, t] = s0; XS[:, 1, t] = s1
-    return np.transpose(XS, (2, 0, 1))               # (T, B, 2), a view
+        XF[:, 0, t] = s0; XF[:, 1, t] = s1
+    return np.transpose(XF, (2, 0, 1))               # (T, B, 2), a view
 
 
 def _rts1_steady(Y: np.ndarray, R: np.ndarray, f: float, q: np.ndarray, x0: np.ndarray,
@@ -580,25 +578,20 @@ def _rts1_steady(Y: np.ndarray, R: np.ndarray, f: float, q: np.ndarray, x0: np.n
     from scipy.signal import lfilter, lfiltic
 
     T, B = Y.shape
-    if T < 64:
+    if T < _STEADY_MIN_FRAMES:
         return None
-    P = P0.copy()
-    PP, PF = [], []
+    PP = [P0.copy()]                                 # predicted / filtered variances, frames 0..tc
+    PF = [PP[0] - PP[0] ** 2 / (PP[0] + R)]
     tc = None
-    for t in range(T // 2):
-        if t > 0:
-            P = f * f * PF[-1] + q
-        PP.append(P)
-        PF.append(P - P * P / (P + R))
-        if t > 0 and np.all(np.abs(PF[-1] - PF[-2]) <= _STEADY_TOL * np.abs(PF[-2])):
-            tc = t + 2
+    for t in range(1, T // 2 + 3):
+        PP.append(f * f * PF[-1] + q)
+        PF.append(PP[-1] - PP[-1] ** 2 / (PP[-1] + R))
+        if tc is None and np.all(np.abs(PF[-1] - PF[-2]) <= _STEADY_TOL * np.abs(PF[-2])):
+            tc = t + 2                               # settled at t; two more frames to be sure
+        if t == tc:
             break
-    if tc is None or tc >= T - 2:
+    if tc is None or tc >= T - 2 or len(PF) < tc + 1:
         return None
-    for _ in range(len(PF), tc + 1):
-        P = f * f * PF[-1] + q
-        PP.append(P)
-        PF.append(P - P * P / (P + R))
     XF = np.empty((B, T))                            # channel-major, as _rts2_steady
     x = x0.copy()
     for t in range(tc):                              # exact forward frames

@@ -94,7 +94,7 @@ from ..frames import Frame, up_axis_of
 from ..io._rotations import axis_rotation
 from ..errors import MocapValueError
 from ..gaps import fill, find_gaps
-from ..rigid import distance_stats, outside_range, yaw_kabsch
+from ..rigid import distance_stats, yaw_kabsch
 from . import _linalg
 
 __all__ = ["body_frame", "pca_fill", "lowrank_complete"]
@@ -432,7 +432,8 @@ class _GapFiller:
         self.Xl = np.where(np.repeat(obs, 3, axis=1), Ll.reshape(T, 3 * J), np.nan)
         self.L3 = self.Xl.reshape(T, J, 3)
         dmean, _, _, dlo, dhi = distance_stats(P, obs, return_range=True)
-        self.dlo, self.dhi, self.slack = dlo, dhi, float(range_slack_cm)   # pair distance ranges
+        slack = np.maximum(float(range_slack_cm), 0.25 * (dhi - dlo))
+        self.dlo, self.dhi = dlo - slack, dhi + slack     # plausible distance range of each pair
         d = np.nan_to_num(dmean, nan=np.inf)
         # per missing marker, sigma widened (up to twice sigma_cm) until its min_donors
         # nearest markers count as close (decision): a sparse set -- a skeleton's shin has
@@ -457,7 +458,9 @@ class _GapFiller:
         range seen in the data (widened by the slack): no extrapolated garbage."""
         cj = np.flatnonzero(self.close[m])
         d = np.linalg.norm(self.L3[fr][:, cj] - xm[:, None, :], axis=-1)     # NaN where unseen
-        return ~outside_range(d, self.dlo[m, cj], self.dhi[m, cj], self.slack).any(axis=1)
+        with np.errstate(invalid="ignore"):
+            bad = (d < self.dlo[m, cj]) | (d > self.dhi[m, cj])
+        return ~bad.any(axis=1)
 
     def r2(self, g, info: dict) -> np.ndarray:
         """R2 fill of gap ``g`` (steps 4-5, 7): up to three passes, the donors re-chosen for
