@@ -275,6 +275,37 @@ def test_ik_recovers_perturbed_dofs(walk, tmp_path):
     np.testing.assert_allclose(back.bone_lengths(), walk.bone_lengths()[:60], atol=1e-9)
 
 
+def test_ik_jacobian_matches_finite_differences(walk):
+    """The analytic Jacobian of the LM polish (world dof axes from the level-batched FK,
+    ``w x (p_j - pivot)``, root translations) equals central differences of the FK, with
+    the rows of unusable targets zero."""
+    comp = kin._Compiled(walk.source["asf"])
+    D = np.asarray(walk.source["per_frame"]["dofs"], float)[::50][:6]
+    P, W = kin._fk_block(comp, D, False, axes=True)
+    P, W = np.transpose(P, (2, 1, 0)), np.transpose(W, (2, 1, 0))
+    usable = np.ones(P.shape[:2], bool)
+    usable[1, 5] = False
+    buf = np.zeros((len(D), comp.n_dofs, len(comp.names), 3))
+    Jt = kin._ik_jacobian(comp, P, W, usable, False, buf)            # (T, D, 3J)
+    h = 1e-4
+    for c in range(comp.n_dofs):
+        e = np.zeros(comp.n_dofs)
+        e[c] = h
+        fd = (kin.forward_kinematics(comp, D + e, False, 1.0) - kin.forward_kinematics(comp, D - e, False, 1.0)) / (2 * h)
+        fd[~usable] = 0.0
+        np.testing.assert_allclose(Jt[:, c], fd.reshape(len(D), -1), atol=1e-6, err_msg=comp.dof_names[c])
+
+
+def test_fk_blocks_join_seamlessly(walk, monkeypatch):
+    """FK in blocks of frames gives the same positions as one block."""
+    comp = kin._Compiled(walk.source["asf"])
+    D = walk.source["per_frame"]["dofs"]
+    whole = kin.forward_kinematics(comp, D, False, CM)
+    monkeypatch.setattr(kin, "_FK_BLOCK", 37)
+    np.testing.assert_array_equal(kin.forward_kinematics(comp, D, False, CM), whole)
+    np.testing.assert_allclose(whole, walk.positions, atol=1e-9)     # the reader's own FK
+
+
 def test_ik_without_stored_dofs(walk):
     """No stored dofs (e.g. after resampling): IK from the rest pose still fits clean positions."""
     comp = kin._Compiled(walk.source["asf"])

@@ -18,7 +18,8 @@ the three angles of ``axis`` are listed in that same order. The root uses
 ``L_root = C_root · M_root · C_root^-1`` with ``C_root`` from ``orientation`` and the
 root ``axis`` order; the root joint sits at the AMC root translation (the AMC gives an
 absolute position; the ASF ``position`` is the rest position used by
-:func:`mocapkit.io.amc.read_asf_motion`). The loop runs over bones only.
+:func:`mocapkit.io.amc.read_asf_motion`). The loop runs over tree levels (all bones of a
+depth at once), in blocks of frames.
 
 Joints of the returned Motion: ``root`` plus the end point of every bone, named by the
 bone (31 joints for CMU, 31 for HDM05); parents follow the ``:hierarchy``; rest offsets
@@ -132,6 +133,7 @@ class _Compiled:
         self.parent = parent
         self.joint_index = jidx
         self._ik_tables()
+        self._fk_tables()
 
     def _dof_layout(self, bones: list[dict]) -> None:
         """Columns of ``per_frame['dofs']``: the root channels, then the bones in ASF order."""
@@ -155,8 +157,6 @@ class _Compiled:
             self.C[n] = _euler_matrix(b["axis_order"], self._rad(ax))
             self.order[n] = b["axis_order"]
             self.dof_axes[n] = ["xyz".index(d[1]) for d in b["dof"]]
-        self.C_is_identity = {n: bool(np.array_equal(C, np.eye(3))) for n, C in self.C.items()}
-        self.C_root_is_identity = bool(np.array_equal(self.C_root, np.eye(3)))
 
     def _ik_tables(self) -> None:
         """IK tables: the dof-less bones rigid with each node, the first dof-carrying bones
@@ -192,6 +192,48 @@ class _Compiled:
         self.twist_reg = {n: 0.05 * sum(float(self.vec[c] @ self.vec[c]) for c, _ in self.dof_children[n])
                           for n in self.bone_order}
 
+    def _fk_tables(self) -> None:
+        """Tables of the level-batched FK (:func:`_fk_block`) and the IK Jacobian.
+
+        ``fk_levels``: per tree depth ``(joints, parent joints or None for the root,
+        groups)``, a group ``(axis, positions in the level or None for all, dof columns)``
+        per rotation step (last letter of the ``axis`` order first) and axis;
+        ``jac_pairs``: ``(column, joint, pivot joint)`` for every rotational dof and every
+        joint it moves (the pivot is the rotating node's own start point)."""
+        J = len(self.names)
+        self.fk_C = np.zeros((3, 3, J))
+        self.fk_V = np.zeros((3, J))
+        self.fk_C[:, :, 0] = self.C_root
+        rcol = {"XYZ".index(ch[1]): k for k, ch in enumerate(self.root_order) if ch[0] == "R"}
+        steps = [[(a, rcol[a]) for a in ("XYZ".index(x) for x in reversed(self.root_axis)) if a in rcol]]
+        depth = np.zeros(J, int)
+        for j, n in enumerate(self.bone_order, start=1):
+            self.fk_C[:, :, j] = self.C[n]
+            self.fk_V[:, j] = self.vec[n]
+            ax = self.dof_axes[n]
+            steps.append([(a, self.dof_cols[n][ax.index(a)])
+                          for a in ("XYZ".index(x) for x in reversed(self.order[n])) if a in ax])
+            depth[j] = depth[self.parent_joint[j]] + 1
+        self.fk_CT = np.ascontiguousarray(np.transpose(self.fk_C, (1, 0, 2)))
+        self.fk_trans = [(k, "XYZ".index(ch[1])) for k, ch in enumerate(self.root_order) if ch[0] == "T"]
+        self.fk_levels = []
+        for d in range(depth.max() + 1):
+            idx = np.flatnonzero(depth == d)
+            groups = []
+            for s in range(3):
+                for a in range(3):
+                    k = [i for i, j in enumerate(idx) if len(steps[j]) > s and steps[j][s][0] == a]
+                    if k:
+                        cols = np.array([steps[idx[i]][s][1] for i in k])
+                        groups.append((a, None if len(k) == len(idx) else np.array(k), cols))
+            self.fk_levels.append((idx, None if d == 0 else self.parent_joint[idx], groups))
+        pairs = np.array([(col, q, 0 if j == 0 else self.parent_joint[j])
+                          for j in range(J) for _, col in steps[j] for q in self.subtree[self.names[j]]],
+                         dtype=np.intp).reshape(-1, 3)
+        self.jac_pairs = tuple(pairs.T)
+        # flat positions of the pairs' (column, joint, xyz) entries in a (D, J, 3) array
+        self.jac_flat = ((pairs[:, :1] * J + pairs[:, 1:2]) * 3 + np.arange(3)).ravel()
+
     @staticmethod
     def _to_xyz(vals: np.ndarray, order: str) -> np.ndarray:
         """Angles listed in ``order`` (value i about letter order[i]) -> (x, y, z)."""
@@ -223,62 +265,85 @@ class _Compiled:
         return tr, ang
 
 
-def forward_kinematics(comp: _Compiled, dofs: np.ndarray, angle_rad: bool, f: float,
-                       return_rotations: bool = False):
+_FK_BLOCK = 8192        # frames per FK block: the (3, 3, bones, block) stacks stay in cache
+
+
+def forward_kinematics(comp: _Compiled, dofs: np.ndarray, angle_rad: bool, f: float) -> np.ndarray:
     """Joint positions (T, J, 3) in cm from dof values (T, D) (file units, file angles).
 
-    One loop over bones, none over frames: rotations are kept as (3, 3, T) stacks and
-    multiplied component-wise. With ``return_rotations`` also the global rotation of every
-    node as a dict of (T, 3, 3) arrays.
+    Bones of the same depth are rotated together (one pass per tree level, none over
+    frames or bones), in blocks of ``_FK_BLOCK`` frames; see :func:`_fk_block`.
     """
     dofs = np.asarray(dofs, float)
     T = dofs.shape[0]
-    J = len(comp.names)
-    P = np.zeros((3, J, T))
-    conv = (lambda d: d) if angle_rad else np.deg2rad
-    # root: L = C_root · M_root · C_root^T, M from the root rotation channels (axis order)
-    M = None
-    tr = np.zeros((3, T))
-    rot_ang = {}
-    for k, ch in enumerate(comp.root_order):
-        a = "XYZ".index(ch[1])
-        if ch[0] == "T":
-            tr[a] = dofs[:, k]
-        else:
-            rot_ang[a] = conv(dofs[:, k])
-    for letter in comp.root_axis:
-        a = "XYZ".index(letter)
-        if a in rot_ang:
-            Ra = rot.rot_t(a, rot_ang[a])
-            M = Ra if M is None else rot.mm_t(Ra, M)
-    if M is None:
-        M = np.broadcast_to(np.eye(3)[:, :, None], (3, 3, T))
-    Cr = comp.C_root
-    L = {"root": M if comp.C_root_is_identity else rot.mm_t(rot.mm_t(Cr, M), Cr.T)}
-    P[:, 0] = tr
-    for j, n in enumerate(comp.bone_order, start=1):
-        Lp = L[comp.parent[n]]
-        axes = comp.dof_axes[n]
-        if axes:
-            d = conv(dofs[:, comp.dof_cols[n]])
-            # only the axes with a dof rotate (absent dofs are zero), in the 'axis' order
-            M = None
-            for letter in comp.order[n]:
-                a = "XYZ".index(letter)
-                if a in axes:
-                    Ra = rot.rot_t(a, d[:, axes.index(a)])
-                    M = Ra if M is None else rot.mm_t(Ra, M)
-            C = comp.C[n]
-            Lb = rot.mm_t(Lp, M if comp.C_is_identity[n] else rot.mm_t(rot.mm_t(C, M), C.T))
-        else:
-            Lb = Lp
-        L[n] = Lb
-        v = comp.vec[n]
-        P[:, j] = P[:, comp.parent_joint[j]] + Lb[:, 0] * v[0] + Lb[:, 1] * v[1] + Lb[:, 2] * v[2]
-    P = np.ascontiguousarray(np.transpose(P, (2, 1, 0))) * f
-    if return_rotations:
-        return P, {n: np.transpose(v, (2, 0, 1)) for n, v in L.items()}
+    P = np.empty((T, len(comp.names), 3))
+    for s in range(0, T, _FK_BLOCK):
+        Pb, _ = _fk_block(comp, dofs[s:s + _FK_BLOCK], angle_rad)
+        P[s:s + _FK_BLOCK] = np.transpose(Pb, (2, 1, 0))
+    P *= f
     return P
+
+
+def _fk_block(comp: _Compiled, dofs: np.ndarray, angle_rad: bool,
+              axes: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
+    """FK of one block: positions (3, J, T) in file units and, with ``axes``, the world
+    axis (3, D, T) of every rotational dof (zero for translations) for the IK Jacobian.
+
+    Per tree level ``X = L_parent · C`` is formed for all its bones at once, then
+    right-multiplied by the elementary rotations of their dofs, last letter of the
+    ``axis`` order first (``M = R_last ... R_first``); just before the rotation of a dof
+    is applied, column ``a`` of ``X`` is that dof's world axis (``L_p C R_last ... e_a``);
+    finally ``L = X · C^T`` and ``end = end_parent + L · vec``.
+    """
+    T = dofs.shape[0]
+    A = np.ascontiguousarray(dofs.T)
+    ang = A if angle_rad else np.deg2rad(A)
+    G = np.empty((3, 3, len(comp.names), T))
+    P = np.empty((3, len(comp.names), T))
+    W = np.zeros((3, comp.n_dofs, T)) if axes else None
+    for idx, par, groups in comp.fk_levels:
+        if par is None:                                              # the root
+            X = np.repeat(comp.fk_C[:, :, :1, None], T, axis=3)
+        else:
+            X = rot.mm_t(G[:, :, par], comp.fk_C[:, :, idx, None])
+        _rotate_level(X, groups, ang, W)
+        L = rot.mm_t(X, comp.fk_CT[:, :, idx, None])
+        G[:, :, idx] = L
+        if par is None:
+            P[:, 0] = 0.0
+            for col, a in comp.fk_trans:
+                P[a, 0] = dofs[:, col]
+        else:
+            v = comp.fk_V[:, idx, None]
+            P[:, idx] = P[:, comp.parent_joint[idx]] + L[:, 0] * v[0] + L[:, 1] * v[1] + L[:, 2] * v[2]
+    return P, W
+
+
+def _rotate_level(X: np.ndarray, groups: list, ang: np.ndarray, W: np.ndarray | None) -> None:
+    """Right-multiply the (3, 3, bones, T) stack X of one tree level by its bones' dof
+    rotations in place (``comp.fk_levels`` groups; ang (D, T) radians), recording each
+    dof's world axis in W (3, D, T) first when given."""
+    for a, k, cols in groups:
+        Xk = X if k is None else X[:, :, k]
+        if W is not None:
+            W[:, cols] = Xk[:, a]
+        rot.rotate_right_t(Xk, a, ang[cols])
+        if k is not None:
+            X[:, :, k] = Xk
+
+
+def _local_rotations(comp: _Compiled, dofs: np.ndarray, angle_rad: bool) -> np.ndarray:
+    """Local rotation ``C · M(dofs) · C^T`` of every node (T, J, 3, 3) (the root's: C_root
+    M C_root^T), all bones of a level at once."""
+    A = np.ascontiguousarray(np.asarray(dofs, float).T)
+    ang = A if angle_rad else np.deg2rad(A)
+    T = A.shape[1]
+    out = np.empty((3, 3, len(comp.names), T))
+    for idx, _, groups in comp.fk_levels:
+        X = np.repeat(comp.fk_C[:, :, idx, None], T, axis=3)
+        _rotate_level(X, groups, ang, None)
+        out[:, :, idx] = rot.mm_t(X, comp.fk_CT[:, :, idx, None])
+    return np.ascontiguousarray(np.transpose(out, (3, 2, 0, 1)))
 
 
 # ======================================================================================
@@ -309,16 +374,6 @@ def _angles_near(cands: list[np.ndarray], ref: np.ndarray) -> np.ndarray:
             best = np.where(take[:, None], w, best)
             best_d = np.minimum(d, best_d)
     return best
-
-
-def _after_rot(order: str, ang: np.ndarray, a: int) -> np.ndarray:
-    """Product of the rotations applied after axis ``a`` in ``order`` (T, 3, 3)."""
-    R = np.broadcast_to(np.eye(3), ang.shape[:-1] + (3, 3)).copy()
-    k = order.index("XYZ"[a])
-    for letter in order[k + 1:]:
-        b = "XYZ".index(letter)
-        R = axis_rotation(b, ang[..., b]) @ R
-    return R
 
 
 def _fit_partial(order: str, axes: list[int], U: np.ndarray, W: np.ndarray, ang: np.ndarray,
@@ -425,15 +480,17 @@ class _IKState:
         self.done = np.zeros((self.T, len(comp.names), 3))            # achieved (FK) end points
         self.L: dict[str, np.ndarray] = {}
         self.ok = np.isfinite(self.X).all(axis=2)                      # (T, J) usable targets
+        self._start_locals: np.ndarray | None = None
 
     def tgt(self, k: int, base: np.ndarray, fallback: np.ndarray) -> np.ndarray:
         """Target vector of joint k from ``base``; ``fallback`` where the target is missing."""
         return np.where(self.ok[:, k, None], self.X[:, k] - base, fallback)
 
     def start_local(self, n: str) -> np.ndarray:
-        """Local rotation C E(start) C^T of bone n (T, 3, 3)."""
-        c = self.comp
-        return c.C[n] @ _euler_matrix(c.order[n], _start_angles(self.S, c, n, self.to_rad)) @ c.C[n].T
+        """Local rotation C E(start) C^T of node n (T, 3, 3)."""
+        if self._start_locals is None:                 # all nodes at once, on first use
+            self._start_locals = _local_rotations(self.comp, self.S, self.angle_rad)
+        return self._start_locals[:, self.comp.joint_index[n]]
 
     def rigid_vectors(self, node: str, Ln: np.ndarray, end: np.ndarray):
         """Predicted/target vectors of the dof-less bones moving rigidly with ``node``."""
@@ -469,7 +526,7 @@ def _ik_root(st: _IKState) -> None:
     st.done[:, 0] = tr
     Cr = c.C_root
     ang0 = _start_angles(st.S, c, "root", st.to_rad)
-    L0 = Cr @ _euler_matrix(c.root_axis, ang0) @ Cr.T
+    L0 = st.start_local("root")
     U, W = st.rigid_vectors("root", L0, tr)
     if len(U) < 2:
         for ch_, path in c.dof_children["root"]:
@@ -514,7 +571,9 @@ def _ik_bone(st: _IKState, j: int, n: str) -> None:
         st.out[:, cols[i]] = st.from_rad(ang[:, a])
     if not st.have_start:
         st.out[:, cols] = st.from_rad(np.unwrap(st.to_rad(st.out[:, cols]), axis=0))
-    st.L[n] = Lp @ C @ _euler_matrix(order, _start_angles(st.out, c, n, st.to_rad)) @ C.T
+    # three dofs represent Lb exactly (the Euler angles reproduce M to round-off); fewer
+    # give the closest representable rotation, which the children must start from
+    st.L[n] = Lb if len(axes) == 3 else Lp @ C @ _euler_matrix(order, _start_angles(st.out, c, n, st.to_rad)) @ C.T
     st.done[:, j] = st.done[:, pj] + _mv(st.L[n], c.vec[n])
 
 
@@ -602,8 +661,7 @@ def _partial_angles(st: _IKState, n: str, Lp, w, Wr, ang, ang0) -> np.ndarray:
         Ul.append(np.broadcast_to(C.T @ c.vec[d], (st.T, 3)))
         Wl.append(_local(Lp, C, wd))
     for ch_, path in (c.dof_children[n] if c.axis_aligned[n] else []):
-        uc = _mv(c.C[ch_] @ _euler_matrix(c.order[ch_], _start_angles(st.S, c, ch_, st.to_rad))
-                 @ c.C[ch_].T, c.vec[ch_]) @ C
+        uc = _mv(st.start_local(ch_), c.vec[ch_]) @ C
         wc = st.X[:, c.joint_index[ch_]] - st.X[:, c.joint_index[c.parent[ch_]]]
         wc = np.where(np.isfinite(wc).all(axis=1)[:, None], _local(Lp, C, np.nan_to_num(wc)), uc)
         Ul.append(_CHILD_W * uc)
@@ -765,34 +823,25 @@ def inverse_kinematics(comp: _Compiled, target_cm: np.ndarray, f: float, angle_r
     return out
 
 
-def _ik_jacobian(comp: _Compiled, dofs: np.ndarray, P: np.ndarray, L: dict, angle_rad: bool) -> np.ndarray:
-    """d positions / d dofs, (T, 3J, D), file units per file unit (degrees when the file uses them)."""
+def _ik_jacobian(comp: _Compiled, P: np.ndarray, W: np.ndarray, usable: np.ndarray, angle_rad: bool,
+                 out: np.ndarray) -> np.ndarray:
+    """Transposed Jacobian d positions / d dofs as (T, D, 3J), file units per file unit
+    (degrees when the file uses them), zero for unusable targets.
+
+    P (T, J, 3) joint positions and W (T, D, 3) world dof axes (from :func:`_fk_block`),
+    usable (T, J); a rotational dof moves joint j by ``w x (p_j - pivot)``
+    (``comp.jac_pairs``), a root translation moves every joint. ``out`` (T, D, J, 3) is
+    zero outside those entries (it is reused between iterations: only they are written).
+    """
+    pc, pj, pp = comp.jac_pairs
     T, J = P.shape[0], P.shape[1]
-    Jm = np.zeros((T, J, 3, comp.n_dofs))
     scale = 1.0 if angle_rad else np.pi / 180.0
-    to_rad = (lambda a: a) if angle_rad else np.deg2rad
-    eye = np.eye(3)
-    for k, ch in enumerate(comp.root_order):
-        if ch[0] == "T":
-            Jm[:, :, "XYZ".index(ch[1]), k] = 1.0
-    nodes = [("root", np.broadcast_to(eye, (T, 3, 3)), P[:, 0], comp.C_root, comp.root_axis,
-              [(k, "XYZ".index(ch[1])) for k, ch in enumerate(comp.root_order) if ch[0] == "R"])]
-    for j, n in enumerate(comp.bone_order, start=1):
-        if comp.dof_axes[n]:
-            nodes.append((n, L[comp.parent[n]], P[:, comp.parent_joint[j]], comp.C[n], comp.order[n],
-                          list(zip(comp.dof_cols[n], comp.dof_axes[n]))))
-    for n, Lp, pivot, C, order, colaxes in nodes:
-        if not colaxes:
-            continue
-        ang = _start_angles(dofs, comp, n, to_rad)
-        sub = comp.subtree[n]
-        arm = P[:, sub] - pivot[:, None, :]
-        LpC = Lp @ C
-        for col, a in colaxes:
-            w = (LpC @ _after_rot(order, ang, a))[:, :, a]            # world axis (T, 3)
-            Jc = Jm[..., col]                                             # view (T, J, 3)
-            Jc[:, sub] = np.cross(w[:, None, :], arm) * scale
-    return Jm.reshape(T, 3 * J, comp.n_dofs)
+    d = np.cross(W[:, pc], P[:, pj] - P[:, pp]) * (usable[:, pj] * scale)[..., None]
+    flat = out.reshape(T, -1)
+    flat[:, comp.jac_flat] = d.reshape(T, -1)
+    for col, a in comp.fk_trans:
+        out[:, col, :, a] = usable
+    return out.reshape(T, comp.n_dofs, 3 * J)
 
 
 def _ik_refine(comp: _Compiled, X: np.ndarray, dofs: np.ndarray, angle_rad: bool, iters: int,
@@ -810,35 +859,42 @@ def _ik_refine(comp: _Compiled, X: np.ndarray, dofs: np.ndarray, angle_rad: bool
     eye = np.eye(comp.n_dofs)
 
     def cost_of(D, idx):
-        P, Lr = forward_kinematics(comp, D, angle_rad, 1.0, return_rotations=True)
+        Pb, Wb = _fk_block(comp, D, angle_rad, axes=True)
+        P, Wa = np.transpose(Pb, (2, 1, 0)), np.transpose(Wb, (2, 1, 0))
         r = (P - Xf[idx]) * Wm[idx][..., None]
-        return np.sum(r ** 2, axis=(1, 2)), r, P, Lr
+        return np.sum(r ** 2, axis=(1, 2)), r, P, Wa
 
     for s in range(0, X.shape[0], chunk):
         idx = np.arange(s, min(s + chunk, X.shape[0]))
         D = dofs[idx]
-        cost, r, P, Lr = cost_of(D, idx)
+        cost, r, P, Wa = cost_of(D, idx)
+        P, Wa = P.copy(), Wa.copy()                                  # updated in place below
         lam = np.full(len(idx), 1e-3)
         live = cost > tol
-        for _ in range(iters):
+        buf = np.zeros((len(idx), comp.n_dofs, len(comp.names), 3))
+        AA = np.empty((len(idx), comp.n_dofs, comp.n_dofs))
+        gg = np.empty((len(idx), comp.n_dofs))
+        moved = np.ones(len(idx), bool)          # normal equations to (re)build: a rejected
+        for _ in range(iters):                   # step leaves a frame where it was
             if not live.any():
                 break
             k = np.flatnonzero(live)
-            Lk = {n: v[k] for n, v in Lr.items()}
-            Jm = _ik_jacobian(comp, D[k], P[k], Lk, angle_rad) * np.repeat(Wm[idx[k]], 3, axis=1)[..., None]
-            Jt = np.swapaxes(Jm, 1, 2)
-            A = Jt @ Jm                                              # batched BLAS
-            g = (Jt @ r[k].reshape(len(k), -1, 1))[..., 0]
+            new = k[moved[k]]
+            if len(new):
+                Jt = _ik_jacobian(comp, P[new], Wa[new], Wm[idx[new]], angle_rad, buf[:len(new)])
+                AA[new] = Jt @ np.swapaxes(Jt, 1, 2)                 # batched BLAS
+                gg[new] = (Jt @ r[new].reshape(len(new), -1, 1))[..., 0]
+                moved[new] = False
+            A, g = AA[k], gg[k]
             diag = np.einsum("tii->ti", A)
             step = -np.linalg.solve(A + (lam[k, None] * (diag + 1e-9))[:, :, None] * eye, g[..., None])[..., 0]
-            newc, newr, newP, newL = cost_of(D[k] + step, idx[k])
+            newc, newr, newP, newW = cost_of(D[k] + step, idx[k])
             ok = newc < cost[k]
             gain = np.where(ok, (cost[k] - newc) / np.maximum(cost[k], 1e-300), 0.0)
             acc = k[ok]
+            moved[acc] = True
             D[acc] += step[ok]
-            cost[acc], r[acc], P[acc] = newc[ok], newr[ok], newP[ok]
-            for n in Lr:
-                Lr[n][acc] = newL[n][ok]
+            cost[acc], r[acc], P[acc], Wa[acc] = newc[ok], newr[ok], newP[ok], newW[ok]
             lam[k] = np.where(ok, np.maximum(lam[k] / 5, 1e-9), lam[k] * 8)
             live[k] = np.where(ok, (newc > tol) & (gain > rel_tol), lam[k] < 1e6)
         dofs[idx] = D

@@ -85,10 +85,11 @@ def rotate_right_t(R: np.ndarray, axis: int, ang: np.ndarray) -> np.ndarray:
 def euler_to_matrix(axes, angles: np.ndarray) -> np.ndarray:
     """``R_a1(angles[..., 0]) @ R_a2(angles[..., 1]) @ ...`` (..., 3, 3); no axes: identity."""
     angles = np.asarray(angles, float)
-    R = np.broadcast_to(np.eye(3), angles.shape[:-1] + (3, 3)).copy()
+    R = np.zeros((3, 3) + angles.shape[:-1])                 # built in the (3, 3, ...) layout:
+    R[0, 0] = R[1, 1] = R[2, 2] = 1.0                         # each step changes two columns
     for i, a in enumerate(axes):
-        R = R @ axis_rotation(a, angles[..., i])
-    return R
+        rotate_right_t(R, a, angles[..., i])
+    return np.ascontiguousarray(np.moveaxis(R, (0, 1), (-2, -1)))
 
 
 def _is_cyclic(i: int, j: int, k: int) -> bool:
