@@ -35,6 +35,30 @@ def _readonly(a: np.ndarray) -> np.ndarray:
     return a
 
 
+def _frozen_whole(P: object) -> bool:
+    """Whether P can be shared instead of copied: a read-only C-contiguous float64 array
+    that owns its data, or a reshaped view of all of such an array (another Motion's, a
+    reader's, or one handed over with ``handover=True``)."""
+    if not (isinstance(P, np.ndarray) and P.dtype == np.float64 and not P.flags.writeable
+            and P.flags.c_contiguous):
+        return False
+    b = P.base
+    return b is None or (isinstance(b, np.ndarray) and b.base is None and not b.flags.writeable
+                         and b.nbytes == P.nbytes)
+
+
+def _hand_over(P: np.ndarray) -> np.ndarray:
+    """Make P (and the array it views, when it views all of one) read-only so that a
+    Motion shares it; anything else is left to the Motion's copy."""
+    b = P.base
+    if (P.dtype == np.float64 and P.flags.c_contiguous and
+            (b is None or (isinstance(b, np.ndarray) and b.base is None and b.nbytes == P.nbytes))):
+        if b is not None:
+            b.setflags(write=False)
+        P.setflags(write=False)
+    return P
+
+
 @dataclass(frozen=True, eq=False)
 class Motion:
     """A motion clip.
@@ -62,8 +86,7 @@ class Motion:
         P = self.positions
         # a frozen array (read-only, owning its data: another Motion's, or a reader's that
         # handed it over) is shared, not copied -- a 200,000-frame clip is 140 MB a copy
-        shared = (isinstance(P, np.ndarray) and P.dtype == np.float64 and P.base is None
-                  and not P.flags.writeable and P.flags.c_contiguous)
+        shared = _frozen_whole(P)
         if not shared:
             P = np.array(P, dtype=np.float64, copy=True)
         if P.ndim != 3 or P.shape[2] != 3:
@@ -143,24 +166,33 @@ class Motion:
         """Observed mask expanded to the (T, 3J) matrix layout."""
         return np.repeat(self.observed, 3, axis=1)
 
-    def with_matrix(self, X: np.ndarray, observed: np.ndarray | None = None) -> "Motion":
-        """New motion from a (T, 3J) matrix (see :meth:`matrix`)."""
+    def with_matrix(self, X: np.ndarray, observed: np.ndarray | None = None, *,
+                    handover: bool = False) -> "Motion":
+        """New motion from a (T, 3J) matrix (see :meth:`matrix`); ``handover`` as in
+        :meth:`with_positions`."""
         X = np.asarray(X, dtype=float)
         if X.shape != (self.n_frames, 3 * self.n_joints):
             raise MocapValueError(
                 f"matrix must have shape ({self.n_frames}, {3 * self.n_joints}), got {X.shape}")
-        return self.with_positions(X.reshape(self.n_frames, self.n_joints, 3), observed)
+        if handover:
+            _hand_over(X)
+        return self.with_positions(X.reshape(self.n_frames, self.n_joints, 3), observed, handover=handover)
 
     # -- immutable updates ------------------------------------------------------------------
     def with_positions(self, positions: np.ndarray, observed: np.ndarray | None = None,
-                       filled: np.ndarray | None = None) -> "Motion":
+                       filled: np.ndarray | None = None, *, handover: bool = False) -> "Motion":
         """Same skeleton/fps/source, new positions (T', J, 3).
 
         ``observed`` defaults to "finite in the new positions" (so a denoiser that fills
         every entry returns a fully observed motion). ``filled`` defaults to this motion's
         flags when the frame count is unchanged (a value that was filled stays flagged).
+        ``handover=True``: a float64 C-contiguous array the caller made and will not use
+        again becomes the motion's storage (it is made read-only) instead of being copied
+        -- one copy of a long clip less; otherwise it is copied as usual.
         """
         P = np.asarray(positions, dtype=float)
+        if handover:
+            _hand_over(P)
         src = dict(self.source)
         if P.shape[0] != self.n_frames:
             src.pop("per_frame", None)

@@ -57,6 +57,23 @@ def test_motion_masks_and_immutability():
         Motion(P[:, :3], sk, 30)
 
 
+def test_handover_shares_the_array_and_freezes_it():
+    """``handover=True`` makes the caller's array the motion's storage (no copy of a long
+    clip) and read-only; without it, or for a partial view, the motion copies."""
+    m = Motion(np.random.default_rng(1).normal(size=(10, 4, 3)), chain(), 30)
+    A = m.matrix() + 1.0
+    out = m.with_matrix(A, handover=True)
+    assert np.shares_memory(out.positions, A) and not A.flags.writeable
+    with pytest.raises(ValueError):
+        A[0, 0] = 5.0
+    B = m.matrix() + 1.0
+    assert not np.shares_memory(m.with_matrix(B).positions, B) and B.flags.writeable
+    C = np.zeros((20, 4, 3))
+    part = m.with_positions(C[:10], handover=True)               # a view of part of C: copied
+    assert not np.shares_memory(part.positions, C) and C.flags.writeable
+    np.testing.assert_array_equal(out.positions, m.positions + 1.0)
+
+
 def test_resample_keeps_values_and_masks():
     sk = chain(2)
     t = np.arange(121) / 120

@@ -100,6 +100,49 @@ def test_rpca_exact_recovery_matches_reference_solver(svd):
     assert np.linalg.matrix_rank(A, tol=1e-6) == 2
 
 
+@pytest.mark.parametrize("masked", [False, True])
+def test_rpca_row_blocks_equal_the_whole_matrix(monkeypatch, masked):
+    """A long single matrix is solved in row blocks (three arrays of its size, not five):
+    the same A, E, iterations and residual as the whole-matrix iteration (a stack of two
+    copies takes that route)."""
+    rng = np.random.default_rng(5)
+    D = rng.standard_normal((900, 3)) @ rng.standard_normal((3, 20))
+    D[rng.random(D.shape) < 0.03] += 6.0
+    mask = rng.random(D.shape) > 0.1 if masked else None
+    two, _, info2 = lr.rpca_ialm(np.stack([D, D]), mask=None if mask is None else np.stack([mask, mask]),
+                                 return_info=True)
+    monkeypatch.setattr(lr, "ROW_BLOCK", 97)
+    monkeypatch.setattr(lr, "CHUNK_ELEMENTS", 1000)
+    calls = []
+    monkeypatch.setattr(lr, "_ialm_chunk", lambda *a, **k: calls.append(1))   # must not be used
+    D.setflags(write=False)                                      # only read
+    A, E, info = lr.rpca_ialm(D, mask=mask, return_info=True)
+    assert not calls and info.n_iter == info2.n_iter[0] and info.converged
+    np.testing.assert_allclose(A, two[0], atol=1e-8)
+    np.testing.assert_allclose(info.residual, info2.residual[0], rtol=1e-4)   # ~1e-7: round-off
+
+
+def test_svt_overwrite_x_and_read_only_inputs():
+    rng = np.random.default_rng(6)
+    X = rng.standard_normal((200, 3)) @ rng.standard_normal((3, 12)) + 0.1 * rng.standard_normal((200, 12))
+    eps = 0.1 * np.sqrt(X.size)
+    keep = X.copy()
+    A = lr.svt(X, eps=eps)
+    np.testing.assert_array_equal(X, keep)                        # default: X untouched
+    B = lr.svt(X, eps=eps, overwrite_x=True)
+    assert B is X
+    np.testing.assert_allclose(B, A, atol=1e-10)
+    assert np.linalg.norm(A - keep) == pytest.approx(eps, rel=1e-6)
+    # the Gram route has the singular vectors of X: A's right vectors are X's
+    _, _, Vt = np.linalg.svd(keep, full_matrices=False)
+    _, sa, Vta = np.linalg.svd(A, full_matrices=False)
+    r = int((sa > 1e-8 * sa[0]).sum())
+    np.testing.assert_allclose(np.abs(Vta[:r] @ Vt[:r].T), np.eye(r), atol=1e-6)
+    R = keep.copy()
+    R.setflags(write=False)
+    lr.rpca_ialm(R)                                               # read-only input is fine
+
+
 def test_rpca_noisy_reaches_convex_optimum():
     L, S = low_rank_plus_sparse(seed=2)
     D = L + S + 0.1 * np.random.default_rng(3).standard_normal(L.shape)
@@ -211,7 +254,7 @@ def test_segment_layout_matches_paper_and_overlaps():
     assert ((e[:-1] - s[1:]) >= 30).all()
     s, e = lr.segment_layout(50, 200)                              # shorter than a segment
     assert list(s) == [0] and list(e) == [50]
-    w = lr._blend_weights(*lr.segment_layout(1000, 100, overlap=30))
+    w = lr.blend_weights(*lr.segment_layout(1000, 100, overlap=30))
     total = np.zeros(1000)
     for (a, b), wi in zip(zip(*lr.segment_layout(1000, 100, overlap=30)), w):
         total[a:b] += wi

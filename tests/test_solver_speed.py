@@ -83,7 +83,7 @@ def test_overlapping_slra_equals_loop_over_segments():
     A, _, info = lr.slra(X, segment=24, overlap=12, tol=1e-7, return_info=True)
     starts, stops = info.extra["starts"], info.extra["stops"]
     acc, wsum = np.zeros_like(X), np.zeros(T)
-    for a, b, w in zip(starts, stops, lr._blend_weights(starts, stops)):
+    for a, b, w in zip(starts, stops, lr.blend_weights(starts, stops)):
         L = b - a
         Ai, _, _ = ref_ialm(X[a:b], 1 / np.sqrt(max(L, n)))
         acc[a:b] += w[:, None] * Ai

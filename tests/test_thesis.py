@@ -123,6 +123,27 @@ def test_trnn_sparse_error_on_observed():
     assert np.abs(info.extra["S"][spikes]).mean() > 20.0
 
 
+def test_long_clips_solved_in_segments(recwarn):
+    """tsmc / trnn with ``segment``: overlapping segments cross-faded, one summary and at
+    most one convergence warning; close to the whole-clip solve on a smooth low-rank clip."""
+    m = _smooth_motion(T=900, J=6)
+    rng = np.random.default_rng(2)
+    obs = rng.random(m.observed.shape) > 0.1
+    noisy = m.with_positions(m.positions + 0.3 * rng.standard_normal(m.positions.shape), obs)
+    for name in ("trnn", "tsmc"):
+        whole = denoise.get(name, segment=None).denoise(noisy)
+        seg = denoise.get(name, segment=256).denoise(noisy)
+        assert seg.source["solver"]["segments"] == 4 and "segments" not in whole.source["solver"]
+        e_whole = np.sqrt(np.mean((whole.positions - m.positions) ** 2))
+        e_seg = np.sqrt(np.mean((seg.positions - m.positions) ** 2))
+        assert e_seg < 1.5 * e_whole + 0.05, (name, e_seg, e_whole)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        denoise.get("trnn", segment=256, max_iter=3).denoise(noisy)
+    conv = [w for w in caught if issubclass(w.category, ConvergenceWarning)]
+    assert len(conv) == 1 and "of 4 segments" in str(conv[0].message)
+
+
 def test_solvers_reject_bad_input():
     with pytest.raises(MocapValueError):
         cp.tsmc(np.ones((5, 3)), np.zeros((5, 3), bool))

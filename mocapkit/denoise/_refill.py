@@ -41,7 +41,7 @@ def known_mask(motion: Motion, detect: bool, threshold_cm: float) -> np.ndarray:
 def output(motion: Motion, A: np.ndarray, known: np.ndarray, keep: bool,
             solver: dict[str, Any]) -> Motion:
     """Motion from a (T, 3J) estimate; ``keep``: trusted observed entries unchanged."""
-    X = motion.matrix()
+    X = motion.matrix(copy=False)                   # read only
     km = np.repeat(known, 3, axis=1)
     if not np.isfinite(A).all():                    # defensive: never return NaN
         lin = gaps.fill(X, km, never_observed=0.0)
@@ -49,7 +49,7 @@ def output(motion: Motion, A: np.ndarray, known: np.ndarray, keep: bool,
         A[bad] = lin[bad]
     if keep:
         A[km] = X[km]
-    out = motion.with_matrix(A)
+    out = motion.with_matrix(A, handover=True)      # A is the caller's to give: no copy
     return out.with_source(solver=solver)
 
 

@@ -140,7 +140,7 @@ def _finish(motion: Motion, A: np.ndarray, lin: np.ndarray, mask: np.ndarray | N
     if keep_observed:
         obs = np.ones(A.shape, bool) if mask is None else mask
         A[obs] = lin[obs]                                   # lin == data on observed entries
-    return motion.with_matrix(A)
+    return motion.with_matrix(A, handover=True)             # A is ours: no copy of the clip
 
 
 @register
@@ -224,8 +224,9 @@ class SVT(Denoiser):
                  if self.noise_cm is None else float(self.noise_cm))
         n_obs = X.size if mask is None else int(mask.sum())
         A, info = _lr.svt(X - c, mask, self.tau, self.delta, eps=noise * np.sqrt(n_obs),
-                          tol=float(self.tol), max_iter=int(self.max_iter), return_info=True)
-        A = A + c
+                          tol=float(self.tol), max_iter=int(self.max_iter), return_info=True,
+                          overwrite_x=True)                 # X - c is ours: the result goes in it
+        A += c
         fit = float(info.extra.get("fit_ratio", 0.0))
         report_convergence(self, info, tol=float(self.tol), max_iter=int(self.max_iter),
                            extra={"fit_ratio": fit},
@@ -272,8 +273,9 @@ class RPCA(Denoiser):
         X, mask, lin = _inputs(motion, self.name)
         D, Dmask = (lin, None) if mode == "linear" else (X, mask)
         c = _centre(D, Dmask, self.center)
-        A, _, info = _lr.rpca_ialm(D - c, self.lam, Dmask, float(self.tol), int(self.max_iter),
-                                   rho=float(self.rho), return_info=True, want_E=False)
+        A, _, info = _lr.rpca_ialm(D - c if c.any() else D, self.lam, Dmask, float(self.tol),
+                                   int(self.max_iter), rho=float(self.rho), return_info=True,
+                                   want_E=False)
         report_convergence(self, info, tol=float(self.tol), max_iter=int(self.max_iter))
         A += c
         return _finish(motion, A, lin, mask, bool(self.keep_observed), den=self)

@@ -135,9 +135,12 @@ def eigvalsh(G: np.ndarray, what: str = "eigvalsh") -> np.ndarray:
 # the input contract of the array solvers
 # --------------------------------------------------------------------------------------
 def prepare(X: Any, mask: Any = None, *, name: str = "X", batch: bool = False,
-            full_mask: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
+            full_mask: bool = True, copy: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
     """Validated float64 copy of a (frames x coordinates) matrix with its unobserved
     entries set to 0, and the observed mask.
+
+    ``copy=False``: X itself when it is already a float64 array (then it is written
+    only where the mask hides entries): for callers that hand X over or only read it.
 
     ``mask`` : bool like X, True = observed; None = X is complete (a NaN then raises:
     a solver never guesses which entries are missing). ``batch=True`` also accepts a
@@ -148,27 +151,28 @@ def prepare(X: Any, mask: Any = None, *, name: str = "X", batch: bool = False,
     empty, non-finite entries without a mask, a mask of another shape, non-finite
     entries marked as observed, or no observed entry at all.
     """
-    X = np.array(X, dtype=np.float64, copy=True)
+    X = np.array(X, dtype=np.float64, copy=True if copy else None)
     if X.ndim not in ((2, 3) if batch else (2,)):
         raise MocapValueError(f"{name} must be a 2-D matrix (frames x coordinates), got shape {X.shape}")
     if X.shape[-1] == 0 or X.shape[-2] == 0:
         raise MocapValueError(f"{name} is empty (shape {X.shape})")
-    if mask is None:
+    if mask is None:                     # complete: nothing to zero, no (m, n) mask unless asked
         if not np.isfinite(X).all():
             raise MocapValueError(
                 f"{name} has {int((~np.isfinite(X)).sum())} non-finite entries but no mask; "
                 f"pass mask= (True = observed) to treat them as missing")
-        m = np.ones(X.shape, dtype=bool)
-    else:
-        m = np.asarray(mask)
-        if m.shape != X.shape:
-            raise MocapValueError(f"mask must have the shape of {name} {X.shape}, got {m.shape}")
-        m = m.astype(bool)
-        bad = m & ~np.isfinite(X)
-        if bad.any():
-            raise MocapValueError(f"{name} has {int(bad.sum())} non-finite entries marked as observed")
+        return X, (np.ones(X.shape, dtype=bool) if full_mask else None)
+    m = np.asarray(mask)
+    if m.shape != X.shape:
+        raise MocapValueError(f"mask must have the shape of {name} {X.shape}, got {m.shape}")
+    m = m.astype(bool)
+    bad = m & ~np.isfinite(X)
+    if bad.any():
+        raise MocapValueError(f"{name} has {int(bad.sum())} non-finite entries marked as observed")
     if not m.any():
         raise MocapValueError(f"{name} has no observed entries")
+    if not copy and not X.flags.writeable:
+        X = X.copy()                     # hidden entries must be zeroed: never in a read-only input
     X[~m] = 0.0
     return X, (None if not full_mask and m.all() else m)
 
