@@ -157,21 +157,24 @@ def gap_lengths(observed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """
     obs = np.asarray(observed, dtype=bool)
     T, J = obs.shape
-    length = np.zeros((T, J), dtype=np.int64)
+    # int32 (a clip has < 2**31 frames): these (T, J) arrays are a third of the clip's
+    # (T, 3J) float matrix each in int64
+    length = np.zeros((T, J), dtype=np.int32)
     interior = np.zeros((T, J), dtype=bool)
     j, s, e = _runs(~obs)
     if len(j):
-        n = e - s
+        n = (e - s).astype(np.int32)
         # paint each run with its length via a cumulative-sum trick on the (T+1, J) grid
-        paint = np.zeros((T + 1, J), dtype=np.int64)
+        paint = np.zeros((T + 1, J), dtype=np.int32)
         np.add.at(paint, (s, j), n)
         np.add.at(paint, (e, j), -n)
-        length = np.cumsum(paint, axis=0)[:T]
-        inner = ((s > 0) & (e < T)).astype(np.int64)
-        flag = np.zeros((T + 1, J), dtype=np.int64)
-        np.add.at(flag, (s, j), inner)
-        np.add.at(flag, (e, j), -inner)
-        interior = np.cumsum(flag, axis=0)[:T] > 0
+        length = np.cumsum(paint, axis=0, dtype=np.int32)[:T]
+        paint[...] = 0
+        inner = ((s > 0) & (e < T)).astype(np.int32)
+        np.add.at(paint, (s, j), inner)
+        np.add.at(paint, (e, j), -inner)
+        interior = np.cumsum(paint, axis=0, dtype=np.int32)[:T] > 0
+        del paint
     return length, interior & ~obs
 
 
@@ -225,41 +228,61 @@ def supported(observed: np.ndarray, fps: float, evidence: str,
     return ok
 
 
+_ENVELOPE_BLOCK = 8192
+"""Frames per block of :func:`capture_volume`, :func:`outside_volume` and
+:func:`outside_envelope` (their temporaries stay a few MB on a clip of any length)."""
+
+
 def capture_volume(positions: np.ndarray, observed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Axis-aligned box (lo (3,), hi (3,)) of the observed samples, cm."""
-    P = np.asarray(positions)[np.asarray(observed, bool)]
-    if len(P) == 0:
+    P, obs = np.asarray(positions), np.asarray(observed, bool)
+    if not obs.any():
         return np.full(3, -np.inf), np.full(3, np.inf)
-    return P.min(axis=0), P.max(axis=0)
+    lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
+    for a in range(0, len(P), _ENVELOPE_BLOCK):            # blocks of frames: no gathered copy
+        Q = P[a:a + _ENVELOPE_BLOCK][obs[a:a + _ENVELOPE_BLOCK]]
+        if len(Q):
+            lo, hi = np.minimum(lo, Q.min(axis=0)), np.maximum(hi, Q.max(axis=0))
+    return lo, hi
 
 
 def outside_volume(positions: np.ndarray, lo: np.ndarray, hi: np.ndarray, margin_cm: float) -> np.ndarray:
     """(T, J) bool: samples farther than ``margin_cm`` (Euclidean distance to the box) outside
     the box, or not finite."""
     P = np.asarray(positions)
-    with np.errstate(invalid="ignore"):
-        d = np.linalg.norm(np.maximum(np.maximum(lo - P, P - hi), 0.0), axis=-1)
-        out = d > margin_cm
-    return out | ~np.isfinite(P).all(axis=-1)
+    out = np.empty(P.shape[:-1], bool)
+    for a in range(0, len(P), _ENVELOPE_BLOCK):            # blocks of frames: small temporaries
+        Pb = P[a:a + _ENVELOPE_BLOCK]
+        with np.errstate(invalid="ignore"):
+            d = np.linalg.norm(np.maximum(np.maximum(lo - Pb, Pb - hi), 0.0), axis=-1)
+        out[a:a + _ENVELOPE_BLOCK] = (d > margin_cm) | ~np.isfinite(Pb).all(axis=-1)
+    return out
 
 
 def outside_envelope(positions: np.ndarray, observed: np.ndarray, candidate: np.ndarray,
-                     margin_cm: float, min_markers: int = 3) -> np.ndarray:
+                     margin_cm: float, min_markers: int = 3, *, fills: np.ndarray | None = None) -> np.ndarray:
     """(T, J) bool: samples of ``positions`` marked in ``candidate`` that lie farther from the
     centroid of the markers observed in their frame than ``1.25 * r_j + margin_cm``, where
     ``r_j`` is the largest such distance of marker j over the frames it is observed (the
     largest over all markers for a marker observed in fewer than 10 frames). Frames with
     fewer than ``min_markers`` observed markers are not checked (no reference).
+    ``fills`` (T, J, 3): the values of the unobserved samples (``positions`` then only
+    gives the observed ones), merged block by block instead of in one more (T, J, 3) copy.
     """
     P = np.asarray(positions, dtype=float)
     obs = np.asarray(observed, dtype=bool)
     cand = np.asarray(candidate, dtype=bool)
-    c, n = frame_centroid(P, obs)                                                     # (T, 3)
+    n = obs.sum(axis=1)
     frames = (n >= min_markers)[:, None]                                              # has a reference
     if not (cand & frames).any():
         return np.zeros_like(cand)
-    with np.errstate(invalid="ignore"):
-        d = np.linalg.norm(np.nan_to_num(P) - c[:, None, :], axis=2)                  # (T, J)
+    d = np.empty(obs.shape)                                                            # (T, J)
+    for a in range(0, len(P), _ENVELOPE_BLOCK):                                       # blocks of frames
+        sl = slice(a, a + _ENVELOPE_BLOCK)
+        Pb = P[sl] if fills is None else np.where(obs[sl, :, None], P[sl], fills[sl])
+        c, _ = frame_centroid(Pb, obs[sl])
+        with np.errstate(invalid="ignore"):
+            d[sl] = np.linalg.norm(np.nan_to_num(Pb) - c[:, None, :], axis=2)
     ref = obs & frames
     r = np.where(ref, d, -np.inf).max(axis=0)
     enough = ref.sum(axis=0) >= 10
@@ -414,16 +437,16 @@ def apply_policy(inp, out, *, evidence: str, method: str, policy: GapPolicy | No
     has = out.observed.copy()
     miss = ~obs_in
     want = miss & has
-    ok = supported(obs_in, inp.fps, evidence, pol)
+    # gap lengths are (T, J) int arrays: only built when something is missing
+    ok = supported(obs_in, inp.fps, evidence, pol) if miss.any() else np.ones_like(miss)
     unsupported = want & ~ok
     implausible = np.zeros_like(want)
     if pol.volume_margin_cm is not None and want.any():
         lo, hi = capture_volume(inp.positions, obs_in)
         implausible = want & ok & outside_volume(P, lo, hi, pol.volume_margin_cm)
     if pol.envelope_margin_cm is not None and want.any():
-        implausible |= outside_envelope(np.where(obs_in[..., None], inp.positions, P), obs_in,
-                                        want & ok & ~implausible, pol.envelope_margin_cm,
-                                        pol.min_markers)
+        implausible |= outside_envelope(inp.positions, obs_in, want & ok & ~implausible,
+                                        pol.envelope_margin_cm, pol.min_markers, fills=P)
     keep = has & ~(unsupported | implausible)
     filled_now = keep & miss
     filled = (inp.filled & obs_in & keep) | filled_now
@@ -439,8 +462,8 @@ def apply_policy(inp, out, *, evidence: str, method: str, policy: GapPolicy | No
     else:
         by[method] = by.get(method, 0) + int(filled_now.sum())
     by = {k: v for k, v in by.items() if v}
-    length, _ = gap_lengths(obs_in)
     left = miss & ~keep
+    length = gap_lengths(obs_in)[0] if (filled_now.any() or left.any()) else None
     report = {
         "method": method,
         "filled": int(filled_now.sum()) + int(prev.get("filled", 0)),

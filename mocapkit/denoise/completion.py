@@ -272,7 +272,7 @@ class DynaMMo(Denoiser):
         motion = check_motion(motion, self.name)
         known = known_mask(motion, bool(self.detect), float(self.threshold_cm))
         km = np.repeat(known, 3, axis=1)
-        X = motion.matrix()
+        X = motion.matrix(copy=False)          # read only (the solver copies)
         A, info = _cp.lds_em_complete(X, km, k=int(self.k), max_iter=int(self.max_iter),
                                       tol=float(self.tol), estep=str(self.estep),
                                       return_info=True)

@@ -24,6 +24,7 @@ import numpy as np
 from .. import gaps, signal
 from ..errors import MocapValueError
 from ..motion import Motion
+from ..signal.filters import hampel_scores
 from ..solvers.gcv_spline import cutoff_hz, gcv_smooth
 from .base import Denoiser, register
 from .constraints import Integral, Interval, Odd, Options, Real
@@ -44,10 +45,21 @@ def require_observed_joints(motion: Motion, method: str) -> None:
             f"kalman-learned, lou-chai) or drop them with Motion.select()")
 
 
-def filled_matrix(motion: Motion, method: str, kind: str = "cubic", ends: str = "nearest") -> np.ndarray:
-    """(T, 3J) matrix of ``motion`` with gaps filled by :func:`mocapkit.gaps.fill`."""
+def filled_matrix(motion: Motion, method: str, kind: str = "cubic", ends: str = "nearest", *,
+                  copy: bool = True, observed: np.ndarray | None = None) -> np.ndarray:
+    """(T, 3J) matrix of ``motion`` with gaps filled by :func:`mocapkit.gaps.fill`.
+
+    ``observed`` (T, J): fill where it is False instead of where ``motion`` is missing (the
+    same as filling ``motion.with_observed(observed)``, without that motion's copy of
+    the positions). ``copy=False``: when nothing is to be filled, the read-only view
+    :meth:`Motion.matrix` ``(copy=False)`` instead of a copy -- for a filter that only
+    reads it (on a long clip a copy is one more matrix in memory, issue 21)."""
     require_observed_joints(motion, method)
-    return gaps.fill(motion.matrix(copy=False), motion.matrix_mask(), kind=kind, ends=ends)
+    obs = motion.observed if observed is None else observed
+    X = motion.matrix(copy=False)
+    if not copy and obs.all():
+        return X
+    return gaps.fill(X, np.repeat(obs, 3, axis=1), kind=kind, ends=ends)
 
 
 #: end handling of :func:`mocapkit.signal.gaussian`: 'odd' or a scipy.ndimage mode
@@ -106,10 +118,12 @@ class GaussianFilter(Denoiser):
 
     def denoise(self, motion: Motion) -> Motion:
         sigma, radius = self.kernel()
-        X = filled_matrix(motion, self.name)
+        X = filled_matrix(motion, self.name, copy=False)         # read only
         if self.median:
             X = signal.median(X, window=int(self.median))
-        return motion.with_matrix(signal.gaussian(X, sigma=sigma, radius=radius, mode=self.mode))
+        # the filter's result is new and used nowhere else: the Motion keeps it, uncopied
+        return motion.with_matrix(signal.gaussian(X, sigma=sigma, radius=radius, mode=self.mode),
+                                  handover=True)
 
 
 @register
@@ -137,7 +151,7 @@ class SplineFill(Denoiser):
 
     def denoise(self, motion: Motion) -> Motion:
         X = filled_matrix(motion, self.name, kind=self._kind, ends=self.ends)
-        return motion.with_matrix(X)
+        return motion.with_matrix(X, handover=True)          # a new array: no second copy
 
 
 @register
@@ -177,9 +191,9 @@ class ButterworthFilter(Denoiser):
         self._store_params(locals())
 
     def denoise(self, motion: Motion) -> Motion:
-        X = filled_matrix(motion, self.name)
+        X = filled_matrix(motion, self.name, copy=False)         # read only
         Y = signal.butterworth(X, fs=motion.fps, cutoff_hz=self.cutoff_hz, order=self.order)
-        return motion.with_matrix(Y)
+        return motion.with_matrix(Y, handover=True)              # a new array: no second copy
 
 
 @register
@@ -203,8 +217,9 @@ class SavgolFilter(Denoiser):
         self._store_params(locals())
 
     def denoise(self, motion: Motion) -> Motion:
-        X = filled_matrix(motion, self.name)
-        return motion.with_matrix(signal.savgol(X, window=self.window, polyorder=self.polyorder))
+        X = filled_matrix(motion, self.name, copy=False)         # read only
+        return motion.with_matrix(signal.savgol(X, window=self.window, polyorder=self.polyorder),
+                                  handover=True)
 
 
 @register
@@ -224,8 +239,8 @@ class MedianFilter(Denoiser):
         self._store_params(locals())
 
     def denoise(self, motion: Motion) -> Motion:
-        X = filled_matrix(motion, self.name)
-        return motion.with_matrix(signal.median(X, window=int(self.window)))
+        X = filled_matrix(motion, self.name, copy=False)         # read only
+        return motion.with_matrix(signal.median(X, window=int(self.window)), handover=True)
 
 
 @register
@@ -272,7 +287,9 @@ class GCVSpline(Denoiser):
         X, M = motion.matrix(copy=False), motion.matrix_mask()    # read only
         f, info = gcv_smooth(X, M, order=self.order, robust=bool(self.robust), group=3,
                              min_scale=float(self.min_scale_cm))
-        return motion.with_matrix(f).with_source(gcv_spline=gcv_summary(info, motion.fps, self.order))
+        # f is gcv_smooth's own new array: the Motion keeps it, uncopied
+        return motion.with_matrix(f, handover=True).with_source(
+            gcv_spline=gcv_summary(info, motion.fps, self.order))
 
 
 def gcv_summary(info, fps: float, order: int) -> dict:
@@ -348,23 +365,22 @@ class HampelFilter(Denoiser):
 
     def flags(self, motion: Motion) -> np.ndarray:
         """(T, J) bool: observed joints the test rejects."""
-        X = filled_matrix(motion, self.name)
+        X = filled_matrix(motion, self.name, copy=False)         # read only
         T, J = motion.observed.shape
         if T < 3:
             return np.zeros((T, J), dtype=bool)
         ns = float(self.n_sigmas)
-        _, res, sig = signal.hampel_residuals(
-            X, window=int(self.window), scale=self.scale,
-            min_sigma=self.min_sigma_cm, exclude_center=True)
-        sigmas = list(sig) if self.scale == "both" else [sig]
+        scales = ("global", "local") if self.scale == "both" else (self.scale,)
         levels = [ns, max(ns - 1.0, 0.5)] if self.scale == "both" else [ns]
+        # per joint: sum over x, y, z of (r / sigma)² (3-dof test), or the largest one
+        # (any coordinate over n sigmas); computed in time chunks (hampel_scores), not
+        # from whole residual / sigma / square arrays
+        scores = hampel_scores(X, window=int(self.window), scales=scales,
+                               min_sigma=self.min_sigma_cm, exclude_center=True, group=3,
+                               reduce="sum" if self.joint_test else "max")
         flagged = np.ones((T, J), dtype=bool)
-        for sg, n in zip(sigmas, levels):
-            z2 = (res / sg).reshape(T, J, 3) ** 2
-            if self.joint_test:
-                flagged &= z2.sum(axis=2) > float(signal.gate_threshold(n, 3))
-            else:
-                flagged &= (z2 > n * n).any(axis=2)
+        for z2, n in zip(scores, levels):
+            flagged &= z2 > (float(signal.gate_threshold(n, 3)) if self.joint_test else n * n)
         return flagged & motion.observed
 
     def denoise(self, motion: Motion) -> Motion:
@@ -373,5 +389,5 @@ class HampelFilter(Denoiser):
         lost = ~keep.any(axis=0) & motion.observed.any(axis=0)
         keep[:, lost] = motion.observed[:, lost]        # never reject every frame of a joint
         flagged &= ~keep
-        Y = filled_matrix(motion.with_observed(keep), self.name)
-        return motion.with_matrix(Y).with_source(flagged=flagged)
+        Y = filled_matrix(motion, self.name, observed=keep)      # a new array
+        return motion.with_matrix(Y, handover=True).with_source(flagged=flagged)

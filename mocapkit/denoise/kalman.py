@@ -361,17 +361,18 @@ class KalmanLearned(Denoiser):
         self.joint_names_ = list(first.skeleton.names)
         return self
 
-    def _initial_state(self, Z, M, F, Qf, H, Rdiag, order):
+    def _initial_state(self, y0, F, Qf, H, Rdiag, order):
         """Prior of the first state: mean = the first frame projected on the basis
-        (missing coordinates at the training mean; zero velocity for order 2);
+        (``y0``: the first frame minus the training mean, 0 on missing coordinates, i.e.
+        missing coordinates at the training mean; zero velocity for order 2);
         covariance = the steady-state prediction covariance of the filter (discrete
         algebraic Riccati equation), so on complete frames the covariance recursion is
         stationary from the start and :func:`mocapkit.signal.rts_smoother` reuses one
         set of gains for every frame (:func:`mocapkit.signal.steady_state_covariance`).
         Falls back to the training state covariance if the doubling iteration does not
         converge."""
-        mu, U = np.asarray(self.mean_), np.asarray(self.components_)
-        s0 = U.T @ np.where(M[0], Z[0] - mu, 0.0)
+        U = np.asarray(self.components_)
+        s0 = U.T @ y0
         x0 = np.tile(s0, order)
         try:
             with np.errstate(all="ignore"):
@@ -409,11 +410,16 @@ class KalmanLearned(Denoiser):
         if not motion.observed.any():
             raise MocapValueError("kalman-learned: the clip has no observed joint at all")
         T, J = motion.observed.shape
-        X, M = motion.matrix(), motion.matrix_mask()
+        X, M = motion.matrix(copy=False), motion.matrix_mask()      # read only: no copy
         sigma = _noise_sigma(X, M, self.measurement_sigma_cm)
         tr = self._transform(motion, int(self.up_axis_))
-        Z = tr.to_local(motion.positions).reshape(T, -1)
         mu, U = np.asarray(self.mean_), np.asarray(self.components_)
+        # the smoother's observations y - mu (0 where missing), made in place in the new
+        # local-coordinate array: the local positions themselves are not kept (one matrix
+        # less; below, y - mu - U s stands for y - (mu + U s))
+        Yc = tr.to_local(motion.positions).reshape(T, -1)
+        Yc -= mu
+        Yc[~M] = 0.0
         k = U.shape[1]
         order = self.A_.shape[1] // k
         n = order * k
@@ -432,15 +438,25 @@ class KalmanLearned(Denoiser):
         H[:, :k] = U
         Dres = np.asarray(self.resid_var_, dtype=float)
         Rdiag = sigma ** 2 + Dres
-        x0, P0 = self._initial_state(Z, M, F, Qf, H, Rdiag, order)
-        xs, _ = signal.rts_smoother(np.where(M, Z - mu, 0.0)[:, None, :], M[:, None, :], F=F, Q=Qf,
+        x0, P0 = self._initial_state(Yc[0], F, Qf, H, Rdiag, order)
+        xs, _ = signal.rts_smoother(Yc[:, None, :], M[:, None, :], F=F, Q=Qf,
                                     R=Rdiag[None, :], H=H, b=bf, x0=x0[None], P0=P0[None])
-        Zhat = mu + xs[:, 0, :k] @ U.T
-        Zhat = np.where(M, Zhat + (Dres / Rdiag) * (np.where(M, Z, 0.0) - Zhat), Zhat)
-        out = motion.with_positions(tr.to_world(Zhat.reshape(T, J, 3)))
+        Zhat = xs[:, 0, :k] @ U.T                                   # U s
+        del xs
+        # observed coordinates get the posterior mean of e, D / (D + r) (y - mu - U s);
+        # missing ones mu + U s -- in place, in the two matrices already there
+        Yc -= Zhat
+        Yc *= Dres / Rdiag
+        Yc[~M] = 0.0
+        Zhat += mu
+        Zhat += Yc
+        del Yc
+        # to_world's result is new: the Motion keeps it, uncopied
+        out = motion.with_positions(tr.to_world(Zhat.reshape(T, J, 3)), handover=True)
+        del Zhat
         if not M.all():          # frames with few observed markers: interpolation in time
             from .. import gaps
 
-            out = out.with_matrix(evidence_blend(out.matrix(), gaps.fill(X, M, never_observed=0.0), M,
-                                                 motion.observed))
+            out = out.with_matrix(evidence_blend(out.matrix(copy=False), gaps.fill(X, M, never_observed=0.0),
+                                                 M, motion.observed), handover=True)
         return out

@@ -32,6 +32,7 @@ import numpy as np
 from ..errors import MocapValueError
 from ..motion import Motion
 from ..signal import estimate_noise
+from ..signal._arrays import by_channel_blocks
 from .base import Denoiser, register
 from .constraints import Integral, Interval, Options, Real
 
@@ -46,7 +47,7 @@ def wavelet_shrink(X: np.ndarray, *, wavelet: str = "bior3.5", level: int | None
     """
     import pywt
 
-    X = np.asarray(X, dtype=np.float64)
+    X = np.asarray(X, dtype=np.float64)               # read only
     if X.ndim == 1:
         return wavelet_shrink(X[:, None], wavelet=wavelet, level=level,
                               threshold_scale=threshold_scale, mode=mode)[:, 0]
@@ -66,17 +67,30 @@ def wavelet_shrink(X: np.ndarray, *, wavelet: str = "bior3.5", level: int | None
     lev = min(lev, max_level)
     if lev == 0 or T < 2:
         return X.copy()
-    coeffs = pywt.wavedec(X, w, mode="symmetric", level=lev, axis=0)
-    sigma = estimate_noise(X, method="wavelet-mad", wavelet=w)      # (C,) median|d1| / 0.6745
-    thr = float(threshold_scale) * sigma * math.sqrt(2.0 * math.log(T))
-    out = [coeffs[0]]
-    for d in coeffs[1:]:
-        if mode == "soft":
-            out.append(np.sign(d) * np.maximum(np.abs(d) - thr, 0.0))
-        else:
-            out.append(np.where(np.abs(d) > thr, d, 0.0))
-    Y = pywt.waverec(out, w, mode="symmetric", axis=0)
-    return Y[:T]
+    root = math.sqrt(2.0 * math.log(T))
+
+    def shrink(B: np.ndarray) -> np.ndarray:
+        """(c, T) block of channels, time along the rows -> its shrunk series (c, T)."""
+        coeffs = pywt.wavedec(B, w, mode="symmetric", level=lev, axis=-1)
+        sigma = estimate_noise(B, method="wavelet-mad", wavelet=w, axis=-1)   # (c,) median|d1| / 0.6745
+        thr = (float(threshold_scale) * sigma * root)[:, None]
+        for d in coeffs[1:]:                         # in place: the block's own coefficients
+            if mode == "soft":
+                mag = np.abs(d)
+                np.subtract(mag, thr, out=mag)
+                np.maximum(mag, 0.0, out=mag)
+                np.multiply(np.sign(d), mag, out=d)
+            else:
+                d[np.abs(d) <= thr] = 0.0
+        return pywt.waverec(coeffs, w, mode="symmetric", axis=-1)[:, :T]
+
+    # every channel is shrunk on its own (its own noise level and threshold), so channel
+    # blocks give the same numbers while the coefficients, their thresholded copies and
+    # the reconstruction exist for one block at a time, not for the whole clip (4.6x the
+    # input at 100,000 frames, issue 21).  4 channels a block: their coefficients stay in
+    # cache -- wavelet_shrink alone ran 263k / 248k frames/s at 10k / 100k frames with 4,
+    # 267k / 146k with 16
+    return by_channel_blocks(shrink, X, block=4)
 
 
 @register
@@ -109,7 +123,7 @@ class WaveletDenoiser(Denoiser):
     def denoise(self, motion: Motion) -> Motion:
         from .filters import filled_matrix
 
-        X = filled_matrix(motion, self.name)
+        X = filled_matrix(motion, self.name, copy=False)         # read only
         Y = wavelet_shrink(X, wavelet=self.wavelet, level=self.level, threshold_scale=float(self.threshold_scale),
                            mode=self.mode)
-        return motion.with_matrix(Y)
+        return motion.with_matrix(Y, handover=True)              # a new array: no second copy

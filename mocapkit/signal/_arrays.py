@@ -18,25 +18,51 @@ def as_2d(X, axis: int) -> tuple[np.ndarray, tuple[int, ...], int]:
     return np.array(A.reshape(shape[0], -1), dtype=np.float64, copy=True), shape, axis
 
 
+def as_2d_view(X, axis: int) -> tuple[np.ndarray, tuple[int, ...], int]:
+    """:func:`as_2d` without the copy: a (T, C) float64 *view* of ``X`` where its layout
+    allows (a (T, 3J) motion matrix always does), for code that only reads it -- on a long
+    clip the copy is one more matrix in memory (issue 21)."""
+    A = np.asarray(X, dtype=np.float64)
+    if A.ndim == 0:
+        raise MocapValueError("expected an array with a time axis, got a scalar")
+    axis = axis % A.ndim
+    A = np.moveaxis(A, axis, 0)
+    shape = A.shape
+    return A.reshape(shape[0], -1), shape, axis
 
 
 #: channels per call of :func:`by_channel_blocks`
 CHANNEL_BLOCK = 16
 
 
-def by_channel_blocks(func, A: np.ndarray) -> np.ndarray:
-    """``func`` (a filter along the last axis of a (c, T) array) applied to the (T, C)
-    array ``A`` channel block by channel block, on the transposed layout; returns (T, C).
+def channel_blocks(n_channels: int, block: int = CHANNEL_BLOCK) -> list[slice]:
+    """Slices of consecutive channels, ``block`` at a time (the last one shorter): the
+    blocks of :func:`by_channel_blocks`, for per-channel code whose results are not one
+    (T, C) array (per-channel statistics, in-place updates)."""
+    return [slice(c, min(c + block, n_channels)) for c in range(0, n_channels, block)]
+
+
+def by_channel_blocks(func, A: np.ndarray, out: np.ndarray | None = None,
+                      block: int = CHANNEL_BLOCK) -> np.ndarray:
+    """``func`` (a filter along the last axis of a (c, T) array, returning (c, T)) applied
+    to the (T, C) array ``A`` channel block by channel block, on the transposed layout;
+    returns (T, C) C-contiguous (``out`` when given, which may be ``A`` itself: each block
+    is read before it is written).
 
     Why: scipy's recursive filters on one long (T, C) array slow down far more than the
     data grows once it leaves the cache -- ``sosfiltfilt`` on 100,000 x 93 frames took 37x
     the time of 10,000 frames; blocks of 16 time-contiguous channels took 0.29 s against
-    0.85-1.04 s for the whole array, the same numbers."""
-    At = np.ascontiguousarray(A.T)
-    out = np.empty_like(At)
-    for c in range(0, At.shape[0], CHANNEL_BLOCK):              # blocks of channels, not frames
-        out[c:c + CHANNEL_BLOCK] = func(At[c:c + CHANNEL_BLOCK])
-    return out.T
+    0.85-1.04 s for the whole array, the same numbers.  Memory: only one block is
+    transposed at a time and the results go straight into the output, so the call needs
+    ``A``, the output and a few blocks (a whole transposed copy and its filtered copy were
+    two more matrices at 100,000 frames).  ``block``: channels per block (a filter whose
+    per-channel work makes several arrays of the series' length may want fewer)."""
+    T, C = A.shape
+    if out is None:
+        out = np.empty((T, C), dtype=A.dtype)
+    for sl in channel_blocks(C, block):                              # blocks of channels, not frames
+        out[:, sl] = func(np.ascontiguousarray(A[:, sl].T)).T
+    return out
 
 
 def restore(Y: np.ndarray, shape: tuple[int, ...], axis: int) -> np.ndarray:

@@ -22,9 +22,9 @@ from typing import Literal
 import numpy as np
 
 from ..errors import MocapValueError
-from ._arrays import as_2d, by_channel_blocks, require_finite, restore
+from ._arrays import as_2d_view, by_channel_blocks, channel_blocks, require_finite, restore
 
-__all__ = ["gaussian", "butterworth", "savgol", "median", "hampel", "hampel_residuals"]
+__all__ = ["gaussian", "butterworth", "savgol", "median", "hampel", "hampel_residuals", "hampel_scores"]
 
 
 def _line_end_weights(m: int) -> np.ndarray:
@@ -35,20 +35,25 @@ def _line_end_weights(m: int) -> np.ndarray:
     return (2.0 * (2 * m - 1) - 6.0 * t) / (m * (m + 1))
 
 
-def _pad_trend(A: np.ndarray, n: int, m: int) -> tuple[np.ndarray, int]:
-    """Extend (T, C) ``A`` by ``n`` frames at both ends (capped at T-1) by point reflection
-    about the end values of local least-squares lines over ``m`` samples (module doc)."""
-    T = A.shape[0]
+def _pad_trend(B: np.ndarray, n: int, m: int) -> tuple[np.ndarray, int]:
+    """Extend (c, T) ``B`` -- channels along the rows, time along the last axis, the
+    layout of :func:`~mocapkit.signal._arrays.by_channel_blocks` -- by ``n`` frames at both
+    ends (capped at T-1) by point reflection about the end values of local least-squares
+    lines over ``m`` samples (module doc)."""
+    T = B.shape[-1]
     n = int(max(0, min(n, T - 1)))
     if n == 0:
-        return A, 0
+        return B, 0
     m = int(max(1, min(m, T)))
     w = _line_end_weights(m)
-    a0 = w @ A[:m]
-    a1 = w @ A[::-1][:m]
-    left = 2.0 * a0 - A[n:0:-1]
-    right = 2.0 * a1 - A[-2:-n - 2:-1]
-    return np.concatenate([left, A, right], axis=0), n
+    # the end samples as (m, c) frames x channels, laid out as in a (T, C) array (the
+    # last ones in reversed row order), so that the products sum in the same order and
+    # the end values are bit-identical to those of the whole-array layout
+    a0 = w @ np.ascontiguousarray(B[:, :m].T)
+    a1 = w @ np.ascontiguousarray(B[:, T - m:].T)[::-1]
+    left = 2.0 * a0[:, None] - B[:, n:0:-1]
+    right = 2.0 * a1[:, None] - B[:, -2:-n - 2:-1]
+    return np.concatenate([left, B, right], axis=1), n
 
 
 # ---------------------------------------------------------------------------------------
@@ -99,13 +104,20 @@ def gaussian(X, /, *, sigma: float, radius: int | None = None, mode: str = "odd"
     r = int(math.ceil(4.0 * sigma)) if radius is None else int(radius)
     if r < 0:
         raise MocapValueError(f"radius must be >= 0, got {radius!r}")
-    A, shape, axis = as_2d(X, axis)
+    A, shape, axis = as_2d_view(X, axis)          # read only: the result is a new array
     require_finite(A, "gaussian filtering")
     if r == 0:
-        return restore(A, shape, axis)
+        return restore(A.copy(), shape, axis)
     if mode == "odd":
-        P, n = _pad_trend(A, r, 2 * r + 1)
-        Y = gaussian_filter1d(P, sigma, axis=0, radius=r, mode="nearest")[n:n + A.shape[0]]
+        T = A.shape[0]
+
+        def smooth(B):          # (c, T) block: pad it, filter it, cut the padding off
+            P, n = _pad_trend(B, r, 2 * r + 1)
+            return gaussian_filter1d(P, sigma, axis=-1, radius=r, mode="nearest")[:, n:n + T]
+
+        # block by block, so that the padded copy and the filtered copy are of one block
+        # (whole, they were two more matrices: 4x the input at 100,000 frames, issue 21)
+        Y = by_channel_blocks(smooth, A)
     else:
         Y = gaussian_filter1d(A, sigma, axis=0, radius=r, mode=mode)
     return restore(Y, shape, axis)
@@ -147,7 +159,7 @@ def butterworth(X, /, *, fs: float, cutoff_hz: float, order: int = 4, axis: int 
     if int(order) != order or order < 1:
         raise MocapValueError(f"order must be a positive integer, got {order!r}")
     sos = butter(int(order), cutoff_hz / (fs / 2), btype="low", output="sos")
-    A, shape, axis = as_2d(X, axis)
+    A, shape, axis = as_2d_view(X, axis)          # read only: the result is a new array
     require_finite(A, "Butterworth filtering")
     T = A.shape[0]
     min_pad = 3 * (2 * len(sos) + 1)
@@ -157,8 +169,14 @@ def butterworth(X, /, *, fs: float, cutoff_hz: float, order: int = 4, axis: int 
             f"(zero-phase filtering pads {min_pad} frames at each end); this clip has {T}. "
             f"Use a lower order or the 'gaussian' method for such short clips")
     n = max(min_pad, int(round(fs / cutoff_hz))) if padlen is None else int(padlen)
-    P, n = _pad_trend(A, n, max(2, int(round(fs / cutoff_hz / 2))))
-    Y = by_channel_blocks(lambda B: sosfiltfilt(sos, B, axis=-1, padtype=None), P)[n:n + T]
+    m = max(2, int(round(fs / cutoff_hz / 2)))
+
+    def zero_phase(B):          # (c, T) block: pad it, filter it, cut the padding off
+        P, k = _pad_trend(B, n, m)
+        return sosfiltfilt(sos, P, axis=-1, padtype=None)[:, k:k + T]
+
+    # padding inside the blocks: a padded copy of the whole clip was one more matrix
+    Y = by_channel_blocks(zero_phase, A)
     return restore(Y, shape, axis)
 
 
@@ -176,7 +194,7 @@ def savgol(X, /, *, window: int, polyorder: int = 3, axis: int = 0) -> np.ndarra
         raise MocapValueError(f"polyorder must be >= 0, got {polyorder}")
     if window < 1 or window % 2 == 0 or window <= polyorder:
         raise MocapValueError(f"window must be an odd number of frames > polyorder ({polyorder}), got {window}")
-    A, shape, axis = as_2d(X, axis)
+    A, shape, axis = as_2d_view(X, axis)          # read only: the result is a new array
     require_finite(A, "Savitzky-Golay filtering")
     T = A.shape[0]
     w = min(window, T if T % 2 else T - 1)
@@ -197,44 +215,69 @@ def median(X, /, *, window: int, axis: int = 0) -> np.ndarray:
     window = int(window)
     if window < 1 or window % 2 == 0:
         raise MocapValueError(f"median window must be a positive odd number of frames, got {window}")
-    A, shape, axis = as_2d(X, axis)
+    A, shape, axis = as_2d_view(X, axis)          # read only: the result is a new array
     require_finite(A, "median filtering")
     if window == 1:
-        return restore(A, shape, axis)
+        return restore(A.copy(), shape, axis)
     Y = median_filter(A, size=(window, 1), mode="mirror")
     return restore(Y, shape, axis)
+
+
+def _reflect_index(T: int, h: int) -> np.ndarray:
+    """Frames -h .. T+h-1 of the 'reflect' extension (d c b a | a b c d | d c b a) as
+    indices into 0..T-1; for windows longer than the clip the reflection repeats."""
+    if T <= 1:
+        return np.zeros(T + 2 * h, dtype=np.intp)
+    idx = np.mod(np.arange(-h, T + h), 2 * T)
+    return np.where(idx >= T, 2 * T - 1 - idx, idx)
+
+
+def _rolling_chunks(A: np.ndarray, window: int, chunk: int, exclude_center: bool):
+    """Yield ``(start, stop, med, mad)`` for time chunks of the (T, C) array ``A``: the
+    rolling median of ``window`` frames (windows reflected at the ends; with
+    ``exclude_center`` the window minus its centre sample) and the median absolute
+    deviation about it, (stop - start, C) each.  Each chunk pads only its own frames, so
+    the (chunk, C, window) window view and the padding stay small whatever T is."""
+    from numpy.lib.stride_tricks import sliding_window_view
+
+    T = A.shape[0]
+    h = window // 2
+    idx = _reflect_index(T, h)
+    for s in range(0, T, chunk):
+        e = min(T, s + chunk)
+        W = sliding_window_view(A[idx[s:e + 2 * h]], window, axis=0)   # (n, C, window)
+        if exclude_center:
+            # np.delete copies: the median may reorder that copy's windows in place (no
+            # second copy) -- the deviations below do not depend on the order in a window
+            W = np.delete(W, h, axis=-1)
+            mm = np.median(W, axis=-1, overwrite_input=True)
+        else:
+            mm = np.median(W, axis=-1)
+        D = np.subtract(W, mm[..., None])
+        yield s, e, mm, np.median(np.abs(D, out=D), axis=-1, overwrite_input=True)
 
 
 def _rolling_median_mad(A: np.ndarray, window: int, chunk: int = 4096,
                         exclude_center: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Rolling median and median absolute deviation (about that median) over ``window``
     frames, windows reflected at the ends ('reflect' mode); with ``exclude_center`` over
-    the window minus its centre sample. Processed in time chunks so the
-    (chunk, C, window) view stays small."""
-    from numpy.lib.stride_tricks import sliding_window_view
-
-    T = A.shape[0]
-    h = window // 2
-    if T > 1:
-        idx = np.arange(-h, T + h)
-        # 'reflect' (d c b a | a b c d | d c b a); for windows longer than the clip repeat it
-        period = 2 * T
-        idx = np.mod(idx, period)
-        idx = np.where(idx >= T, period - 1 - idx, idx)
-        P = A[idx]
-    else:
-        P = np.repeat(A, 2 * h + 1, axis=0)
+    the window minus its centre sample (:func:`_rolling_chunks`)."""
     med = np.empty_like(A)
     mad = np.empty_like(A)
-    for s in range(0, T, chunk):
-        e = min(T, s + chunk)
-        W = sliding_window_view(P[s:e + 2 * h], window, axis=0)        # (n, C, window)
-        if exclude_center:
-            W = np.delete(W, h, axis=-1)
-        mm = np.median(W, axis=-1)
+    for s, e, mm, dev in _rolling_chunks(A, window, chunk, exclude_center):
         med[s:e] = mm
-        mad[s:e] = np.median(np.abs(W - mm[..., None]), axis=-1)
+        mad[s:e] = dev
     return med, mad
+
+
+def _global_scale(res: np.ndarray) -> np.ndarray:
+    """(C,) 1.4826 x the MAD of each column of ``res`` (T, C) about its median, a block
+    of columns at a time (np.median copies its input: a block, not the whole matrix)."""
+    out = np.empty(res.shape[1])
+    for sl in channel_blocks(res.shape[1]):
+        r = res[:, sl]
+        out[sl] = 1.4826 * np.median(np.abs(r - np.median(r, axis=0)), axis=0)
+    return out
 
 
 def hampel_residuals(X, /, *, window: int = 7, scale: Literal["local", "global", "both"] = "local",
@@ -260,18 +303,71 @@ def hampel_residuals(X, /, *, window: int = 7, scale: Literal["local", "global",
         raise MocapValueError(f"hampel window must be an odd number of frames >= 3, got {window}")
     if scale not in ("local", "global", "both"):
         raise MocapValueError(f"scale must be 'local', 'global' or 'both', got {scale!r}")
-    A, shape, axis = as_2d(X, axis)
+    A, shape, axis = as_2d_view(X, axis)          # read only
     require_finite(A, "the Hampel filter")
     med, mad = _rolling_median_mad(A, window, exclude_center=exclude_center)
     res = A - med
-    loc = 1.4826 * mad
-    r0 = np.median(res, axis=0)
-    glob = np.broadcast_to(1.4826 * np.median(np.abs(res - r0), axis=0), A.shape)
-    out = []
-    for sig in ((glob, loc) if scale == "both" else (glob,) if scale == "global" else (loc,)):
-        out.append(restore(np.maximum(sig, float(min_sigma)), shape, axis))
-    sig = np.stack(out) if scale == "both" else out[0]
-    return restore(med, shape, axis), restore(res, shape, axis), sig
+    loc = np.multiply(mad, 1.4826, out=mad)
+    glob = np.broadcast_to(_global_scale(res), A.shape)
+    sigs = (glob, loc) if scale == "both" else (glob,) if scale == "global" else (loc,)
+    S = np.empty((len(sigs),) + A.shape)              # written in place: no stacked copy
+    for o, sg in zip(S, sigs):
+        np.maximum(sg, float(min_sigma), out=o)
+    S = np.moveaxis(S.reshape((len(sigs),) + shape), 1, axis + 1)
+    return restore(med, shape, axis), restore(res, shape, axis), (S if scale == "both" else S[0])
+
+
+def hampel_scores(X, /, *, window: int = 7, scales: tuple[str, ...] = ("global", "local"),
+                  min_sigma: float = 0.0, exclude_center: bool = False, group: int = 1,
+                  reduce: Literal["sum", "max"] = "sum", chunk: int = 1024) -> list[np.ndarray]:
+    """Squared scaled residuals ``(res / sigma)²`` of :func:`hampel_residuals`, reduced
+    over each group of ``group`` consecutive channels (``"sum"``: the 3-dof statistic of a
+    marker's x, y, z; ``"max"``: the largest of them, NaN ignored): one (T, C // group)
+    array per entry of ``scales`` (``"global"``, ``"local"``).
+
+    The same numbers as from the arrays of :func:`hampel_residuals` (same operations, in
+    time chunks), without holding them: only the residuals are kept whole (the global
+    scale needs all of them), so the call needs about 1.7 matrices besides ``X`` where
+    ``hampel_residuals`` and the scaled squares made from its output needed about eight
+    (issue 21: 10x the input at 100,000 frames for the ``hampel`` method).
+
+    ``X`` : (T, C) complete (finite); ``window``, ``min_sigma``, ``exclude_center`` as
+    :func:`hampel_residuals`.  ``chunk``: frames per chunk (its window temporaries are
+    ~2 x chunk x C x window values: 1,024 frames ran as fast as 4,096 at 100,000 frames,
+    2.5 s, and need a quarter of the memory).
+    """
+    window = int(window)
+    if window < 3 or window % 2 == 0:
+        raise MocapValueError(f"hampel window must be an odd number of frames >= 3, got {window}")
+    if not scales or any(sc not in ("global", "local") for sc in scales):
+        raise MocapValueError(f"scales must be 'global' and/or 'local', got {scales!r}")
+    if reduce not in ("sum", "max"):
+        raise MocapValueError(f"reduce must be 'sum' or 'max', got {reduce!r}")
+    A = np.asarray(X, dtype=np.float64)                  # read only
+    if A.ndim != 2 or A.shape[1] % int(group):
+        raise MocapValueError(f"expected a (T, C) array with C a multiple of group={group}, got {A.shape}")
+    require_finite(A, "the Hampel filter")
+    T, C = A.shape
+    G = C // int(group)
+    floor = float(min_sigma)
+
+    def score(r: np.ndarray, sig: np.ndarray) -> np.ndarray:        # (n, C) -> (n, G)
+        z2 = (r / sig).reshape(len(r), G, int(group)) ** 2
+        return z2.sum(axis=2) if reduce == "sum" else np.fmax.reduce(z2, axis=2)
+
+    out = {sc: np.empty((T, G)) for sc in scales}
+    res = np.empty((T, C)) if "global" in scales else None
+    for s, e, mm, mad in _rolling_chunks(A, window, chunk, exclude_center):
+        r = A[s:e] - mm
+        if res is not None:
+            res[s:e] = r
+        if "local" in out:
+            out["local"][s:e] = score(r, np.maximum(1.4826 * mad, floor))
+    if res is not None:
+        glob = np.maximum(_global_scale(res), floor)
+        for s in range(0, T, chunk):
+            out["global"][s:s + chunk] = score(res[s:s + chunk], glob)
+    return [out[sc] for sc in scales]
 
 
 def hampel(X, /, *, window: int = 7, n_sigmas: float = 3.0, scale: Literal["local", "global"] = "local",

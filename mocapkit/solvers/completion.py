@@ -726,7 +726,8 @@ def lds_em_complete(X: Any, mask: Any = None, *, k: int | None = None, max_iter:
 
     Returns
     -------
-    Xhat : (T, C) completed matrix; with ``return_info`` also a
+    Xhat : (T, C) completed matrix (X itself, after 0 iterations, when nothing is
+    missing: observed entries are kept as they are); with ``return_info`` also a
     :class:`~mocapkit.solvers.info.SolveInfo` (residual: the last relative change of the
     filled values, :data:`EM_CRITERION`; extra ``k``).  Stopping at ``max_iter`` above
     ``tol`` warns (:func:`~mocapkit.solvers.info.warn_not_converged`).
@@ -737,12 +738,13 @@ def lds_em_complete(X: Any, mask: Any = None, *, k: int | None = None, max_iter:
     if k < 1:
         raise MocapValueError(f"k must be >= 1, got {k}")
     k = min(k, Cn, max(T - 1, 1))
-    Xf = X if m.all() else gaps.fill(np.where(m, X, np.nan), m, never_observed=0.0)
-    if T < 3:
+    if T < 3 or m.all():                 # nothing to fill (observed entries are kept as they are)
+        Xf = X if m.all() else gaps.fill(np.where(m, X, np.nan), m, never_observed=0.0)
         info = SolveInfo(0, True, 0.0, EM_CRITERION, {"k": k})
         return (Xf, info) if return_info else Xf
-    mean = Xf.mean(axis=0)
-    Xc = Xf - mean
+    Xc = gaps.fill(np.where(m, X, np.nan), m, never_observed=0.0)    # ours: centred in place
+    mean = Xc.mean(axis=0)
+    Xc -= mean
     scale = max(float(Xc.var()), 1e-12)
     floor = min_var * scale
     params = _lds_init(Xc, k, floor)
@@ -752,8 +754,9 @@ def lds_em_complete(X: Any, mask: Any = None, *, k: int | None = None, max_iter:
     info = SolveInfo(it, converged, change, EM_CRITERION, {"k": k})
     if not converged:
         warn_not_converged("dynammo", info, tol, max_iter, stacklevel=2)
-    out = Xc + mean
-    out[m] = X[m]
+    out = Xc
+    out += mean
+    np.copyto(out, X, where=m)
     return (out, info) if return_info else out
 
 

@@ -54,6 +54,7 @@ from scipy.linalg import solve_banded, solveh_banded
 from scipy.stats import chi2
 
 from ..errors import MocapValueError
+from ..signal._arrays import channel_blocks
 
 __all__ = ["gcv_smooth", "GCVInfo", "cutoff_hz"]
 
@@ -141,17 +142,23 @@ def _penalty_bands(n: int, order: int) -> np.ndarray:
     return P
 
 
-def _solve_weighted(Y: np.ndarray, W: np.ndarray, s: np.ndarray, order: int) -> np.ndarray:
+def _solve_weighted(Y: np.ndarray, W: np.ndarray, s: np.ndarray, order: int,
+                    out: np.ndarray | None = None) -> np.ndarray:
     """Exact minimiser of sum w (y - f)^2 + s ||D_m f||^2 per column (Whittaker 1923;
     Garcia 2010 eq. 5): a banded SPD system per column, (W + s D^T D) f = W y.
 
     One banded Cholesky solve per column (O(T m^2)); the loop runs over channels, not
     frames. The DCT of (G7) is used only to choose s: at the clip's ends the two
     discretisations differ slightly, and one solver for the fit keeps it one thing.
+    ``W``: float weights or a bool mask (weights 0 / 1). ``out``: (T, C) array the fit
+    is written into (may hold the previous fit; ``Y`` itself is never written).
     """
-    out = Y.copy()                 # a column with < order + 1 weighted samples keeps Y
-    P = _penalty_bands(Y.shape[0], order)
     ok = (W > 0).sum(axis=0) > order
+    if out is None:
+        out = Y.copy()             # a column with < order + 1 weighted samples keeps Y
+    else:
+        out[:, ~ok] = Y[:, ~ok]
+    P = _penalty_bands(Y.shape[0], order)
     for c in np.flatnonzero(ok):
         ab = s[c] * P
         ab[order] += W[:, c]
@@ -166,16 +173,36 @@ def _solve_weighted(Y: np.ndarray, W: np.ndarray, s: np.ndarray, order: int) -> 
     return out
 
 
+def _completed_dct(Y: np.ndarray, W: np.ndarray, f: np.ndarray, out: np.ndarray) -> np.ndarray:
+    """DCT-II (orthonormal, along time) of the series completed with the current fit,
+    ``W y + (1 - W) f`` (T, C), written into ``out`` (which may be ``f``: each block of
+    channels is read before it is written). One block at a time, so the completed series
+    and its temporaries exist for a block, not for the whole clip (issue 21)."""
+    for sl in channel_blocks(Y.shape[1]):
+        w = W[:, sl]
+        out[:, sl] = dct(w * Y[:, sl] + (1.0 - w) * f[:, sl], type=2, norm="ortho", axis=0)
+    return out
+
+
 def _select_and_fit(Y: np.ndarray, W: np.ndarray, order: int, s_fixed: np.ndarray | None,
-                    f: np.ndarray, passes: int = 2) -> tuple[np.ndarray, np.ndarray]:
-    """s by (W2) on the series completed with the current fit, then the exact weighted fit."""
+                    f: np.ndarray, passes: int = 2, out: np.ndarray | None = None
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """s by (W2) on the series completed with the current fit, then the exact weighted fit.
+
+    ``out``: where the fit goes (may be ``f`` itself; default a new array).  The DCT of
+    the completed series is kept in that same buffer until the solve overwrites it (the
+    solve reads only Y and W), so a call needs one matrix besides its inputs where it
+    needed three (the DCT, the new fit and the previous one; issue 21).
+    """
     if s_fixed is not None:
-        return _solve_weighted(Y, W, s_fixed, order), s_fixed
+        return _solve_weighted(Y, W, s_fixed, order, out=out), s_fixed
     n_obs = np.maximum(W.sum(axis=0), 1.0)
     lam = _eig(Y.shape[0], order)
+    if out is None:
+        out = np.empty(Y.shape)
     for _ in range(passes):
-        s, _ = _choose_s(dct(W * Y + (1.0 - W) * f, type=2, norm="ortho", axis=0), lam, n_obs)
-        f = _solve_weighted(Y, W, s, order)
+        s, _ = _choose_s(_completed_dct(Y, W, f, out), lam, n_obs)
+        f = _solve_weighted(Y, W, s, order, out=out)
     return f, s
 
 
@@ -232,16 +259,19 @@ def gcv_smooth(X, mask=None, *, order: int = 2, s: float | np.ndarray | None = N
                               f"no observed sample")
     s_fixed = None if s is None else np.broadcast_to(np.asarray(s, float), (C,)).copy()
     from ..gaps import fill                           # the one gap filler
-    Y0 = fill(Y, M)                                  # a copy; samples outside M interpolated
-    W = M.astype(float)
+    # samples outside M interpolated (a copy); complete data is only read, not copied
+    Y0 = Y if M.all() else fill(Y, M)
+    # weights 0 / 1 stay a bool mask (a float copy was one more matrix); the solver
+    # functions take either
+    W = M
     f, s_ = _select_and_fit(Y0, W, order, s_fixed, Y0)
     n_iter = 0
     if robust:
         for n_iter in range(1, n_robust + 1):
             W = _bisquare(Y0 - f, M, _trace(T, s_, order) / T, group, min_scale)
-            f, s_ = _select_and_fit(Y0, W, order, s_fixed, f)
-        W = (W > 0).astype(float)
-        f, s_ = _select_and_fit(Y0, W, order, s_fixed, f)
+            f, s_ = _select_and_fit(Y0, W, order, s_fixed, f, out=f)
+        W = W > 0
+        f, s_ = _select_and_fit(Y0, W, order, s_fixed, f, out=f)
     info = _info(Y0, f, M, W, _trace(T, s_, order), s_, n_iter)
     if validate and (W == 0).any():
         info = _with_hole_error(info, Y0, W, s_, order, group)
@@ -249,8 +279,14 @@ def gcv_smooth(X, mask=None, *, order: int = 2, s: float | np.ndarray | None = N
 
 
 def _trace(T: int, s: np.ndarray, order: int) -> np.ndarray:
-    """tr(H_s) per channel from (G7)."""
-    return (1.0 / (1.0 + _eig(T, order)[:, None] * s[None, :])).sum(axis=0)
+    """tr(H_s) per channel from (G7), a block of channels at a time (the (T, C) gains of
+    all channels at once were two matrices of temporaries)."""
+    lam = _eig(T, order)[:, None]
+    s = np.asarray(s, dtype=float)
+    tr = np.empty(s.shape[0])
+    for sl in channel_blocks(s.shape[0]):
+        tr[sl] = (1.0 / (1.0 + lam * s[None, sl])).sum(axis=0)
+    return tr
 
 
 def _runs(H: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -326,8 +362,12 @@ def _with_hole_error(info: GCVInfo, Y: np.ndarray, W: np.ndarray, s: np.ndarray,
             continue
         hide_id = _paint(T, P, j[use], lo[use], hi[use], rid[use]).round().astype(int)   # (T, P)
         hide = np.repeat(hide_id > 0, group, axis=1)
-        f = _solve_weighted(Y, np.where(hide, 0.0, W), s, order)
-        e2 = ((f - Y) ** 2).reshape(T, P, group).mean(axis=2)       # per coordinate
+        Wh = (W & ~hide) if W.dtype == bool else np.where(hide, 0.0, W)   # 0 where hidden
+        f = _solve_weighted(Y, Wh, s, order)
+        del Wh
+        np.subtract(f, Y, out=f)                                    # in place: f is ours
+        e2 = (np.square(f, out=f)).reshape(T, P, group).mean(axis=2)   # per coordinate
+        del f
         m = hide_id > 0
         sq += np.bincount(hide_id[m] - 1, weights=e2[m], minlength=len(j))
         n += np.bincount(hide_id[m] - 1, minlength=len(j))
@@ -371,7 +411,9 @@ def _info(Y: np.ndarray, f: np.ndarray, M: np.ndarray, W: np.ndarray, tr: np.nda
     T = Y.shape[0]
     use = W > 0.5
     n_use = np.maximum(use.sum(axis=0), 1)
-    rss = np.where(use, (Y - f) ** 2, 0.0).sum(axis=0)
+    rss = np.empty(Y.shape[1])
+    for sl in channel_blocks(Y.shape[1]):           # the squared residuals of a block at a time
+        rss[sl] = np.where(use[:, sl], (Y[:, sl] - f[:, sl]) ** 2, 0.0).sum(axis=0)
     # GCV variance estimate over the trusted samples (Wahba 1990 Sec. 4.7); the fit's
     # error ~ sigma sqrt(tr H / n) (SURE at the GCV estimate, see module docstring)
     sigma = np.sqrt(rss / np.maximum(n_use * (1 - tr / T), 1e-12))
