@@ -301,11 +301,17 @@ def _rts_multi(Y0, used, F, Q, H, R, b, x, P, return_cov, tol=1e-8):
     """
     T, B, p = Y0.shape
     n = F.shape[-1]
-    W = np.where(used, 1.0 / R[None], 0.0)                          # (T, B, p)
-    hy = (W * Y0) @ H                                               # (T, B, n)
-    pats, pat = np.unique(W.reshape(T, -1), axis=0, return_inverse=True)
+    # the distinct mask patterns from the bool mask, and H^T W y in blocks of frames: the
+    # float weights W, W * Y0 and a sorted copy of W were three more arrays of Y's size
+    # at once (a 100,000-frame clip: 5x its size inside the smoother)
+    hy = np.empty((T, B, H.shape[1]))                               # (T, B, n)
+    invR = 1.0 / R[None]
+    for a in range(0, T, _MULTI_BLOCK):
+        sl = slice(a, a + _MULTI_BLOCK)
+        hy[sl] = np.where(used[sl], Y0[sl] * invR, 0.0) @ H
+    upat, pat = np.unique(used.reshape(T, -1), axis=0, return_inverse=True)
     pat = pat.reshape(T)
-    pats = pats.reshape(-1, B, p)
+    pats = np.where(upat.reshape(-1, B, p), invR, 0.0)              # (U, B, p) weights
     Jpat = np.matmul(H.T[None, None] * pats[:, :, None, :], H)      # (U, B, n, n)
     FT = np.swapaxes(F, -1, -2)
     xf = np.empty((T, B, n))
@@ -365,10 +371,9 @@ def _multi_filtered_cov(Ppred: np.ndarray, w: np.ndarray, H: np.ndarray, J: np.n
 def _multi_backward(xf, xp, F, covs_p, covs_f, idx_p, idx_f, return_cov: bool) -> tuple:
     """RTS backward pass of :func:`_rts_multi` on its stored distinct covariances
     (``idx_*`` map frames to them); one gain per distinct (filtered, next predicted) pair.
-    Returns the smoothed means (T, B, n) and covariances (or None)."""
+    Returns the smoothed means (T, B, n; written into xf) and covariances (or None)."""
     T, B, n = xf.shape
-    xs = np.empty_like(xf)
-    xs[-1] = xf[-1]
+    xs = xf                       # smoothed in place: xs[t] needs xf[t] and xs[t + 1] only
     if return_cov:
         Ps = np.empty((T, B, n, n))
         Ps[-1] = covs_f[idx_f[-1]]
@@ -378,11 +383,14 @@ def _multi_backward(xf, xp, F, covs_p, covs_f, idx_p, idx_f, return_cov: bool) -
         if key != key_prev:                                        # G = P_f Fᵀ P_pred⁻¹
             G = np.swapaxes(np.linalg.solve(covs_p[key[1]], F @ covs_f[key[0]]), -1, -2)
             key_prev = key
-        xs[t] = xf[t] + np.einsum("bij,bj->bi", G, xs[t + 1] - xp[t + 1])
+        xs[t] += np.einsum("bij,bj->bi", G, xs[t + 1] - xp[t + 1])
         if return_cov:
             Ps[t] = covs_f[key[0]] + G @ (Ps[t + 1] - covs_p[key[1]]) @ np.swapaxes(G, -1, -2)
     return xs, (Ps if return_cov else None)
 
+
+_MULTI_BLOCK = 8192
+"""Frames per block where :func:`_rts_multi` forms its weighted observations."""
 
 _RTS_STORE_BYTES = 64 << 20
 """Up to this size (48 bytes per frame and channel) :func:`_rts_scalar` keeps the filtered and
