@@ -241,6 +241,23 @@ def test_estimate_noise_rms_estimates_white_noise():
     assert estimate_noise(X, method="diff2-rms", pool="all") == pytest.approx(0.3, rel=0.05)
 
 
+@pytest.mark.parametrize("method", ["diff2-rms", "diff2-mad"])
+def test_pooled_noise_estimate_in_frame_blocks(monkeypatch, method):
+    """The pooled estimate over blocks of frames equals the whole-matrix formula."""
+    from mocapkit.signal import noise
+
+    rng = np.random.default_rng(9)
+    A = np.cumsum(rng.normal(size=(500, 5)), axis=0) * 0.01 + 0.4 * rng.normal(size=(500, 5))
+    M = rng.random(A.shape) > 0.15
+    D, ok = noise._diff2(np.where(M, A, 0.0), M)
+    d2 = D[ok]
+    ref = (np.sqrt(np.mean(d2 ** 2) / 6) if method == "diff2-rms"
+           else noise._MAD * np.median(np.abs(d2)) / np.sqrt(6))
+    monkeypatch.setattr(noise, "_FRAME_BLOCK", 37)
+    A[~M] = np.nan
+    assert estimate_noise(A, M, method=method, pool="all") == pytest.approx(ref, rel=1e-12)
+
+
 # ----------------------------------------------------------------------------- SLRA
 def test_segment_layout_matches_paper_and_overlaps():
     s, e = lr.segment_layout(1200, 200)

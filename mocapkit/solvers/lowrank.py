@@ -25,7 +25,13 @@ otherwise) was built and measured (issue 21, 2026-12-02): it is certifiable only
 first ~10 of ~38 IALM iterations (once tau reaches the continuous part of the spectrum the
 Ritz vectors next to tau converge 2-4x per step), skips 10-20 % of the ``eigh`` calls, and
 measured within run-to-run noise (slra 5k-100k frames: +10-20 % at paper settings, -4 to
--18 % for the 24-frame overlap variant), so it was not kept.  LAPACK's 93 x 93 ``eigh``
+-18 % for the 24-frame overlap variant), so it was not kept.  A second build (same day:
+2 block-power steps per iteration, Rayleigh-Ritz, an exact rank count by a Cholesky
+Schur-complement inertia test, a Davis-Kahan bound on the shrinkage error) matched the
+eigh route to ~1e-10 relative with the same iterations but certified only 16 % (paper
+settings) / 22 % (24-frame overlap) of the shrinkages and measured +4-13 % frames/s at
+10k frames; with ``eigh`` at 63-67 % of the time even a free ``eigh`` would leave ~20k
+frames/s, so it was not kept either.  LAPACK's 93 x 93 ``eigh``
 (0.7-0.9 ms) remains the floor of an exact SVT at ~5-7k frames/s.
 
 References
