@@ -139,7 +139,7 @@ def rts_smoother(Y, mask=None, /, *, F, Q, R, H=None, b=None, x0=None, P0=None,
         gt = None if gate is None else _Gate(gate, gate_groups, B, 1, gate_max_run)
         xs, u = _rts_scalar(Yo[:, :, 0], Mk[:, :, 0], F, Qb, Rb[:, 0], x, P, gt)
         return xs, (u if squeeze_p else u[:, :, None])
-    Y0 = np.where(Mk, Yo, 0.0)
+    Y0 = Yo if Mk.all() else np.where(Mk, Yo, 0.0)         # only read: no copy when complete
     used = Mk.copy()
     Fb = np.broadcast_to(F, (B, n, n))
     if gate is None and p > 1 and (p > n or B == 1):
