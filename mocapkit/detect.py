@@ -60,14 +60,14 @@ def _penalty_bands(T: int, s: float) -> np.ndarray:
     return s * ab
 
 
-def _fit(P: np.ndarray, W: np.ndarray, pen: np.ndarray) -> np.ndarray:
-    """Weighted smoothing fit of every joint: P (T, J, 3), weights W (T, J) -> (T, J, 3).
+def _fit(Pz: np.ndarray, W: np.ndarray, pen: np.ndarray) -> np.ndarray:
+    """Weighted smoothing fit of every joint: Pz (T, J, 3) (missing samples 0), weights W
+    (T, J) -> (T, J, 3).
 
     Joints whose system is singular (fewer than 2 weighted samples) come back as NaN.
     """
-    T, J, _ = P.shape
-    Z = np.full_like(P, np.nan)
-    Pz = np.where(np.isfinite(P), P, 0.0)
+    T, J, _ = Pz.shape
+    Z = np.full_like(Pz, np.nan)
     for j in range(J):                         # one banded solve per joint, 3 right-hand sides
         w = W[:, j]
         if (w > 0).sum() < 2:
@@ -79,6 +79,14 @@ def _fit(P: np.ndarray, W: np.ndarray, pen: np.ndarray) -> np.ndarray:
         except np.linalg.LinAlgError:
             continue
     return Z
+
+
+def _distance(P: np.ndarray, Z: np.ndarray, block: int = 8192) -> np.ndarray:
+    """|P - Z| per sample (T, J), in blocks of frames (no (T, J, 3) temporary)."""
+    r = np.empty(P.shape[:2])
+    for a in range(0, len(P), block):
+        r[a:a + block] = np.linalg.norm(P[a:a + block] - Z[a:a + block], axis=2)
+    return r
 
 
 def trust_data(motion: Motion, threshold_cm: float = 6.0, *, cutoff_hz: float = 6.0,
@@ -116,10 +124,12 @@ def trust_data(motion: Motion, threshold_cm: float = 6.0, *, cutoff_hz: float = 
         return (untrusted, np.where(obs[..., None], P, np.nan)) if return_fit else untrusted
     pen = _penalty_bands(T, smoothing_weight(cutoff_hz, motion.fps))
     W = obs.astype(float)
-    Z = _fit(P, W, pen)
+    # one zero-filled copy for every refit (none for complete data: P is only read)
+    Pz = P if obs.all() and np.isfinite(P).all() else np.where(np.isfinite(P), P, 0.0)
+    Z = _fit(Pz, W, pen)
     c = 2.0 * thr
     for it in range(int(n_iter)):
-        r = np.linalg.norm(P - Z, axis=2)                      # NaN where missing / unfit
+        r = _distance(P, Z)                                     # NaN where missing / unfit
         r = np.where(np.isfinite(r), r, 0.0)
         if it < 2:
             u = np.clip(r / c, 0.0, 1.0)
@@ -129,8 +139,9 @@ def trust_data(motion: Motion, threshold_cm: float = 6.0, *, cutoff_hz: float = 
         if np.array_equal(W_new, W):
             break
         W = W_new
-        Z = _fit(P, W, pen)
-    r = np.linalg.norm(P - Z, axis=2)
+        del Z                                                   # not two fits at once
+        Z = _fit(Pz, W, pen)
+    r = _distance(P, Z)
     untrusted = obs & np.isfinite(r) & (r > thr)
     return (untrusted, Z) if return_fit else untrusted
 

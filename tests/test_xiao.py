@@ -425,3 +425,54 @@ def test_over_relaxation_converges_faster_and_is_validated(rng):
             l1l1_admm(Z, D, 0.5, relax=bad)
     with pytest.raises(MocapValueError, match=r"xiao-sparse: parameter l1_stride must be an integer >= 1, got 0"):
         XiaoSparse(l1_stride=0).fit([])         # parameters are checked before anything else
+
+
+# ---------------------------------------------------------------------------------------
+# blocked coding (issue 21: bounded memory on long clips, same numbers)
+# ---------------------------------------------------------------------------------------
+@pytest.mark.parametrize("n_iter, stops", [(12, False), (300, True)])   # cap reached / early stop
+def test_lasso_admm_blocks_equals_one_solve(rng, n_iter, stops):
+    from mocapkit.solvers.sparse_coding import lasso_admm_blocks
+
+    n, K, S, tol = 24, 40, 700, 1e-3
+    D = rng.standard_normal((n, K))
+    D /= np.linalg.norm(D, axis=0)
+    Z = (rng.standard_normal((S, K)) * (rng.random((S, K)) < 0.1)) @ D.T + 0.05 * rng.standard_normal((S, n))
+    lam = 0.2 + 0.1 * rng.random(S)                          # one lambda per window
+    ref, info = lasso_admm(Z, D, lam, n_iter=n_iter, tol=tol, relax=1.8, return_info=True)
+    assert info.converged == stops and (info.n_iter < n_iter) == stops
+    out = np.full((S, K), np.nan)
+    calls = []
+
+    def consume(a, b, W):
+        out[a:b] = W
+        calls.append((a, b))
+
+    blocks = [(512, 700), (256, 512), (0, 256)]
+    got = lasso_admm_blocks(lambda a, b: Z[a:b], S, D, lam, consume, blocks=blocks,
+                            restart=lambda: calls.clear(), n_iter=n_iter, tol=tol, relax=1.8)
+    assert sorted(calls) == sorted(blocks)                  # the final pass covers every window once
+    np.testing.assert_allclose(out, ref, rtol=0, atol=1e-12)
+    assert (got.n_iter, got.converged, got.residual, got.extra) == \
+        (info.n_iter, info.converged, info.residual, info.extra)
+
+
+@pytest.mark.parametrize("noise", ["gaussian", "mixed"])
+def test_blocked_denoise_equals_one_block(monkeypatch, noise):
+    """The windows of a long clip coded in many blocks (and the local frame applied by
+    blocks of frames) give exactly the numbers of one block."""
+    from mocapkit.denoise import sparse
+
+    train = [synth_motion(T=400, seed=s, phase=s) for s in range(2)]
+    model = XiaoSparse(window=7, n_atoms=48, sparsity=3, n_iter=2, noise=noise).fit(train)
+    m = synth_motion(T=1500, seed=5, phase=0.7)
+    m = m.with_positions(m.positions + np.random.default_rng(1).normal(0, 1.0, m.positions.shape))
+    monkeypatch.setattr(sparse, "BLOCK_BYTES", 2 ** 40)
+    monkeypatch.setattr(sparse, "FRAME_BLOCK", 10 ** 9)
+    one = model.denoise(m)
+    monkeypatch.setattr(sparse, "BLOCK_BYTES", 1)            # 256 windows per block
+    monkeypatch.setattr(sparse, "FRAME_BLOCK", 100)
+    assert len(sparse.window_blocks(1500, 1e3)) > 5
+    many = model.denoise(m)
+    np.testing.assert_allclose(many.positions, one.positions, rtol=0, atol=1e-9)   # bit-equal here; BLAS may round differently elsewhere
+    assert many.source["convergence"] == one.source["convergence"]

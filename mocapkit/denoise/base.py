@@ -498,10 +498,12 @@ def check_training_match(den: "Denoiser", inp: Motion, out: Motion, *, warn: boo
 
     from ..signal import estimate_noise
 
-    X, ok = inp.matrix(), inp.matrix_mask()
-    d = np.abs(out.matrix() - X)[ok]
+    X, ok = inp.matrix(copy=False), inp.matrix_mask()     # read-only views: no copies
     sigma = estimate_noise(X, ok, pool="all", fallback=0.0)
-    med = float(np.median(d)) if d.size else 0.0
+    d = out.matrix(copy=False) - X
+    d = np.abs(d, out=d)[ok] if not ok.all() else np.abs(d, out=d).ravel()
+    med = float(np.median(d, overwrite_input=True)) if d.size else 0.0
+    del d
     thr = max(MISMATCH_NOISE_FACTOR * sigma, MISMATCH_FLOOR_CM)
     info = {"median_change_cm": med, "noise_cm": sigma, "threshold_cm": thr,
             "mismatch": bool(med > thr)}

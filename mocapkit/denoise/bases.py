@@ -6,6 +6,7 @@ motions into the (T, L) arrays it works on and back.
 """
 from __future__ import annotations
 
+import dataclasses
 from typing import Any, Sequence
 
 import numpy as np
@@ -17,6 +18,7 @@ from ..motion import Motion
 from ..solvers import robust_bases as rb
 from ..solvers.evidence import evidence_blend
 from .base import Denoiser, check_training_match, register, report_convergence
+from .sparse import frame_in_place
 from .constraints import Integral, Interval, Options, Real, center_as_string
 
 _POSITIVE = Interval(Real, 0, None, closed="neither")
@@ -330,10 +332,13 @@ class LouChai(Denoiser):
         return ri if ri >= 1 and abs(r - ri) <= 1e-3 * max(r, 1.0) else None
 
     def _phases(self, motion: Motion, model_fps: float) -> list[Motion] | None:
+        n = self._n_phases(motion, model_fps)
+        return None if n is None else [decimate(motion, n, k) for k in range(n)]
+
+    def _n_phases(self, motion: Motion, model_fps: float) -> int | None:
+        """Number of interleaved phases of ``motion`` at the model rate (None: not a multiple)."""
         r = self._ratio(motion.fps, model_fps)
-        if r is None:
-            return None
-        return [decimate(motion, r, k) for k in range(min(r, motion.n_frames))]
+        return None if r is None else min(r, motion.n_frames)
 
     # -- representation ------------------------------------------------------------------------
     def _to_array(self, motion: Motion, up: int):
@@ -344,7 +349,10 @@ class LouChai(Denoiser):
             else:
                 tr = Frame.identity(np.zeros((motion.n_frames, 3)))
             s = REFERENCE_HEIGHT_CM / _skeleton_height(motion, up) if self.normalize else 1.0
-            local = tr.to_local(motion.positions) * s
+            # a copy of the positions transformed and scaled in place (issue 21: no
+            # whole-clip temporaries; the same element operations)
+            local = frame_in_place(tr, np.array(motion.positions, dtype=float), "local")
+            local *= s
             return (local.reshape(motion.n_frames, -1), motion.matrix_mask(), (tr, s))
         vals, names, info = angle_channels(motion)
         if not motion.observed.all():
@@ -358,9 +366,10 @@ class LouChai(Denoiser):
 
     def _from_array(self, motion: Motion, Z: np.ndarray, ctx) -> Motion:
         if self.space == "position":
-            tr, s = ctx
-            P = tr.to_world(Z.reshape(motion.n_frames, -1, 3) / s)
-            return motion.with_positions(P)
+            tr, s = ctx                              # Z is ours (_solve): changed in place
+            P = Z.reshape(motion.n_frames, -1, 3)
+            P /= s
+            return motion.with_positions(frame_in_place(tr, P, "world"), handover=True)
         raw, V, names, info, joint = ctx
         out_v = V.copy()
         out_v[:, joint] = Z
@@ -448,11 +457,17 @@ class LouChai(Denoiser):
         return int(np.asarray(self.bases_).shape[1])
 
     # -- denoising -----------------------------------------------------------------------------
-    def _solve(self, Y: np.ndarray, mask: np.ndarray, return_info: bool = False):
-        """Robust filter of centred (T, L) data; pads clips shorter than M with missing frames."""
+    def _solve(self, Y: np.ndarray, mask: np.ndarray, return_info: bool = False,
+               own: bool = False):
+        """Robust filter of centred (T, L) data; pads clips shorter than M with missing frames.
+        ``own``: Y is a scratch array of the caller, centred in place (one copy less)."""
         M = int(self.window_)
         T = Y.shape[0]
-        Yc = Y - np.asarray(self.mean_)
+        if own:
+            Yc = Y
+            Yc -= np.asarray(self.mean_)
+        else:
+            Yc = Y - np.asarray(self.mean_)
         if T < M:
             Yc = np.concatenate([Yc, np.full((M - T, Yc.shape[1]), np.nan)])
             mask = np.concatenate([mask, np.zeros((M - T, mask.shape[1]), bool)])
@@ -465,17 +480,24 @@ class LouChai(Denoiser):
                                p=float(self.p), max_iter=int(self.max_iter), tol=float(self.tol),
                                method=self.method, cache=self._cache, return_info=True)
         Z, info = out
+        del Y, Yc, mask
         log = getattr(self, "_conv_log", None)
         if log is not None:                     # collected by denoise() (source['convergence'])
-            log.append(info)
-        Z = Z[:T] + np.asarray(self.mean_)
+            # without the (T, L) weights: the summary does not use them (issue 21: one
+            # matrix less held per phase until the end of denoise())
+            log.append(dataclasses.replace(info, extra={k: v for k, v in info.extra.items()
+                                                        if k != "weights"}))
+        Z = Z[:T]
+        Z += np.asarray(self.mean_)
         return (Z, info) if return_info else Z
 
     def _denoise_at_rate(self, motion: Motion) -> Motion:
         Y, mask, ctx = self._to_array(motion, int(self.up_axis_))
         if not mask.any():
             raise MocapValueError("lou-chai: the clip has no observed entry at all")
-        return self._from_array(motion, self._solve(Y, mask), ctx)
+        Z = self._solve(Y, mask, own=True)        # Y: _to_array's own copy
+        del Y, mask
+        return self._from_array(motion, Z, ctx)
 
     def denoise(self, motion: Motion) -> Motion:
         """Robust filtering of ``motion``; records ``source["convergence"]`` on the result and, with
@@ -490,12 +512,13 @@ class LouChai(Denoiser):
             log = self._conv_log
         finally:
             self._conv_log = None
-        X, M = motion.matrix(), motion.matrix_mask()
-        if not M.all():          # frames with few observed markers: interpolation in time
+        if not motion.observed.all():    # frames with few observed markers: interpolation in time
             from .. import gaps
 
+            X, M = motion.matrix(copy=False), motion.matrix_mask()
             out = out.with_matrix(evidence_blend(out.matrix(), gaps.fill(X, M, never_observed=0.0), M,
-                                                 motion.observed))
+                                                 motion.observed), handover=True)
+            del X, M
         if log:
             report_convergence(self, log, tol=float(self.tol), max_iter=int(self.max_iter),
                                unit="phase", warn=bool(self.warn_convergence))
@@ -519,16 +542,20 @@ class LouChai(Denoiser):
             if names != list(self.channel_names_):
                 raise MocapValueError("lou-chai: the clip's joint-angle channels differ from the model's")
         model_fps = float(self.fps_) if float(self.fps_) > 0 else motion.fps
-        parts = self._phases(motion, model_fps)
-        if parts is not None and len(parts) == 1:
+        n_phases = self._n_phases(motion, model_fps)
+        if n_phases == 1:
             return self._denoise_at_rate(motion)
-        if parts is not None:
-            r = len(parts)
-            outs = [self._denoise_at_rate(pm) for pm in parts]
+        if n_phases is not None:
+            ratio, r = self._ratio(motion.fps, model_fps), n_phases
             P = np.empty(motion.positions.shape)
-            for k, o in enumerate(outs):
+            outs = []                                # kept in angle space only (their channels)
+            for k in range(n_phases):                # one phase (a copy) at a time
+                o = self._denoise_at_rate(decimate(motion, ratio, k))
                 P[k::r] = o.positions
-            out = motion.with_positions(P)
+                if self.space_ == "angle":
+                    outs.append(o)
+                del o
+            out = motion.with_positions(P, handover=True)
             if self.space_ == "angle":
                 key = outs[0].source["per_frame"]
                 pf = dict(motion.source.get("per_frame", {}))

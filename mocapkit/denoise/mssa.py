@@ -51,12 +51,14 @@ class MSSA(Denoiser):
 
     def denoise(self, motion: Motion) -> Motion:
         require_observed_joints(motion, self.name)
-        X, M = motion.matrix(), motion.matrix_mask()
+        X, M = motion.matrix(copy=False), motion.matrix_mask()      # read-only view
         fit, info = gcv_smooth(X, M, group=3)
         sigma = float(np.median(info.sigma)) if self.sigma_cm is None else float(self.sigma_cm)
-        Y = np.where(M, X, fit)
         L = max(2, min(int(round(float(self.window_s) * motion.fps)), motion.n_frames // 4))
         if motion.n_frames < 8:
-            return motion.with_matrix(fit)
-        return motion.with_matrix(mssa_denoise(Y, sigma, window=L)).with_source(
+            return motion.with_matrix(fit, handover=True)
+        Y = fit                                       # the spline where missing, else the data
+        np.copyto(Y, X, where=M)
+        del fit, M
+        return motion.with_matrix(mssa_denoise(Y, sigma, window=L), handover=True).with_source(
             mssa={"sigma_cm": sigma, "window_frames": L})

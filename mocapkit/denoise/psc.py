@@ -20,14 +20,18 @@ from ..motion import Motion
 from ..skeleton import BODY_PARTS
 from ..solvers import llc as _llc
 from ..solvers._linalg import one_blas_thread
-from ..windows import lagged, overlap_add
+from ..windows import lagged
 from ._refill import check_motion, known_mask
 from .base import Denoiser, register
 from .constraints import Integral, Interval, Numbers, Real
+from .sparse import frame_in_place, overlap_add_into, window_blocks
 
 _POSITIVE = Interval(Real, 0, None, closed="neither")
 
 __all__ = ["PSC"]
+
+#: samples per batched LLC solve inside a block (bounds the (n, k, d) atom differences)
+_LLC_CHUNK = 1024
 
 
 # --------------------------------------------------------------------------------------
@@ -267,6 +271,10 @@ class PSC(Denoiser):
     # -- recovery ---------------------------------------------------------------------------
     @one_blas_thread
     def denoise(self, motion: Motion) -> Motion:
+        """Algorithm 1 (module / class docstring).  Memory (issue 21): every window of a
+        part is coded and averaged back in blocks (:func:`.sparse.window_blocks`), the
+        local-frame transforms and the refinement run in place or by blocks, so the work
+        arrays are a few (T, J, 3) ones -- the blocked numbers equal the whole-clip ones."""
         self._check_fitted()
         motion = check_motion(motion, self.name)
         M = int(self.window)
@@ -279,41 +287,85 @@ class PSC(Denoiser):
             raise MocapValueError(f"psc: the clip has {T} frames, fewer than the window ({M})")
         known = known_mask(motion, bool(self.detect), float(self.threshold_cm))
         frame = _local_frame(motion, known)
-        P = np.where(known[..., None], motion.positions, 0.0)
-        L = frame.to_local(P)
-        L_lin = frame.to_local(gaps.fill(motion.matrix(copy=False), np.repeat(known, 3, axis=1),
-                                         never_observed=0.0).reshape(P.shape))
+        # trusted samples in the local frame, 0 elsewhere (transformed in place)
+        L = frame_in_place(frame, np.where(known[..., None], motion.positions, 0.0), "local")
         acc = np.zeros_like(L)
         cnt = np.zeros(L.shape[:2])
         k = int(self.n_neighbors)
+        part_acc = part_cnt = None
         for idx, D in zip(self.parts_, self.dictionaries_):
             idx = np.asarray(idx, dtype=np.int64)
             nj = len(idx)
-            Y = lagged(L[:, idx], M)
-            obs = lagged(np.repeat(known[:, idx, None], 3, axis=2), M)
-            valid = obs.any(axis=1)
-            if not valid.any():
+            part_acc, part_cnt = self._code_part(L[:, idx].reshape(T, -1),
+                                                 np.repeat(known[:, idx], 3, axis=1), D, M, k)
+            if part_acc is None:                     # no window of this part has a known sample
                 continue
-            codes, aidx = _llc.llc_code(Y[valid], D, obs[valid], lam=float(self.lam),
-                                        sigma=self.sigma, n_neighbors=min(k, len(D)))
-            R = np.zeros_like(Y)
-            R[valid] = _llc.llc_reconstruct(codes, aidx, D)
-            part_acc, part_cnt = overlap_add(R, T, M, weights=valid)
             acc[:, idx] += part_acc.reshape(T, nj, 3)
             cnt[:, idx] += part_cnt[:, None]
-        est = np.where(cnt[..., None] > 0, acc / np.maximum(cnt, 1)[..., None], L_lin)
+        est = acc
+        est /= np.maximum(cnt, 1)[..., None]
+        del part_acc, part_cnt
+        none = cnt == 0
+        if none.any():
+            # samples no window reconstructs (joints in no part, parts missing for a whole
+            # window): linear interpolation in the local frame, made for those joints only
+            # (interpolation and transform are per channel / per joint)
+            js = np.flatnonzero(none.any(axis=0))
+            cols = (3 * js[:, None] + np.arange(3)).ravel()
+            lin = gaps.fill(motion.matrix(copy=False)[:, cols], np.repeat(known[:, js], 3, axis=1),
+                            never_observed=0.0).reshape(T, len(js), 3)
+            sub, sel = est[:, js], none[:, js]
+            sub[sel] = frame.to_local(lin)[sel]
+            est[:, js] = sub
+            del lin, sub
         if self.refine:
             # our extension: interpolate the coding residual of the known samples across
-            # the holes, so filled samples meet the observed ones without a jump
+            # the holes, so filled samples meet the observed ones without a jump (a few
+            # joints at a time: the interpolation is per channel)
             km = np.repeat(known, 3, axis=1)
-            res = np.where(km, (L - est).reshape(T, -1), np.nan)
-            est = est + gaps.fill(res, km, never_observed=0.0).reshape(est.shape)
-        G = frame.to_world(est)
-        out = np.where(known[..., None], motion.positions, G)
-        res = motion.with_positions(out)
+            L2, E2 = L.reshape(T, -1), est.reshape(T, -1)
+            for c in range(0, L2.shape[1], 24):
+                sl = slice(c, c + 24)
+                res = np.where(km[:, sl], L2[:, sl] - E2[:, sl], np.nan)
+                E2[:, sl] += gaps.fill(res, km[:, sl], never_observed=0.0)
+        del L
+        out = frame_in_place(frame, est, "world")
+        np.copyto(out, motion.positions, where=known[..., None])     # trusted samples kept
+        res = motion.with_positions(out, handover=True)
         return res.with_source(solver={"method": self.name, "window": M,
                                        "untrusted": int((motion.observed & ~known).sum()),
                                        "filled": int((~known).sum())})
+
+    def _code_part(self, X: np.ndarray, known: np.ndarray, D: np.ndarray, M: int, k: int):
+        """Code and reconstruct every M-frame window of one part X (T, d) with known mask
+        (T, d) by LLC (eqs. 3.15-3.17) and sum the reconstructions back to frames.
+
+        Returns (acc (T, d), cnt (T,)): sum and number of the reconstructions of coded
+        windows (those with a known entry) covering each frame, or (None, None) when no
+        window is coded.  The windows are zero-copy views, coded a block at a time (last
+        block first, see :func:`.sparse.window_blocks`): the same numbers as coding all
+        windows at once, without their (S, M d) matrices (and the (S, k, M d) atoms of the
+        reconstruction) for the whole clip."""
+        T = X.shape[0]
+        Y = lagged(X, M, view=True)
+        obs = lagged(known, M, view=True)
+        d = Y.shape[1]
+        kk = min(k, len(D))
+        acc, cnt = np.zeros((T, X.shape[1])), np.zeros(T)
+        coded = False
+        # per window: its copy, mask, zeroed copy, k atoms (coding and reconstruction)
+        for a, b in window_blocks(Y.shape[0], 8.0 * d * (4 + 2 * kk)):
+            ob = obs[a:b]
+            valid = ob.any(axis=1)
+            if not valid.any():
+                continue
+            codes, aidx = _llc.llc_code(Y[a:b][valid], D, ob[valid], lam=float(self.lam),
+                                        sigma=self.sigma, n_neighbors=kk, chunk=_LLC_CHUNK)
+            R = np.zeros((b - a, d))
+            R[valid] = _llc.llc_reconstruct(codes, aidx, D)
+            overlap_add_into(acc, R, M, a, weights=valid, cnt=cnt)
+            coded = True
+        return (acc, cnt) if coded else (None, None)
 
 
 def _sparse_norm2(W) -> float:

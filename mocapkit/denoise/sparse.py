@@ -101,7 +101,7 @@ from ..errors import MocapValueError
 from ..frames import pelvis_neck_frame
 from ..motion import Motion
 from ..signal import estimate_noise
-from ..windows import lagged, overlap_mean, window_starts
+from ..windows import lagged, window_starts
 from .base import Denoiser, register, report_convergence, training_matrices
 from .constraints import Integral, Interval, Options, Real, center_as_string
 
@@ -111,6 +111,13 @@ _INT1 = Interval(Integral, 1, None)
 _NONNEG = Interval(Real, 0, None)
 
 NOISE_TYPES = ("auto", "gaussian", "outliers", "mixed")
+
+#: bytes of per-window work arrays allowed at once: the windows of a poselet are coded
+#: in blocks of about this size (issue 21: peak memory; the window matrix of a whole
+#: 100k-frame clip is ~20x the clip), so memory stays O(T d), not O(T M (d + K))
+BLOCK_BYTES = 24 * 2 ** 20
+FRAME_BLOCK = 8192
+"""Frames per block of the local-frame transforms done in place (:func:`frame_in_place`)."""
 
 #: numerics of the coding step, fixed (constructor parameters before; measured in
 #: docs/results/xiao.md): the ADMM over-relaxation alpha of both solvers (Boyd et al. 2011
@@ -147,14 +154,19 @@ def detect_noise(X: np.ndarray, *, outlier_detect_ratio: float = 0.015, n_sigmas
     if T >= 7:
         # running median of the 6 neighbours (centre excluded) = mean of their 3rd and 4th
         # order statistics (unbiased for a marker moving at constant speed), mirrored ends
+        # every step is per channel: done 24 channels at a time (a few (T, 24) temporaries
+        # instead of (T, C) ones; the flag count, hence the fraction, is exact either way)
         foot = np.array([1, 1, 1, 0, 1, 1, 1], dtype=bool)[:, None]
-        med = 0.5 * (rank_filter(X, 2, footprint=foot, mode="mirror")
-                     + rank_filter(X, 3, footprint=foot, mode="mirror"))
-        res = X - med
-        dev = np.abs(res - np.median(res, axis=0))
-        sig = 1.4826 * np.median(dev, axis=0)
-        flags = np.abs(res) > np.maximum(n_sigmas * sig, floor_cm)
-        frac = float(flags.mean())
+        n_flags = 0
+        for c in range(0, X.shape[1], 24):
+            Xc = X[:, c:c + 24]
+            med = 0.5 * (rank_filter(Xc, 2, footprint=foot, mode="mirror")
+                         + rank_filter(Xc, 3, footprint=foot, mode="mirror"))
+            res = Xc - med
+            dev = np.abs(res - np.median(res, axis=0))
+            sig = 1.4826 * np.median(dev, axis=0)
+            n_flags += int(np.count_nonzero(np.abs(res) > np.maximum(n_sigmas * sig, floor_cm)))
+        frac = n_flags / X.size
     else:
         frac = 0.0
     sigma = estimate_noise(X, pool="median", fallback=0.0)
@@ -163,6 +175,55 @@ def detect_noise(X: np.ndarray, *, outlier_detect_ratio: float = 0.015, n_sigmas
     else:
         kind = "gaussian"
     return {"type": kind, "outlier_fraction": frac, "sigma_cm": sigma}
+
+
+# ---------------------------------------------------------------------------------------
+# blocked window helpers (shared with psc): bounded memory, same numbers as unblocked
+# ---------------------------------------------------------------------------------------
+def window_blocks(S: int, per_window_bytes: float, budget: int | None = None,
+                  align: int = 256) -> list[tuple[int, int]]:
+    """Blocks ``(a, b)`` of the S windows, **last block first**, each holding about
+    ``budget / per_window_bytes`` windows (a multiple of ``align``: the BLAS kernels then
+    see the same row tiles as in one call, so every window gets bit-identical numbers).
+
+    Last block first: a frame's copies are then summed by :func:`overlap_add_into` in the
+    order of :func:`mocapkit.windows.overlap_add` (window offset m ascending), so the
+    blocked overlap-average is bit-identical to the unblocked one.
+    """
+    budget = BLOCK_BYTES if budget is None else budget
+    n = max(align, int(budget // max(per_window_bytes, 1.0)) // align * align)
+    return [(a, min(S, a + n)) for a in range(0, S, n)][::-1]
+
+
+def overlap_add_into(acc: np.ndarray, R: np.ndarray, M: int, first: int,
+                     starts: np.ndarray | None = None, weights: np.ndarray | None = None,
+                     cnt: np.ndarray | None = None) -> None:
+    """In place: add the rows of R (n, M C) -- windows starting at frames ``first`` ..
+    ``first + n - 1`` (or at the frames ``starts`` (n,)) -- to ``acc`` (T, C) and, if
+    given, their ``weights`` (or 1) to ``cnt`` (T,).  The same element operations as
+    :func:`mocapkit.windows.overlap_add` on all windows, one block at a time (called on
+    the blocks of :func:`window_blocks`, last first)."""
+    n = R.shape[0]
+    R3 = R.reshape(n, M, -1)
+    w = None if weights is None else np.asarray(weights)
+    for m in range(M):
+        rows = slice(first + m, first + m + n) if starts is None else starts + m
+        acc[rows] += R3[:, m] if w is None else R3[:, m] * w[:, None]
+        if cnt is not None:
+            cnt[rows] += 1 if w is None else w
+
+
+def frame_in_place(frame, X: np.ndarray, to: str, block: int | None = None) -> np.ndarray:
+    """``frame.to_local(X)`` (``to="local"``) or ``frame.to_world(X)`` (``"world"``) of X
+    (T, J, 3) written into X, ``block`` frames at a time: the per-frame products of the
+    whole clip at once would take two more (T, J, 3) temporaries. Returns X."""
+    from ..frames import Frame
+
+    block = FRAME_BLOCK if block is None else block
+    for a in range(0, X.shape[0], block):
+        f = Frame(origin=frame.origin[a:a + block], rotation=frame.rotation[a:a + block])
+        X[a:a + block] = f.to_local(X[a:a + block]) if to == "local" else f.to_world(X[a:a + block])
+    return X
 
 
 # ---------------------------------------------------------------------------------------
@@ -275,12 +336,13 @@ class XiaoSparse(Denoiser):
         names = [k for k, v in parts.items() if v]
         return names, [sorted(parts[k]) for k in names]
 
-    def _local(self, P: np.ndarray, motion: Motion):
-        """Local frame of positions P (T, J, 3) in ``motion``'s joint order, and P in it."""
+    def _local(self, P: np.ndarray, motion: Motion, in_place: bool = False):
+        """Local frame of positions P (T, J, 3) in ``motion``'s joint order, and P in it
+        (``in_place``: written into P, a block of frames at a time)."""
         s = float(self.frame_smooth_s)
         frame = pelvis_neck_frame(P, motion.skeleton, motion.fps, smooth=bool(self.smooth_frame),
                                   median_s=2.0 * s, sigma_s=s)
-        return frame, frame.to_local(P)
+        return frame, (frame_in_place(frame, P, "local") if in_place else frame.to_local(P))
 
     # -- training ------------------------------------------------------------------------
     def fit(self, motions: Sequence[Motion]) -> "XiaoSparse":
@@ -344,37 +406,73 @@ class XiaoSparse(Denoiser):
         return self._cache[1]
 
     def _code_part(self, i: int, X: np.ndarray, kind: str, lam2: float) -> np.ndarray:
-        """Denoise one poselet matrix X (T, d) in the local frame; returns (T, d)."""
-        from ..solvers.sparse_coding import l1l1_admm, lasso_admm
+        """Denoise one poselet matrix X (T, d) in the local frame; returns (T, d).
+
+        The lagged windows are zero-copy views of X; they are centred, coded, reconstructed
+        and averaged back to frames a block at a time (:func:`window_blocks`,
+        :func:`overlap_add_into`, :func:`~mocapkit.solvers.sparse_coding.lasso_admm_blocks`):
+        the same numbers as coding all windows at once, without the (S, M d) window
+        matrices and (S, K) codes of the whole clip (issue 21).  The l1/l1 solve (eq. 5)
+        is the exception: its residual balancing adapts one penalty from the residuals
+        of all its windows, so they are solved together (only their matrix is built by
+        blocks)."""
+        from ..solvers.sparse_coding import l1l1_admm, lasso_admm_blocks
 
         M = int(self.window)
-        T = X.shape[0]
+        T, d = X.shape
+        n = M * d
         sv = self._solvers()[i]
         D = self.dictionaries_[i]
+        K = D.shape[1]
         mu = np.asarray(self.means_[i], dtype=np.float64)
         dt = np.dtype(CODE_DTYPE)
-        Z = (lagged(X, M) - mu).astype(dt)
         conv = self.__dict__.setdefault("_conv_log", [])
+        # bytes per window of a block: centred copy (float64 + float32), the ADMM arrays
+        # (8 of K float32), the reconstruction (rank, then n float32 and float64)
+        per_window = 28.0 * n + 32.0 * K + 8.0 * sv.rank
+        starts = None
         if kind in ("outliers", "mixed"):
             st = int(self.l1_stride)
             starts = window_starts(T, M, st) if st > 1 else None
-            Zs = Z if starts is None else Z[starts]
+        H = lagged(X, M, view=True)
+        S = H.shape[0] if starts is None else len(starts)
+
+        def windows(a: int, b: int) -> np.ndarray:            # centred windows a..b-1 (float64)
+            return (H[a:b] if starts is None else H[starts[a:b]]) - mu
+
+        acc, cnt = np.zeros((T, d)), np.zeros(T)
+
+        def consume(a: int, b: int, codes: np.ndarray) -> None:   # reconstruct, add to frames
+            overlap_add_into(acc, sv.reconstruct(codes) + mu, M, a,
+                             None if starts is None else starts[a:b], cnt=cnt)
+
+        def restart() -> None:
+            acc[:] = 0.0
+            cnt[:] = 0.0
+
+        if kind in ("outliers", "mixed"):
+            Zs = np.empty((S, n), dtype=dt)
+            for a, b in window_blocks(S, per_window):
+                Zs[a:b] = windows(a, b)
             W, info = l1l1_admm(Zs, D, float(self.lam_l1), n_iter=int(self.admm_iter), tol=1e-4,
                                 svd=sv, dtype=dt, balance_every=5, relax=RELAX,
                                 return_info=True)
+            del Zs
             conv.append(("l1l1", i, info))
-            X = overlap_mean(sv.reconstruct(W) + mu, T, M, starts)
+            for a, b in window_blocks(S, per_window):
+                consume(a, b, W[a:b])
+            del W
+            acc /= cnt[:, None]
             if kind == "outliers":
-                return X
-            Z = (lagged(X, M) - mu).astype(dt)
-            if starts is not None:
-                Z = Z[starts]
-        else:
-            starts = None
-        Th, info = lasso_admm(Z, D, lam2, n_iter=int(self.code_iter), tol=1e-4, svd=sv, dtype=dt,
-                              relax=RELAX, return_info=True)
+                return acc
+            H = lagged(acc, M, view=True)                     # l2/l1 pass on its result
+            acc, cnt = np.zeros((T, d)), np.zeros(T)
+        info = lasso_admm_blocks(windows, S, D, lam2, consume, blocks=window_blocks(S, per_window),
+                                 restart=restart, n_iter=int(self.code_iter), tol=1e-4, svd=sv,
+                                 dtype=dt, relax=RELAX)
         conv.append(("lasso", i, info))
-        return overlap_mean(sv.reconstruct(Th) + mu, T, M, starts)
+        acc /= cnt[:, None]
+        return acc
 
     def denoise(self, motion: Motion) -> Motion:
         """Denoise (and gap-fill) ``motion`` with the learned dictionaries (Alg. 1)."""
@@ -396,22 +494,27 @@ class XiaoSparse(Denoiser):
         if T0 < M:
             P = np.concatenate([P, np.repeat(P[-1:], M - T0, axis=0)])
         perm = np.asarray(motion.skeleton.indices(names), dtype=np.int64)   # training -> motion index
-        frame, L = self._local(P, motion)
+        frame, L = self._local(P, motion, in_place=True)          # P is ours: transformed in place
+        del P
         T, J = L.shape[0], L.shape[1]
         Lm = L.reshape(T, 3 * J)
         if self.noise == "auto":
             info = detect_noise(Lm)
         else:
             info = {"type": self.noise, "sigma_cm": estimate_noise(Lm, pool="median", fallback=0.0)}
+        del Lm
         kind = info["type"]
         lam2 = float(self.lam) if self.lam is not None else float(self.lam_factor) * info["sigma_cm"] ** 2
         acc = np.zeros((T, J, 3))
         cnt = np.zeros(J)
         parts = [perm[np.asarray(j, dtype=np.int64)] for j in self.parts_]
+        for joints in parts:
+            cnt[joints] += 1
+        if np.any(cnt == 0):
+            raise MocapValueError(f"{self.name}: some joints are in no poselet")
         self._solvers()                                  # build the cache before any thread
         self._conv_log = []
-        jobs = [(i, L[:, joints].reshape(T, -1)) for i, joints in enumerate(parts)]
-        n_workers = min(int(self.n_jobs), len(jobs))
+        n_workers = min(int(self.n_jobs), len(parts))
         from ..solvers._linalg import blas_limit
 
         # One BLAS thread: the products are (S x K) x (K x r) with r ~ 100, where BLAS
@@ -422,24 +525,30 @@ class XiaoSparse(Denoiser):
         with blas_limit():
             part_s = []
             if n_workers > 1 and _can_fork():
+                jobs = [(i, L[:, joints].reshape(T, -1)) for i, joints in enumerate(parts)]
                 coded, logs = _code_parallel(self, jobs, kind, lam2, n_workers)
+                del jobs
                 self._conv_log = [e for lg in logs for e in lg]
+                for joints, Yi in zip(parts, coded):
+                    acc[:, joints] += Yi.reshape(T, len(joints), 3)
+                del coded
             else:
-                coded, part_s = [], []
-                for i, Xi in jobs:
+                # one poselet at a time, added to the frames as soon as it is coded
+                for i, joints in enumerate(parts):
                     t0 = time.perf_counter()
-                    coded.append(self._code_part(i, Xi, kind, lam2))
+                    Yi = self._code_part(i, _part_matrix(L, joints), kind, lam2)
                     part_s.append(time.perf_counter() - t0)
-        for joints, Yi in zip(parts, coded):
-            acc[:, joints] += Yi.reshape(T, len(joints), 3)
-            cnt[joints] += 1
-        if np.any(cnt == 0):
-            raise MocapValueError(f"{self.name}: some joints are in no poselet")
-        out = frame.to_world(acc / cnt[None, :, None])[:T0]
+                    if i == len(parts) - 1:
+                        del L                        # not needed any more
+                    _part_add(acc, joints, Yi.reshape(T, len(joints), 3))
+                    del Yi
+        L = None
+        acc /= cnt[None, :, None]
+        out = frame_in_place(frame, acc, "world")[:T0]
         self._last_info = {**info, "lam": lam2, "lam_l1": float(self.lam_l1),
                            "seconds": time.perf_counter() - t_start, "part_seconds": part_s}
         self._report_convergence()
-        return motion.with_positions(out)
+        return motion.with_positions(out, handover=True)
 
     def _report_convergence(self) -> None:
         """Summarise the ADMM solves of the last :meth:`denoise` in the result's
@@ -472,6 +581,31 @@ class XiaoSparse(Denoiser):
         ``outlier_fraction``, ``sigma_cm``, ``lam``, ``lam_l1``, wall ``seconds`` and, when
         the poselets were coded serially, ``part_seconds`` (coding time per poselet)."""
         return dict(getattr(self, "_last_info", {}))
+
+
+def _consecutive(joints: np.ndarray) -> slice | None:
+    """``joints`` as a slice when they are consecutive and ascending (e.g. the full pose)."""
+    j = np.asarray(joints)
+    if j.size and np.array_equal(j, np.arange(j[0], j[0] + j.size)):
+        return slice(int(j[0]), int(j[0]) + j.size)
+    return None
+
+
+def _part_matrix(L: np.ndarray, joints: np.ndarray) -> np.ndarray:
+    """(T, 3 len(joints)) matrix of the poselet ``joints`` of L (T, J, 3): a view when the
+    joints are consecutive, else a copy."""
+    sl = _consecutive(joints)
+    return (L[:, sl] if sl is not None else L[:, joints]).reshape(L.shape[0], -1)
+
+
+def _part_add(acc: np.ndarray, joints: np.ndarray, Y: np.ndarray) -> None:
+    """``acc[:, joints] += Y`` -- in place through a view when the joints are consecutive
+    (no (T, J, 3) temporary for the full pose)."""
+    sl = _consecutive(joints)
+    if sl is not None:
+        acc[:, sl] += Y
+    else:
+        acc[:, joints] += Y
 
 
 _WORKER_MODEL: list = []

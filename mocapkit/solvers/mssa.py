@@ -102,11 +102,13 @@ def mssa_denoise(X, sigma: float, *, window: int, block: int = 2048) -> np.ndarr
     if not (sigma > 0):
         return X.copy()
     mu = X.mean(axis=0)
-    Xc = X - mu
     if T <= block:
-        return _block(Xc, float(sigma), window) + mu
+        return _block(X - mu, float(sigma), window) + mu
+    # long clips: each block is centred on its own copy and the tapered sum is scaled in
+    # place (no centred copy of the whole clip and no whole-clip temporaries; the same
+    # element operations as centring first)
     ov = 4 * window                                                    # overlap per side
-    out = np.zeros_like(Xc)
+    out = np.zeros_like(X)
     wsum = np.zeros(T)
     for a in range(0, T, block - 2 * ov):
         b = min(T, a + block)
@@ -117,11 +119,13 @@ def mssa_denoise(X, sigma: float, *, window: int, block: int = 2048) -> np.ndarr
             w[:ov] = ramp
         if b < T:
             w[-ov:] = ramp[::-1]
-        out[a:b] += _block(Xc[a:b], float(sigma), window) * w[:, None]
+        out[a:b] += _block(X[a:b] - mu, float(sigma), window) * w[:, None]
         wsum[a:b] += w
         if b == T:
             break
-    return out / wsum[:, None] + mu
+    out /= wsum[:, None]
+    out += mu
+    return out
 
 
 def sure(f: Callable[[np.ndarray], np.ndarray], Y: np.ndarray, sigma: float, *,

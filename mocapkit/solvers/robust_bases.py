@@ -359,17 +359,26 @@ class WindowProjector:
         blocks = np.lib.stride_tricks.as_strided(            # (N, nb, L): block b = Zp[bB : bB+N]
             Zp, shape=(N, nb, L), strides=(Zp.strides[0], B * Zp.strides[0], Zp.strides[1]),
             writeable=False)
+        # (the whole-clip spectra are released as soon as they are used: issue 21)
         Xf = sfft.rfft(blocks, axis=0)                                  # (F, nb, L)
+        del blocks, Zp
         Yf = Xf @ self.HfT                                              # row vectors: x Hᵀ = (H x)ᵀ
+        del Xf
         y = sfft.irfft(Yf, n=N, axis=0)[pad:pad + B]                    # (B, nb, L)
-        acc = np.array(y.transpose(1, 0, 2).reshape(nb * B, L)[:T], dtype=np.float64)
+        del Yf
+        full = np.empty((nb * B, L))                  # blocks back to frames, cast to float64
+        full.reshape(nb, B, L)[...] = y.transpose(1, 0, 2)
+        del y
+        acc = full[:T]
         if pad:
-            # subtract the phantom windows starting at -(M-1)..-1 and T-M+1..T-1
-            Zq = np.zeros((T + 2 * pad, L))
-            Zq[pad:pad + T] = Z
+            # subtract the phantom windows starting at -(M-1)..-1 and T-M+1..T-1: each needs
+            # the 2(M-1) rows lo..lo+2(M-1) of the clip zero-padded by M-1 frames per side
             for lo, sl_buf, sl_acc in ((0, slice(pad, 2 * pad), slice(0, pad)),
                                        (T, slice(0, pad), slice(T - pad, T))):
-                buf = Zq[lo:lo + 2 * pad]
+                buf = np.zeros((2 * pad, L))
+                a, b = max(lo, pad), min(lo + 2 * pad, pad + T)      # padded rows that hold Z
+                if b > a:
+                    buf[a - lo:b - lo] = Z[a - pad:b - pad]
                 Cph = coefficients(buf, self.Em)                        # (M-1, K)
                 acc[sl_acc] -= overlap_add(Cph, self.Em, 2 * pad)[sl_buf]
         return acc
@@ -450,7 +459,7 @@ def robust_filter(Y: np.ndarray, E: np.ndarray, M: int, *, mask: np.ndarray | No
     M = int(M)
     proj = WindowProjector(E if isinstance(E, np.ndarray) and E.dtype == float else np.asarray(E, dtype=float),
                            M, L, T, method, n_calls=int(max_iter) + 2, cache=cache)
-    Yf = np.where(alpha, Y, 0.0)
+    Yf = Y if alpha.all() else np.where(alpha, Y, 0.0)        # only read (no copy if complete)
     Z = _start_motion(Y, alpha, Yf, Z0)
     n_t = counts(T, M)
     a = alpha.astype(float)
@@ -512,8 +521,15 @@ def _cost(Z: np.ndarray, A: np.ndarray, Yf: np.ndarray, a: np.ndarray, n_t: np.n
         e = np.ones_like(R)
         data = 0.5 * float(np.sum(a * R * R))
     else:
-        e = np.exp(-(R * R) / (p * p))                         # rho'(r)/r, Fig. 2c
-        data = 0.5 * p * p * float(np.sum(a * (1.0 - e)))      # eq. 9
+        # e = exp(-(R R) / p^2), rho'(r)/r (Fig. 2c), computed in place in R
+        e = np.multiply(R, R, out=R)
+        np.negative(e, out=e)
+        e /= p * p
+        np.exp(e, out=e)
+        t = np.subtract(1.0, e)
+        t *= a
+        data = 0.5 * p * p * float(np.sum(t))                  # eq. 9
+        del t
     return data + lam * _prior(Z, A, n_t), e
 
 
@@ -540,8 +556,14 @@ def _alternate(Z: np.ndarray, Yf: np.ndarray, a: np.ndarray, proj, n_t: np.ndarr
         costs.append(J)
         if done or it == n_max:
             break
-        w = a * e                                                 # eq. 15 (IRLS weights)
-        Z = (w * Yf + 2.0 * lam * A) / (w + two_lam_n)            # (*)
+        w = np.multiply(a, e, out=e)                              # eq. 15 (IRLS weights)
+        # (*) = (w Yf + 2 lam A) / (w + 2 lam n_t), with in-place steps (fewer temporaries)
+        num = np.multiply(w, Yf)
+        A *= 2.0 * lam
+        num += A
+        del A
+        num /= w + two_lam_n
+        Z = num                                                   # (*)
     return Z, w, costs, it, done, rel
 
 

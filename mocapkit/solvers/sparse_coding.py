@@ -57,7 +57,7 @@ from ..errors import MocapValueError
 from . import _linalg
 from .info import SolveInfo
 
-__all__ = ["soft_threshold", "lasso_fista", "lasso_admm", "l1l1_admm", "dictionary_svd",
+__all__ = ["soft_threshold", "lasso_fista", "lasso_admm", "lasso_admm_blocks", "l1l1_admm", "dictionary_svd",
            "DictionarySVD", "lipschitz_constant", "lasso_objective", "l1l1_objective"]
 
 
@@ -277,10 +277,7 @@ def lasso_admm(Z, D, lam, *, rho: float | None = None, n_iter: int = 40, tol: fl
     lamc = _lam_column(lam, S, dt)
     rho = _lasso_rho(rho, lamc, sv)
     alpha = _relax_alpha(relax)
-    P, s, V = sv.cast(dt)
-    s64 = sv.s
-    f_b = (2.0 * alpha * s64 / (2.0 * s64 ** 2 + rho)).astype(dt)
-    f_q = (2.0 * alpha * s64 ** 2 / (2.0 * s64 ** 2 + rho)).astype(dt)
+    P, V, f_b, f_q = _lasso_factors(sv, rho, alpha, dt)
     Ba = ((Z @ P) * f_b) @ V.T                     # alpha (2D^TD + rho I)^{-1} 2 D^T z
     W = np.zeros((S, K), dtype=dt) if Theta0 is None else np.array(Theta0, dtype=dt).reshape(S, K)
     C = np.zeros((S, K), dtype=dt) if U0 is None else np.array(U0, dtype=dt).reshape(S, K)   # u
@@ -290,6 +287,75 @@ def lasso_admm(Z, D, lam, *, rho: float | None = None, n_iter: int = 40, tol: fl
     if return_info:
         return W, _admm_info(iters, n_iter, rmax, smax, tol)
     return W
+
+
+def _lasso_factors(sv: DictionarySVD, rho: float, alpha: float, dt):
+    """(P, V, f_b, f_q) of :func:`lasso_admm`: the SVD factors in ``dt`` and the diagonal
+    factors of alpha (2 D^T D + rho I)^{-1} 2 D^T and of alpha V diag(f) V^T."""
+    P, _, V = sv.cast(dt)
+    s64 = sv.s
+    f_b = (2.0 * alpha * s64 / (2.0 * s64 ** 2 + rho)).astype(dt)
+    f_q = (2.0 * alpha * s64 ** 2 / (2.0 * s64 ** 2 + rho)).astype(dt)
+    return P, V, f_b, f_q
+
+
+def lasso_admm_blocks(windows, S: int, D, lam, consume, *, blocks, restart=None,
+                      rho: float | None = None, n_iter: int = 40, tol: float = 1e-4,
+                      svd: DictionarySVD | None = None, dtype=np.float64,
+                      check_every: int = 10, relax: float = 1.0) -> SolveInfo:
+    """:func:`lasso_admm` of S windows given block by block, for long clips: the (S, n)
+    windows and the (S, K) iterates of all windows are never held at once.
+
+    ``windows(a, b)`` returns the rows a..b-1 of Z; ``blocks`` is a list of ``(a, b)``
+    ranges covering 0..S-1 once (any order); ``consume(a, b, Theta)`` receives the codes
+    of each block.  Returns the convergence report of the whole solve.
+
+    Same result as ``lasso_admm`` on all of Z: the windows only interact through rho
+    (from ``lam`` of all windows, as there) and the stopping test (every window's
+    residuals below tol), so each block runs all ``n_iter`` iterations and records its
+    largest residuals at every check; if all windows were below tol at an earlier check,
+    the unblocked solve would have stopped there, and the blocks are solved again with
+    that many iterations (``restart()`` is called first, so the caller can clear what
+    ``consume`` accumulated).  Every block is then iterated exactly as the rows of the
+    single solve (the iterations are row-wise; see :func:`mocapkit.denoise.sparse.window_blocks`
+    for blocks that also give bit-identical matrix products).
+    """
+    _, D, dt = _check(np.zeros((0, np.shape(D)[0])), D, dtype)     # D as lasso_admm casts it
+    sv = _svd_for(D, svd)
+    lamc = _lam_column(lam, int(S), dt)
+    rho = _lasso_rho(rho, lamc, sv)
+    alpha = _relax_alpha(relax)
+    P, V, f_b, f_q = _lasso_factors(sv, rho, alpha, dt)
+
+    def solve_all(n: int) -> dict[int, tuple[float, float]]:
+        worst: dict[int, tuple[float, float]] = {}       # check iteration -> max residuals
+        for a, b in blocks:
+            Z, _, _ = _check(windows(a, b), D, dt)
+            Ba = ((Z @ P) * f_b) @ V.T
+            del Z
+            W, C = np.zeros((b - a, D.shape[1]), dtype=dt), np.zeros((b - a, D.shape[1]), dtype=dt)
+            hist: list = []
+            W, _, _, _ = _lasso_iterations(Ba, V, f_q, W, C, _clipper(lamc[a:b] / dt.type(rho)),
+                                           rho, alpha, n, tol, check_every, history=hist)
+            del Ba, C
+            for it, r, sd in hist:
+                r0, s0 = worst.get(it, (0.0, 0.0))
+                worst[it] = (max(r0, r), max(s0, sd))
+            consume(a, b, W)
+        return worst
+
+    n_iter = int(n_iter)
+    worst = solve_all(n_iter)
+    stop = next((it for it in sorted(worst) if worst[it][0] <= tol and worst[it][1] <= tol), None)
+    if stop is not None and stop + 1 < n_iter:           # the single solve stops earlier
+        if restart is not None:
+            restart()
+        solve_all(stop + 1)
+        last = stop
+    else:
+        last = n_iter - 1
+    rmax, smax = worst.get(last, (float("inf"), float("inf")))
+    return _admm_info(last + 1 if n_iter > 0 else 0, n_iter, rmax, smax, tol)
 
 
 def _lasso_rho(rho: float | None, lamc: np.ndarray, sv: DictionarySVD) -> float:
@@ -314,12 +380,15 @@ def _relax_alpha(relax) -> float:
 
 def _lasso_iterations(Ba: np.ndarray, V: np.ndarray, f_q: np.ndarray, W: np.ndarray,
                       C: np.ndarray, clip, rho: float, alpha: float, n_iter: int, tol: float,
-                      check_every: int) -> tuple[np.ndarray, int, float, float]:
+                      check_every: int, history: list | None = None
+                      ) -> tuple[np.ndarray, int, float, float]:
     """The ADMM iterations of :func:`lasso_admm`, in place on w (``W``) and u (``C``).
 
     ``Ba`` = alpha (2 D^T D + rho I)^{-1} 2 D^T z, ``f_q`` the factors of alpha V diag(f)
     V^T, ``clip`` the clip to +-lam/rho (:func:`_clipper`).  Returns (w, iterations run,
-    largest relative primal and dual residual at the last check).
+    largest relative primal and dual residual at the last check).  With a ``history``
+    list, all ``n_iter`` iterations run (no early stop) and every check appends
+    ``(iteration index, primal, dual)`` (:func:`lasso_admm_blocks`).
     """
     dt = W.dtype
     S, K = W.shape
@@ -355,7 +424,9 @@ def _lasso_iterations(Ba: np.ndarray, V: np.ndarray, f_q: np.ndarray, W: np.ndar
             W_prev -= W
             rmax = float((_row_norms(Th) / scale).max(initial=0.0))
             smax = float((rho * _row_norms(W_prev) / scale).max(initial=0.0))
-            if rmax <= tol and smax <= tol:
+            if history is not None:
+                history.append((it, rmax, smax))
+            elif rmax <= tol and smax <= tol:
                 break
     return W, it + 1, rmax, smax
 
