@@ -580,3 +580,78 @@ def test_version_2_rocket_model_files_load_with_the_joints_view_only(rng, tmp_pa
     assert back.views == ("joints",) and back.views_ == ["joints"] and not back.hydra
     X = np.stack([m.series(x) for x in tr])
     assert np.array_equal(back.decision_series(X), m.decision_series(X))
+
+
+def _kinect_skeleton() -> Skeleton:
+    """The 20-joint Kinect (MSR-Action3D) skeleton, standing, in cm."""
+    names = ["HipCenter", "Spine", "ShoulderCenter", "Head", "ShoulderLeft", "ElbowLeft",
+             "WristLeft", "HandLeft", "ShoulderRight", "ElbowRight", "WristRight", "HandRight",
+             "HipLeft", "KneeLeft", "AnkleLeft", "FootLeft", "HipRight", "KneeRight",
+             "AnkleRight", "FootRight"]
+    parents = [-1, 0, 1, 2, 2, 4, 5, 6, 2, 8, 9, 10, 0, 12, 13, 14, 0, 16, 17, 18]
+    rest = np.array([[0, 100, 0], [0, 120, 0], [0, 145, 0], [0, 165, 0], [-18, 142, 0],
+                     [-20, 115, 0], [-21, 90, 0], [-21, 82, 0], [18, 142, 0], [20, 115, 0],
+                     [21, 90, 0], [21, 82, 0], [-10, 95, 0], [-10, 52, 0], [-10, 10, 0],
+                     [-10, 2, 8], [10, 95, 0], [10, 52, 0], [10, 10, 0], [10, 2, 8]], float)
+    return Skeleton.from_positions(names, parents, rest)
+
+
+def test_series_keypoints_put_the_arm_keypoints_first_then_the_body():
+    sk = _kinect_skeleton()
+    kp = rk.series_keypoints(sk)
+    names = ["HipCenter"] + [n for n in sk.names if n != "HipCenter"]    # trajectories' root-first order
+    assert [names[i] for i in kp] == ["Head", "ShoulderLeft", "ElbowLeft", "WristLeft", "ShoulderRight",
+                                      "ElbowRight", "WristRight", "HipCenter", "ShoulderCenter", "HipLeft",
+                                      "KneeLeft", "AnkleLeft", "HipRight", "KneeRight", "AnkleRight"]
+
+
+def test_bone_and_reach_views_hand_computed(rng):
+    X = rng.normal(size=(2, 45, 12))                # 15 joints, joint-major x, y, z; joint 0 = root
+    kp = np.array([3, 4, 5, 6, 8, 9, 10, 0, 2, 12, 13, 14, 11, 7, 1])   # rk.SERIES_KEYPOINTS order
+    J = X.reshape(2, 15, 3, 12)
+    B = rk.bone_view(X, kp)
+    assert B.shape == (2, 42, 12)
+    unit = lambda v: v / np.linalg.norm(v, axis=1, keepdims=True)  # noqa: E731
+    assert np.allclose(B[:, 0:3], unit(J[:, 2]))                    # spine: neck - root (root = origin)
+    assert np.allclose(B[:, 9:12], unit(J[:, 5] - J[:, 4]))         # left upper arm: elbow - shoulder
+    assert np.allclose(B[:, 21:24], unit(J[:, 10] - J[:, 9]))       # right forearm: wrist - elbow
+    assert np.allclose(B[:, 39:42], unit(J[:, 1] - J[:, 7]))        # right shank: ankle - knee
+    assert np.allclose(np.linalg.norm(B.reshape(2, 14, 3, 12), axis=2), 1.0)
+    moved = J.copy()
+    moved[:, 1:] *= 1.8                             # a bigger body: same directions
+    assert np.allclose(rk.bone_view(moved.reshape(2, 45, 12), kp), B)
+    Rv = rk.reach_view(X, kp)
+    assert Rv.shape == (2, 15, 12)
+    assert np.allclose(Rv[:, 0:3], J[:, 3]) and np.allclose(Rv[:, 9:12], J[:, 9])  # head, right elbow
+    assert np.allclose(Rv[:, 6:9], J[:, 6]) and np.allclose(Rv[:, 12:15], J[:, 10])  # the wrists
+
+
+def test_rocket_bone_and_reach_views_fit_save_load_and_need_the_keypoints(rng, tmp_path):
+    sk = _kinect_skeleton()
+    rest = sk.rest_positions()
+    ms, y = [], []
+    for c in range(2):                              # right hand raised above the head or kept low
+        for _ in range(6):
+            T = int(rng.integers(30, 50))
+            P = np.repeat(rest[None], T, 0) + rng.normal(0, 0.5, (T, 20, 3))
+            up = np.sin(np.linspace(0, np.pi, T)) * (70 if c == 0 else 25) * rng.uniform(0.8, 1.2)
+            P[:, 9:12, 1] += up[:, None] * np.array([0.5, 1.0, 1.0])
+            ms.append(Motion(P, sk, 15.0))
+            y.append(["high", "low"][c])
+    m = rk.RocketClassifier(n_features=168, length=32, views=("joints", "bones", "reach"), hydra=False,
+                            augment=1, seed=3).fit(ms, y)
+    assert m.views_ == ["joints", "bones", "reach"] and len(m.keypoints_) == 15
+    assert [r.n_channels_ for r in m.rockets_] == [60, 60, 42, 42, 15, 15]
+    assert m.coef_.shape[1] == sum(r.n_features_out for r in m.rockets_)
+    assert (m.predict_many(ms) == np.array(y)).all()
+    back = load_model(m.save(tmp_path / "b.npz"))
+    X = np.stack([m.series(x) for x in ms])
+    assert back.views_ == m.views_ and np.array_equal(back.decision_series(X), m.decision_series(X))
+    # the bone view needs all 15 keypoints: with the 7 arm keypoints of a version-3 file it is left out
+    few = rk.RocketClassifier(n_features=168, length=32, views=("joints", "arms", "bones", "reach"),
+                              hydra=False, augment=0).fit_series(X, y, keypoints=m.keypoints_[:7])
+    assert few.views_ == ["joints", "arms", "reach"]
+    # the default views (joints, arms) give the same model with 15 keypoints as with the 7 arm ones
+    a = rk.RocketClassifier(n_features=168, length=32, augment=1).fit_series(X, y, keypoints=m.keypoints_)
+    b = rk.RocketClassifier(n_features=168, length=32, augment=1).fit_series(X, y, keypoints=m.keypoints_[:7])
+    assert np.array_equal(a.decision_series(X), b.decision_series(X))

@@ -29,6 +29,9 @@ channels (per side elbow - shoulder, wrist - shoulder, wrist - head, divided by 
 length: the hand path about the shoulder, which is what tells the one-arm drawing actions
 apart), for skeletons whose keypoints :func:`series_keypoints` finds (Kinect 20 joints, CMU,
 HDM05; left out otherwise). Each view gets its own transforms; features are concatenated.
+Offered, not in the default (inner validation did not pay, ``docs/results/recognition.md``):
+``'bones'`` = :func:`bone_view`, the unit directions of the 14 keypoint bones (42 channels),
+and ``'reach'`` = :func:`reach_view`, head, elbows and wrists about the hip centre (15).
 
 Transform (:class:`MiniRocket`)
 -------------------------------
@@ -74,7 +77,9 @@ come from ``numpy.random.default_rng``: the same data and seed give the same mod
 predictions.
 
 Model files: format ``mocapkit-minirocket`` version 3 (parameters, transforms ``r{i}_`` /
-``h{i}_``, the arm ``keypoints``, linear read-out). Version-2 files (joints view only) and
+``h{i}_``, the ``keypoints`` of :func:`series_keypoints` -- the 7 arm keypoints in files
+written before the bone view existed, which is all the arm view reads --, linear read-out;
+a file with a view an older reader lacks fails there with a shape error). Version-2 files (joints view only) and
 version-1 files (MiniRocket PPV, no augmentation) still load and predict as before; other
 versions are refused with :class:`~mocapkit.errors.MocapFormatError`.
 
@@ -97,7 +102,7 @@ from ..motion import Motion
 from .model_file import (check_joint_set, joint_set_of, load_model, read_head, register_format,
                          write_model)
 
-__all__ = ["trajectories", "MiniRocket", "Hydra", "arm_view", "series_keypoints", "RocketClassifier", "fit_dilations", "golden_quantiles",
+__all__ = ["trajectories", "MiniRocket", "Hydra", "arm_view", "bone_view", "reach_view", "series_keypoints", "RocketClassifier", "fit_dilations", "golden_quantiles",
            "augment_series", "ridge_group_loo", "KERNEL_INDICES", "MODEL_FORMAT"]
 
 KERNEL_LENGTH = 9
@@ -443,12 +448,26 @@ class Hydra:
 
 # ------------------------------------------------------------------------------ views
 ARM_KEYPOINTS = ("head", "lshoulder", "lelbow", "lwrist", "rshoulder", "relbow", "rwrist")
-VIEWS = ("joints", "arms")
+# the order of :func:`series_keypoints`: the arm keypoints first (all that version-3 files
+# stored, and all :func:`arm_view` reads), then the rest of the body for :func:`bone_view`
+SERIES_KEYPOINTS = ARM_KEYPOINTS + ("root", "neck", "lhip", "lknee", "lankle", "rhip", "rknee", "rankle")
+# bones of :func:`bone_view` as (parent, child) names of SERIES_KEYPOINTS
+BONES = (("root", "neck"), ("neck", "head"),
+         ("neck", "lshoulder"), ("lshoulder", "lelbow"), ("lelbow", "lwrist"),
+         ("neck", "rshoulder"), ("rshoulder", "relbow"), ("relbow", "rwrist"),
+         ("root", "lhip"), ("lhip", "lknee"), ("lknee", "lankle"),
+         ("root", "rhip"), ("rhip", "rknee"), ("rknee", "rankle"))
+VIEWS = ("joints", "arms", "bones", "reach")
+# keypoints a view needs (it is left out when the model has fewer)
+VIEW_KEYPOINTS = {"joints": 0, "arms": len(ARM_KEYPOINTS), "bones": len(SERIES_KEYPOINTS),
+                  "reach": len(ARM_KEYPOINTS)}
+REACH_KEYPOINTS = ("head", "lelbow", "lwrist", "relbow", "rwrist")
 
 
 def series_keypoints(skeleton) -> np.ndarray | None:
     """Channel-joint indices (in :func:`trajectories`' root-first joint order) of
-    :data:`ARM_KEYPOINTS`, or None when the skeleton's keypoints are not found."""
+    :data:`SERIES_KEYPOINTS` (the 7 :data:`ARM_KEYPOINTS` first), or None when the
+    skeleton's keypoints are not found."""
     from ..retrieval.features import KEYPOINTS, find_keypoints
 
     idx = find_keypoints(skeleton)
@@ -458,7 +477,7 @@ def series_keypoints(skeleton) -> np.ndarray | None:
     order = [r] + [j for j in range(skeleton.n_joints) if j != r]
     pos = {j: i for i, j in enumerate(order)}
     kp = dict(zip(KEYPOINTS, (pos[int(j)] for j in idx)))
-    return np.array([kp[k] for k in ARM_KEYPOINTS], dtype=np.int64)
+    return np.array([kp[k] for k in SERIES_KEYPOINTS], dtype=np.int64)
 
 
 def arm_view(X: np.ndarray, keypoints: np.ndarray) -> np.ndarray:
@@ -479,6 +498,41 @@ def arm_view(X: np.ndarray, keypoints: np.ndarray) -> np.ndarray:
         arm = np.median(np.linalg.norm(E - S, axis=1) + np.linalg.norm(W - E, axis=1), axis=1)
         arm = np.maximum(arm, 1e-6)[:, None, None]
         parts += [(E - S) / arm, (W - S) / arm, (W - head) / arm]
+    return np.concatenate(parts, axis=1)
+
+
+def reach_view(X: np.ndarray, keypoints: np.ndarray) -> np.ndarray:
+    """Head, elbow and wrist trajectories (n, 15, L) of joint series X (n, 3J, L):
+    :data:`REACH_KEYPOINTS` relative to the hip centre, in body sizes -- channels of the
+    joints view given transforms of their own, so that every kernel reads the arm height
+    and reach rather than a random mix of all 3J channels. ``keypoints``: the
+    :data:`ARM_KEYPOINTS` indices first (:func:`series_keypoints`)."""
+    kp = dict(zip(ARM_KEYPOINTS, (int(k) for k in keypoints)))
+    return np.concatenate([X[:, 3 * kp[k]:3 * kp[k] + 3] for k in REACH_KEYPOINTS], axis=1)
+
+
+def bone_view(X: np.ndarray, keypoints: np.ndarray) -> np.ndarray:
+    """Bone directions (n, 42, L) of joint series X (n, 3J, L): the unit vector of each of
+    the 14 :data:`BONES` (spine, neck, per side clavicle, upper arm, forearm, hip, thigh,
+    shank), frame by frame.
+
+    The bone stream of two-stream skeleton networks (Shi et al., "Two-Stream Adaptive Graph
+    Convolutional Networks for Skeleton-Based Action Recognition", CVPR 2019, Sec. 3.4:
+    bone = child - parent joint), here divided by its length in every frame, so that only
+    the directions -- the joint angles, e.g. how high the upper arm is raised -- remain,
+    independent of body size and proportions. ``keypoints``: the 15 indices of
+    :data:`SERIES_KEYPOINTS` (:func:`series_keypoints`). The root is the origin of the
+    other joints in X (its own channels hold its path), so a bone from the root is the
+    child's series itself.
+    """
+    kp = dict(zip(SERIES_KEYPOINTS, (int(k) for k in keypoints)))
+    root = kp["root"]
+    zero = np.zeros((len(X), 3, X.shape[2]))
+    J = lambda k: zero if kp[k] == root else X[:, 3 * kp[k]:3 * kp[k] + 3]   # noqa: E731
+    parts = []
+    for a, b in BONES:
+        B = J(b) - J(a)
+        parts.append(B / np.maximum(np.linalg.norm(B, axis=1, keepdims=True), 1e-6))
     return np.concatenate(parts, axis=1)
 
 
@@ -597,9 +651,12 @@ class RocketClassifier:
     n_seeds : transforms with seeds ``seed, seed + 2, ...`` whose features are concatenated
         (1 = one transform per representation).
     views : inputs, each with its own transforms, features concatenated: ``'joints'`` (the
-        3J joint trajectories of :func:`trajectories`) and ``'arms'`` (:func:`arm_view`:
-        hand paths about the shoulders and the head, per arm length; needs the skeleton's
-        keypoints, :func:`series_keypoints`, and is left out without them).
+        3J joint trajectories of :func:`trajectories`), ``'arms'`` (:func:`arm_view`:
+        hand paths about the shoulders and the head, per arm length), ``'bones'``
+        (:func:`bone_view`: unit directions of the 14 keypoint bones) and ``'reach'``
+        (:func:`reach_view`: head, elbows and wrists about the hip centre); all but
+        ``'joints'`` need the skeleton's keypoints (:func:`series_keypoints`) and are left
+        out without them.
     hydra : add :class:`Hydra` counts of every view and its first difference (HYDRA +
         MultiRocket, Dempster et al. 2023 Sec. 5).
     alphas : ridge penalties tried by leave-one-clip-out (:func:`ridge_group_loo`).
@@ -659,7 +716,7 @@ class RocketClassifier:
         if bad or not self.views:
             raise MocapValueError(f"unknown views {bad or '(none)'}; choose from {', '.join(VIEWS)}")
         self.keypoints_ = np.zeros(0, np.int64) if keypoints is None else np.asarray(keypoints, np.int64)
-        self.views_ = [v for v in self.views if v != "arms" or len(self.keypoints_)]
+        self.views_ = self._usable_views()
         self._fit_transforms(X)                          # biases from the original clips only
         rng = np.random.default_rng([int(self.seed), 7])
         Xa, owner = augment_series(X, int(self.augment), rng, time_warp=float(self.time_warp),
@@ -690,8 +747,13 @@ class RocketClassifier:
         self.joints_ = np.array([], dtype=str)
         return self
 
+    def _usable_views(self) -> list[str]:
+        """The requested views this model's keypoints allow (the others are left out)."""
+        return [v for v in self.views if len(self.keypoints_) >= VIEW_KEYPOINTS[v]]
+
     def _view(self, X: np.ndarray, view: str) -> np.ndarray:
-        return X if view == "joints" else arm_view(X, self.keypoints_)
+        fn = {"joints": lambda X, _: X, "arms": arm_view, "bones": bone_view, "reach": reach_view}[view]
+        return fn(X, self.keypoints_)
 
     def _plan(self) -> list[tuple[int, int, bool, str, int]]:
         """(view index, seed index, on the difference, 'r' / 'h', seed) of every transform,
@@ -793,7 +855,10 @@ class RocketClassifier:
         rp = dict(n_features=m.n_features, max_dilations=m.max_dilations, pooling=m.pooling,
                   max_channels=m.max_channels)
         m.keypoints_ = st["keypoints"].astype(np.int64) if "keypoints" in st else np.zeros(0, np.int64)
-        m.views_ = [v for v in m.views if v != "arms" or len(m.keypoints_)]
+        bad = [v for v in m.views if v not in VIEWS]
+        if bad:
+            raise MocapFormatError(path, f"unknown views {bad} in the model file")
+        m.views_ = m._usable_views()
         m.rockets_, m.hydras_ = [], []
         for _, _, _, kind, seed in m._plan():
             if kind == "r":
