@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
+from conftest import kinect_skeleton
 from mocapkit import cli
 from mocapkit.errors import MocapFormatError, MocapValueError, NotFittedError
 from mocapkit.recognition.classifier import SkeletonClassifier
@@ -582,22 +583,8 @@ def test_version_2_rocket_model_files_load_with_the_joints_view_only(rng, tmp_pa
     assert np.array_equal(back.decision_series(X), m.decision_series(X))
 
 
-def _kinect_skeleton() -> Skeleton:
-    """The 20-joint Kinect (MSR-Action3D) skeleton, standing, in cm."""
-    names = ["HipCenter", "Spine", "ShoulderCenter", "Head", "ShoulderLeft", "ElbowLeft",
-             "WristLeft", "HandLeft", "ShoulderRight", "ElbowRight", "WristRight", "HandRight",
-             "HipLeft", "KneeLeft", "AnkleLeft", "FootLeft", "HipRight", "KneeRight",
-             "AnkleRight", "FootRight"]
-    parents = [-1, 0, 1, 2, 2, 4, 5, 6, 2, 8, 9, 10, 0, 12, 13, 14, 0, 16, 17, 18]
-    rest = np.array([[0, 100, 0], [0, 120, 0], [0, 145, 0], [0, 165, 0], [-18, 142, 0],
-                     [-20, 115, 0], [-21, 90, 0], [-21, 82, 0], [18, 142, 0], [20, 115, 0],
-                     [21, 90, 0], [21, 82, 0], [-10, 95, 0], [-10, 52, 0], [-10, 10, 0],
-                     [-10, 2, 8], [10, 95, 0], [10, 52, 0], [10, 10, 0], [10, 2, 8]], float)
-    return Skeleton.from_positions(names, parents, rest)
-
-
 def test_series_keypoints_put_the_arm_keypoints_first_then_the_body():
-    sk = _kinect_skeleton()
+    sk = kinect_skeleton()
     kp = rk.series_keypoints(sk)
     names = ["HipCenter"] + [n for n in sk.names if n != "HipCenter"]    # trajectories' root-first order
     assert [names[i] for i in kp] == ["Head", "ShoulderLeft", "ElbowLeft", "WristLeft", "ShoulderRight",
@@ -627,7 +614,7 @@ def test_bone_and_reach_views_hand_computed(rng):
 
 
 def test_rocket_bone_and_reach_views_fit_save_load_and_need_the_keypoints(rng, tmp_path):
-    sk = _kinect_skeleton()
+    sk = kinect_skeleton()
     rest = sk.rest_positions()
     ms, y = [], []
     for c in range(2):                              # right hand raised above the head or kept low

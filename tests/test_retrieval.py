@@ -6,6 +6,7 @@ import itertools
 import numpy as np
 import pytest
 
+from conftest import kinect_skeleton
 from mocapkit.errors import MocapFormatError, MocapValueError
 from mocapkit.motion import Motion
 from mocapkit.retrieval import amfs as A
@@ -52,18 +53,8 @@ def test_hod_bins_mid_angles_and_layout():
 
 # ------------------------------------------------------------------ skeleton handling
 def _toy_motion(T=40, missing_frames=()):
-    names = ["HipCenter", "Spine", "ShoulderCenter", "Head", "ShoulderLeft", "ElbowLeft",
-             "WristLeft", "HandLeft", "ShoulderRight", "ElbowRight", "WristRight", "HandRight",
-             "HipLeft", "KneeLeft", "AnkleLeft", "FootLeft", "HipRight", "KneeRight",
-             "AnkleRight", "FootRight"]
-    parents = [-1, 0, 1, 2, 2, 4, 5, 6, 2, 8, 9, 10, 0, 12, 13, 14, 0, 16, 17, 18]
-    rest = np.array([[0, 100, 0], [0, 120, 0], [0, 145, 0], [0, 165, 0], [-18, 142, 0],
-                     [-20, 115, 0], [-21, 90, 0], [-21, 82, 0], [18, 142, 0], [20, 115, 0],
-                     [21, 90, 0], [21, 82, 0], [-10, 95, 0], [-10, 52, 0], [-10, 10, 0],
-                     [-10, 2, 8], [10, 95, 0], [10, 52, 0], [10, 10, 0], [10, 2, 8]], float)
-    from mocapkit.skeleton import Skeleton
-
-    sk = Skeleton.from_positions(names, parents, rest)
+    sk = kinect_skeleton()
+    rest = sk.rest_positions()
     t = np.arange(T)[:, None]
     P = np.repeat(rest[None], T, 0)
     P[:, 10] += np.c_[10 * np.sin(t / 5), 20 * np.cos(t / 5), 0 * t]   # waving right wrist

@@ -9,13 +9,8 @@ from ..errors import MocapValueError
 
 def as_2d(X, axis: int) -> tuple[np.ndarray, tuple[int, ...], int]:
     """Move ``axis`` to the front and flatten the rest: (T, C) float copy + restore info."""
-    A = np.asarray(X, dtype=np.float64)
-    if A.ndim == 0:
-        raise MocapValueError("expected an array with a time axis, got a scalar")
-    axis = axis % A.ndim
-    A = np.moveaxis(A, axis, 0)
-    shape = A.shape
-    return np.array(A.reshape(shape[0], -1), dtype=np.float64, copy=True), shape, axis
+    A, shape, axis = as_2d_view(X, axis)
+    return np.array(A, dtype=np.float64, copy=True), shape, axis
 
 
 def as_2d_view(X, axis: int) -> tuple[np.ndarray, tuple[int, ...], int]:
