@@ -97,6 +97,8 @@ def _centre(X: np.ndarray, mask: np.ndarray | None, how: str) -> np.ndarray:
     """Per-column centre (1, C) of observed entries ("none" -> zeros)."""
     if how == "none":
         return np.zeros((1, X.shape[1]))
+    if mask is None and how == "mean":                  # complete: no NaN-aware copy
+        return X.mean(axis=0, keepdims=True)
     Z = X if mask is None else np.where(mask, X, np.nan)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)

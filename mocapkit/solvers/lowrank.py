@@ -261,8 +261,8 @@ def svt(X: Any, mask: Any = None, tau: float | None = None, delta: float | None 
         raise MocapValueError(f"need tau >= 0, delta > 0, eps >= 0; got {tau}, {delta}, {eps}")
 
     if mask is None and method == "auto":
-        A = _svt_full(X, tau, eps, overwrite=True)          # X is prepare's copy or the caller's
-        return (A, SolveInfo(0, True, 0.0, "closed form", {"rank": _rank(A), "fit_ratio": 0.0,
+        A, rank = _svt_full(X, tau, eps, overwrite=True)    # X is prepare's copy or the caller's
+        return (A, SolveInfo(0, True, 0.0, "closed form", {"rank": rank, "fit_ratio": 0.0,
                                                            "restarts": 0, "delta": delta})
                 ) if return_info else A
     if method not in ("auto", "iterative"):
@@ -355,8 +355,9 @@ def _rank(A: np.ndarray) -> int:
     return int((sv > sv[0] * max(A.shape) * np.finfo(float).eps).sum())
 
 
-def _svt_full(X: np.ndarray, tau: float, eps: float, overwrite: bool = False) -> np.ndarray:
-    """Closed-form solution of ``min tau||A||_* + 1/2||A||_F^2 s.t. ||A - X||_F <= eps``.
+def _svt_full(X: np.ndarray, tau: float, eps: float, overwrite: bool = False) -> tuple[np.ndarray, int]:
+    """Closed-form solution of ``min tau||A||_* + 1/2||A||_F^2 s.t. ||A - X||_F <= eps``
+    and its rank (the singular values it keeps: no SVD of the result).
 
     A tall X (T frames x 3J coordinates) goes through its small Gram matrix: singular
     values and right vectors from ``eigh(X^T X)``, then ``A = X (V diag(v / sigma) V^T)``
@@ -365,14 +366,14 @@ def _svt_full(X: np.ndarray, tau: float, eps: float, overwrite: bool = False) ->
     m, n = X.shape
     out = X if overwrite else None
     if eps <= 0:
-        return X if overwrite else X.copy()
+        return (X if overwrite else X.copy()), _rank(X)
     if m < n:                                # wide: the economy SVD is the small side
         U, sig, Vt = _linalg.svd(X, full_matrices=False, what="svt")
     else:
         w, V = _linalg.eigh(X.T @ X, what="svt")
         sig = np.sqrt(np.clip(w, 0.0, None))
     if float(np.linalg.norm(sig)) <= eps:
-        return np.zeros_like(X) if out is None else _fill_zero(out)
+        return (np.zeros_like(X) if out is None else _fill_zero(out)), 0
 
     def vals(s: float) -> np.ndarray:
         return np.maximum(s * sig - (1 - s) * tau, 0.0)
@@ -384,15 +385,17 @@ def _svt_full(X: np.ndarray, tau: float, eps: float, overwrite: bool = False) ->
             lo = mid
         else:
             hi = mid
+    v = vals(hi)
+    rank = int((v > 0).sum())
     if m < n:
-        return (U * vals(hi)) @ Vt
+        return (U * v) @ Vt, rank
     with np.errstate(divide="ignore", invalid="ignore"):
-        f = np.where(sig > 0, vals(hi) / np.where(sig > 0, sig, 1.0), 0.0)
+        f = np.where(sig > 0, v / np.where(sig > 0, sig, 1.0), 0.0)
     K = (V * f) @ V.T
     out = np.empty_like(X) if out is None else out
     for rows in _row_slices(m):
         out[rows] = X[rows] @ K
-    return out
+    return out, rank
 
 
 def _fill_zero(A: np.ndarray) -> np.ndarray:
