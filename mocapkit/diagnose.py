@@ -87,13 +87,20 @@ class Diagnosis:
 def robust_fit(motion: Motion) -> tuple[np.ndarray, GCVInfo, np.ndarray]:
     """Robust GCV spline fit of the observed points. Returns (fit (T, 3J), info, usable
     (J,) bool -- points with at least one observed sample; the fit covers those only)."""
-    X, M = motion.matrix(), motion.matrix_mask()
+    X, M = motion.matrix(copy=False), motion.matrix_mask()       # read only
     usable = motion.observed.any(axis=0)
     cols = np.repeat(usable, 3)
+    f, info = gcv_smooth(used_columns(X, cols), used_columns(M, cols), robust=True, group=3)
+    if cols.all():
+        return f, info, usable
     fit = np.full_like(X, np.nan)
-    f, info = gcv_smooth(X[:, cols], M[:, cols], robust=True, group=3)
     fit[:, cols] = f
     return fit, info, usable
+
+
+def used_columns(A: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """``A[:, cols]``, or A itself when every column is used (no copy of a long clip)."""
+    return A if cols.all() else A[:, cols]
 
 
 def diagnose(motion: Motion, fit: tuple | None = None) -> Diagnosis:

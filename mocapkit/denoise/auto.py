@@ -77,7 +77,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..diagnose import SPIKE_RATE, diagnose, robust_fit
+from ..diagnose import SPIKE_RATE, diagnose, robust_fit, used_columns
 from ..gaps import gap_lengths
 from ..motion import Motion
 from ..solvers.gcv_spline import cutoff_hz, gcv_smooth
@@ -139,7 +139,7 @@ class Auto(Denoiser):
 
     def _denoise(self, motion: Motion) -> Motion:
         t0 = time.perf_counter()
-        X, M = motion.matrix(), motion.matrix_mask()
+        X, M = motion.matrix(copy=False), motion.matrix_mask()      # read only
         if motion.n_frames < 8:                     # too short to fit a smoothing spline
             return get("linear").denoise(motion).with_source(auto={
                 "chain": ["linear fill (clip under 8 frames)"], "estimated_rmse_cm": None})
@@ -149,7 +149,7 @@ class Auto(Denoiser):
         cols = np.repeat(usable, 3)
         spiky = diag.spike_rate > float(self.spike_rate)
         if not spiky:                                    # nothing rejected: plain GCV fit
-            f, info = gcv_smooth(X[:, cols], M[:, cols], group=3)
+            f, info = gcv_smooth(used_columns(X, cols), used_columns(M, cols), group=3)
             fit[:, cols] = f
         smooth = not (diag.noise_cm < float(self.min_noise_cm))
         if spiky and not smooth:                          # spikes on noise-free samples
@@ -164,7 +164,7 @@ class Auto(Denoiser):
             # noise-free CMU clips at 120 fps); the package's robust estimate from the
             # whole matrix is another upper bound -- the smaller of the two is charged
             from ..signal import estimate_noise
-            est["kept"] = np.fmin(est["kept"], estimate_noise(X[:, cols], M[:, cols], pool="all", fallback=0.0))
+            est["kept"] = np.fmin(est["kept"], estimate_noise(used_columns(X, cols), used_columns(M, cols), pool="all", fallback=0.0))
             if spiky:
                 est["kept_extra"] = np.zeros(X.shape)
                 est["kept_extra"][:, cols] = _end_spikes_kept(X, M, cols, fit, info, diag.spike_rate)
@@ -253,7 +253,7 @@ def _second_look(X: np.ndarray, M: np.ndarray, cols: np.ndarray, fit: np.ndarray
 
     from ..solvers.gcv_spline import _solve_weighted
 
-    Xc, Mc = X[:, cols], M[:, cols]
+    Xc, Mc = used_columns(X, cols), used_columns(M, cols)
     T = Xc.shape[0]
     Y0 = np.where(Mc, Xc, fit[:, cols])
     rej = info.rejected.copy()
@@ -309,7 +309,7 @@ def _end_spikes_kept(X: np.ndarray, M: np.ndarray, cols: np.ndarray, fit: np.nda
 
     from ..solvers.gcv_spline import _solve_weighted
 
-    Xc, Mc = X[:, cols], M[:, cols]
+    Xc, Mc = used_columns(X, cols), used_columns(M, cols)
     T, C = Xc.shape
     extra = np.zeros((T, C))
     if T < 8 or not rate > 0:
