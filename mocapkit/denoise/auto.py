@@ -384,13 +384,28 @@ def _combine(est: dict, holes: np.ndarray, long: np.ndarray, e_long: np.ndarray 
              usable: np.ndarray) -> float | None:
     """Sample-weighted RMS of the per-class estimates over the fitted points (cm)."""
     cols = np.repeat(usable, 3)
-    short = holes & ~long
-    kept = ~holes
-    e_l = e_long if e_long is not None else np.full(holes.shape, np.nan)
-    hole2 = np.broadcast_to(est["hole"] ** 2, holes.shape)
-    e_l2 = np.where(np.isfinite(e_l), e_l ** 2, hole2)        # spline values kept: its validation
-    kept2 = est["kept"] ** 2 + est.get("kept_extra", 0.0)
-    sq = np.where(kept, kept2, np.where(short, hole2, e_l2))[:, cols]
-    if not sq.size or not np.isfinite(sq).any():
+    T = holes.shape[0]
+    total, count = 0.0, 0
+    for a in range(0, T, _COMBINE_BLOCK):          # blocks of frames: no (T, 3J) temporaries
+        sl = slice(a, a + _COMBINE_BLOCK)
+        h, lg = holes[sl], long[sl]
+        e_l = e_long[sl] if e_long is not None else np.full(h.shape, np.nan)
+        hole2 = np.broadcast_to(_rows(est["hole"], sl) ** 2, h.shape)
+        e_l2 = np.where(np.isfinite(e_l), e_l ** 2, hole2)    # spline values kept: its validation
+        kept2 = _rows(est["kept"], sl) ** 2 + _rows(est.get("kept_extra", 0.0), sl)
+        sq = np.where(~h, kept2, np.where(h & ~lg, hole2, e_l2))[:, cols]
+        fin = np.isfinite(sq)
+        total += float(sq[fin].sum())
+        count += int(fin.sum())
+    if count == 0:
         return None
-    return float(np.sqrt(np.nanmean(sq)))
+    return float(np.sqrt(total / count))
+
+
+_COMBINE_BLOCK = 8192
+"""Frames per block of :func:`_combine`."""
+
+
+def _rows(v, sl: slice):
+    """Rows ``sl`` of a per-sample (T, C) estimate; a per-channel (C,) one or a scalar as is."""
+    return v[sl] if np.ndim(v) == 2 else v

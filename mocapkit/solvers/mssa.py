@@ -140,9 +140,20 @@ def sure(f: Callable[[np.ndarray], np.ndarray], Y: np.ndarray, sigma: float, *,
     if N == 0 or not (sigma > 0):
         return float("nan")
     g = np.random.default_rng(rng)
-    b = np.where(g.random(Y.shape) < 0.5, -1.0, 1.0) * M
+    b = np.where(g.random(Y.shape) < 0.5, -1.0, 1.0)
+    b *= M
     e = 0.01 * sigma if eps is None else eps
     f0 = f(Y) if fy is None else fy
-    div = float(np.sum(b * (f(Y + e * b) - f0))) / e
-    rss = float(np.sum(((Y - f0) ** 2)[M]))
+    # the same arithmetic as sum(b * (f(Y + e b) - f0)), in place: at most Y, b, f0 and
+    # one more array of Y's size besides what f needs (a 100,000-frame clip held 5 more)
+    Yp = b * e
+    Yp += Y
+    fp = f(Yp)
+    del Yp
+    fp -= f0
+    fp *= b
+    div = float(np.sum(fp)) / e
+    np.subtract(Y, f0, out=fp)
+    fp *= fp
+    rss = float(np.sum(fp)) if N == fp.size else float(np.sum(fp[M]))
     return rss / N - sigma ** 2 + 2 * sigma ** 2 * div / N
