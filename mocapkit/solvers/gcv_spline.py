@@ -268,7 +268,7 @@ def gcv_smooth(X, mask=None, *, order: int = 2, s: float | np.ndarray | None = N
     n_iter = 0
     if robust:
         for n_iter in range(1, n_robust + 1):
-            W = _bisquare(Y0 - f, M, _trace(T, s_, order) / T, group, min_scale)
+            W = _bisquare(Y0, f, M, _trace(T, s_, order) / T, group, min_scale)
             f, s_ = _select_and_fit(Y0, W, order, s_fixed, f, out=f)
         W = W > 0
         f, s_ = _select_and_fit(Y0, W, order, s_fixed, f, out=f)
@@ -384,26 +384,39 @@ def _with_hole_error(info: GCVInfo, Y: np.ndarray, W: np.ndarray, s: np.ndarray,
     p2 = np.array([pool[k] for k in near])
     e2_run = np.where(val, (n * np.maximum(e2_run, 0.0) + prior * p2) / (n + prior), p2)
     hmap = np.sqrt(_paint(T, P, j, a, b, e2_run).clip(0))
-    hmap = np.repeat(hmap, group, axis=1) * holes
+    hmap = np.repeat(hmap, group, axis=1)
+    hmap *= holes                                                   # in place: one (T, C) array
     n_fill = holes.sum(axis=0)
-    e_hole = np.sqrt((hmap ** 2).sum(axis=0) / np.maximum(n_fill, 1))
+    e_hole = np.sqrt(np.einsum("tc,tc->c", hmap, hmap) / np.maximum(n_fill, 1))
     err = np.sqrt(((T - n_fill) * info.error ** 2 + n_fill * e_hole ** 2) / T)
     return replace(info, error=err, hole_error=e_hole, hole_map=hmap)
 
 
-def _bisquare(R: np.ndarray, M: np.ndarray, h: np.ndarray, group: int,
+_FRAME_BLOCK = 8192
+"""Frames per block of :func:`_bisquare`."""
+
+
+def _bisquare(Y: np.ndarray, f: np.ndarray, M: np.ndarray, h: np.ndarray, group: int,
               min_scale: float) -> np.ndarray:
-    """Bisquare weights (T, C) from residuals R and mean leverages h (C,), per point."""
-    T, C = R.shape
-    R = np.where(M, R, np.nan).reshape(T, C // group, group)
-    norm = np.sqrt(np.sum(R ** 2, axis=2))                                    # (T, points)
+    """Bisquare weights (T, C) from the residuals Y - f and mean leverages h (C,), per point.
+
+    The residual norms are formed a block of frames at a time (the whole-matrix residuals,
+    their NaN-masked copy and squares were three more matrices of a long clip)."""
+    T, C = Y.shape
+    norm = np.empty((T, C // group))                                          # (T, points)
+    for a in range(0, T, _FRAME_BLOCK):
+        sl = slice(a, a + _FRAME_BLOCK)
+        R = np.where(M[sl], Y[sl] - f[sl], np.nan).reshape(-1, C // group, group)
+        norm[sl] = np.sqrt(np.sum(R ** 2, axis=2))
     # median of a chi distribution with `group` dof: the MAD constant 0.6745 for group 1
     med = float(np.sqrt(chi2.ppf(0.5, group)))
     lev = np.sqrt(np.maximum(1 - h.reshape(-1, group).mean(axis=1), 1e-6))
     scale = np.nanmedian(norm, axis=0) / med / lev
     u = np.nan_to_num(norm / (_BISQUARE * np.maximum(scale, min_scale)), nan=2.0)
     w = np.where(u < 1, (1 - u ** 2) ** 2, 0.0)
-    return np.repeat(w, group, axis=1) * M
+    W = np.repeat(w, group, axis=1)
+    W *= M
+    return W
 
 
 def _info(Y: np.ndarray, f: np.ndarray, M: np.ndarray, W: np.ndarray, tr: np.ndarray,
