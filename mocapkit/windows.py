@@ -25,7 +25,13 @@ import numpy as np
 
 from .errors import MocapValueError
 
-__all__ = ["lagged", "counts", "window_starts", "overlap_add", "overlap_mean"]
+__all__ = ["lagged", "counts", "window_starts", "overlap_add", "overlap_mean", "window_blocks",
+           "overlap_add_into"]
+
+#: bytes of per-window work arrays allowed at once: windows are coded in blocks of about
+#: this size (:func:`window_blocks`; issue 21: the window matrix of a whole 100k-frame clip
+#: is ~20x the clip), so memory stays O(T d), not O(T M (d + K))
+BLOCK_BYTES = 24 * 2 ** 20
 
 
 def lagged(X, M: int, *, view: bool = False) -> np.ndarray:
@@ -100,3 +106,36 @@ def overlap_mean(R: np.ndarray, T: int, M: int, starts: np.ndarray | None = None
     (``starts`` as in :func:`overlap_add`)."""
     acc, cnt = overlap_add(R, T, M, starts)
     return acc / cnt[:, None]
+
+
+def window_blocks(S: int, per_window_bytes: float, budget: int | None = None,
+                  align: int = 256) -> list[tuple[int, int]]:
+    """Blocks ``(a, b)`` of the S windows, **last block first**, each holding about
+    ``budget / per_window_bytes`` windows (a multiple of ``align``: the BLAS kernels then
+    see the same row tiles as in one call, so every window gets bit-identical numbers).
+
+    Last block first: a frame's copies are then summed by :func:`overlap_add_into` in the
+    order of :func:`overlap_add` (window offset m ascending), so the
+    blocked overlap-average is bit-identical to the unblocked one.
+    """
+    budget = BLOCK_BYTES if budget is None else budget
+    n = max(align, int(budget // max(per_window_bytes, 1.0)) // align * align)
+    return [(a, min(S, a + n)) for a in range(0, S, n)][::-1]
+
+
+def overlap_add_into(acc: np.ndarray, R: np.ndarray, M: int, first: int,
+                     starts: np.ndarray | None = None, weights: np.ndarray | None = None,
+                     cnt: np.ndarray | None = None) -> None:
+    """In place: add the rows of R (n, M C) -- windows starting at frames ``first`` ..
+    ``first + n - 1`` (or at the frames ``starts`` (n,)) -- to ``acc`` (T, C) and, if
+    given, their ``weights`` (or 1) to ``cnt`` (T,).  The same element operations as
+    :func:`overlap_add` on all windows, one block at a time (called on
+    the blocks of :func:`window_blocks`, last first)."""
+    n = R.shape[0]
+    R3 = R.reshape(n, M, -1)
+    w = None if weights is None else np.asarray(weights)
+    for m in range(M):
+        rows = slice(first + m, first + m + n) if starts is None else starts + m
+        acc[rows] += R3[:, m] if w is None else R3[:, m] * w[:, None]
+        if cnt is not None:
+            cnt[rows] += 1 if w is None else w

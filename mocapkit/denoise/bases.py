@@ -18,7 +18,7 @@ from ..motion import Motion
 from ..solvers import robust_bases as rb
 from ..solvers.evidence import evidence_blend
 from .base import Denoiser, check_training_match, register, report_convergence
-from .sparse import frame_in_place
+from ..frames import frame_in_place
 from .constraints import Integral, Interval, Options, Real, center_as_string
 
 _POSITIVE = Interval(Real, 0, None, closed="neither")

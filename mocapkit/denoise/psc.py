@@ -24,7 +24,8 @@ from ..windows import lagged
 from ._refill import check_motion, known_mask
 from .base import Denoiser, register
 from .constraints import Integral, Interval, Numbers, Real
-from .sparse import frame_in_place, overlap_add_into, window_blocks
+from ..frames import frame_in_place
+from ..windows import overlap_add_into, window_blocks
 
 _POSITIVE = Interval(Real, 0, None, closed="neither")
 
@@ -272,7 +273,7 @@ class PSC(Denoiser):
     @one_blas_thread
     def denoise(self, motion: Motion) -> Motion:
         """Algorithm 1 (module / class docstring).  Memory (issue 21): every window of a
-        part is coded and averaged back in blocks (:func:`.sparse.window_blocks`), the
+        part is coded and averaged back in blocks (:func:`mocapkit.windows.window_blocks`), the
         local-frame transforms and the refinement run in place or by blocks, so the work
         arrays are a few (T, J, 3) ones -- the blocked numbers equal the whole-clip ones."""
         self._check_fitted()
@@ -343,7 +344,7 @@ class PSC(Denoiser):
         Returns (acc (T, d), cnt (T,)): sum and number of the reconstructions of coded
         windows (those with a known entry) covering each frame, or (None, None) when no
         window is coded.  The windows are zero-copy views, coded a block at a time (last
-        block first, see :func:`.sparse.window_blocks`): the same numbers as coding all
+        block first, see :func:`mocapkit.windows.window_blocks`): the same numbers as coding all
         windows at once, without their (S, M d) matrices (and the (S, k, M d) atoms of the
         reconstruction) for the whole clip."""
         T = X.shape[0]

@@ -98,10 +98,10 @@ from typing import Any, Sequence
 import numpy as np
 
 from ..errors import MocapValueError
-from ..frames import pelvis_neck_frame
+from ..frames import frame_in_place, pelvis_neck_frame
 from ..motion import Motion
 from ..signal import estimate_noise
-from ..windows import lagged, window_starts
+from ..windows import lagged, overlap_add_into, window_blocks, window_starts
 from .base import Denoiser, register, report_convergence, training_matrices
 from .constraints import Integral, Interval, Options, Real, center_as_string
 
@@ -112,12 +112,6 @@ _NONNEG = Interval(Real, 0, None)
 
 NOISE_TYPES = ("auto", "gaussian", "outliers", "mixed")
 
-#: bytes of per-window work arrays allowed at once: the windows of a poselet are coded
-#: in blocks of about this size (issue 21: peak memory; the window matrix of a whole
-#: 100k-frame clip is ~20x the clip), so memory stays O(T d), not O(T M (d + K))
-BLOCK_BYTES = 24 * 2 ** 20
-FRAME_BLOCK = 8192
-"""Frames per block of the local-frame transforms done in place (:func:`frame_in_place`)."""
 
 #: numerics of the coding step, fixed (constructor parameters before; measured in
 #: docs/results/xiao.md): the ADMM over-relaxation alpha of both solvers (Boyd et al. 2011
@@ -180,52 +174,6 @@ def detect_noise(X: np.ndarray, *, outlier_detect_ratio: float = 0.015, n_sigmas
 # ---------------------------------------------------------------------------------------
 # blocked window helpers (shared with psc): bounded memory, same numbers as unblocked
 # ---------------------------------------------------------------------------------------
-def window_blocks(S: int, per_window_bytes: float, budget: int | None = None,
-                  align: int = 256) -> list[tuple[int, int]]:
-    """Blocks ``(a, b)`` of the S windows, **last block first**, each holding about
-    ``budget / per_window_bytes`` windows (a multiple of ``align``: the BLAS kernels then
-    see the same row tiles as in one call, so every window gets bit-identical numbers).
-
-    Last block first: a frame's copies are then summed by :func:`overlap_add_into` in the
-    order of :func:`mocapkit.windows.overlap_add` (window offset m ascending), so the
-    blocked overlap-average is bit-identical to the unblocked one.
-    """
-    budget = BLOCK_BYTES if budget is None else budget
-    n = max(align, int(budget // max(per_window_bytes, 1.0)) // align * align)
-    return [(a, min(S, a + n)) for a in range(0, S, n)][::-1]
-
-
-def overlap_add_into(acc: np.ndarray, R: np.ndarray, M: int, first: int,
-                     starts: np.ndarray | None = None, weights: np.ndarray | None = None,
-                     cnt: np.ndarray | None = None) -> None:
-    """In place: add the rows of R (n, M C) -- windows starting at frames ``first`` ..
-    ``first + n - 1`` (or at the frames ``starts`` (n,)) -- to ``acc`` (T, C) and, if
-    given, their ``weights`` (or 1) to ``cnt`` (T,).  The same element operations as
-    :func:`mocapkit.windows.overlap_add` on all windows, one block at a time (called on
-    the blocks of :func:`window_blocks`, last first)."""
-    n = R.shape[0]
-    R3 = R.reshape(n, M, -1)
-    w = None if weights is None else np.asarray(weights)
-    for m in range(M):
-        rows = slice(first + m, first + m + n) if starts is None else starts + m
-        acc[rows] += R3[:, m] if w is None else R3[:, m] * w[:, None]
-        if cnt is not None:
-            cnt[rows] += 1 if w is None else w
-
-
-def frame_in_place(frame, X: np.ndarray, to: str, block: int | None = None) -> np.ndarray:
-    """``frame.to_local(X)`` (``to="local"``) or ``frame.to_world(X)`` (``"world"``) of X
-    (T, J, 3) written into X, ``block`` frames at a time: the per-frame products of the
-    whole clip at once would take two more (T, J, 3) temporaries. Returns X."""
-    from ..frames import Frame
-
-    block = FRAME_BLOCK if block is None else block
-    for a in range(0, X.shape[0], block):
-        f = Frame(origin=frame.origin[a:a + block], rotation=frame.rotation[a:a + block])
-        X[a:a + block] = f.to_local(X[a:a + block]) if to == "local" else f.to_world(X[a:a + block])
-    return X
-
-
 # ---------------------------------------------------------------------------------------
 # training worker (module level so process pools can pickle it)
 # ---------------------------------------------------------------------------------------

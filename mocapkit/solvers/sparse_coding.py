@@ -317,7 +317,7 @@ def lasso_admm_blocks(windows, S: int, D, lam, consume, *, blocks, restart=None,
     the unblocked solve would have stopped there, and the blocks are solved again with
     that many iterations (``restart()`` is called first, so the caller can clear what
     ``consume`` accumulated).  Every block is then iterated exactly as the rows of the
-    single solve (the iterations are row-wise; see :func:`mocapkit.denoise.sparse.window_blocks`
+    single solve (the iterations are row-wise; see :func:`mocapkit.windows.window_blocks`
     for blocks that also give bit-identical matrix products).
     """
     _, D, dt = _check(np.zeros((0, np.shape(D)[0])), D, dtype)     # D as lasso_admm casts it
