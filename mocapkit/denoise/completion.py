@@ -119,7 +119,7 @@ class _MatrixCompletion(Denoiser):
         if not info.converged:
             A, info = unusable_guard(self.name, A, X, km, lin, info)
         if not km.all():                 # frames with few markers: interpolation in time
-            A = evidence_blend(A, lin, km, known)
+            A = evidence_blend(A, lin, km, known, copy=False)   # A is ours
         return output(motion, A, known, bool(self.keep_observed), solver_info(self.name, info))
 
 

@@ -81,24 +81,34 @@ def _check_frames(n: int, method: str, what: str) -> None:
             f"(use a longer clip/segment, or a filter such as 'median' for very short clips)")
 
 
-def _inputs(motion: Motion, method: str) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
-    """(T, 3J) data with missing entries as NaN, its mask (None when complete), linear fill."""
+def _inputs(motion: Motion, method: str, lin: bool = True) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """(T, 3J) data with missing entries as NaN, its mask (None when complete), linear fill
+    (``lin=False``: None, for a caller that makes it after its solve, when the solver's
+    arrays are gone -- :func:`_linear_fill`)."""
     X = motion.matrix(copy=False)          # read only (the solvers copy what they change)
     mask = motion.matrix_mask()
     if not mask.any():
         raise MocapValueError(f"{method}: the motion has no observed entries")
     if mask.all():                         # complete: the linear fill is the data itself
         return X, None, X
-    lin = gaps.fill(X, mask, never_observed=0.0)
-    return X, mask, lin
+    return X, mask, (_linear_fill(X, mask) if lin else None)
+
+
+def _linear_fill(X: np.ndarray, mask: np.ndarray | None) -> np.ndarray:
+    """Per-channel linear interpolation in time of the unobserved entries (X if complete)."""
+    return X if mask is None else gaps.fill(X, mask, never_observed=0.0)
 
 
 def _centre(X: np.ndarray, mask: np.ndarray | None, how: str) -> np.ndarray:
     """Per-column centre (1, C) of observed entries ("none" -> zeros)."""
     if how == "none":
         return np.zeros((1, X.shape[1]))
-    if mask is None and how == "mean":                  # complete: no NaN-aware copy
-        return X.mean(axis=0, keepdims=True)
+    if how == "mean":                                   # no NaN-aware copy of the clip
+        if mask is None:
+            return X.mean(axis=0, keepdims=True)
+        n = mask.sum(axis=0)
+        s = np.sum(X, axis=0, where=mask)
+        return np.where(n > 0, s / np.maximum(n, 1), 0.0)[None]
     Z = X if mask is None else np.where(mask, X, np.nan)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
@@ -120,7 +130,7 @@ def _finish(motion: Motion, A: np.ndarray, lin: np.ndarray, mask: np.ndarray | N
     """
     conv = getattr(den, "last_report_", {}).get("convergence") if den is not None else None
     if conv is not None and not conv.get("converged", True):
-        X = motion.matrix()
+        X = motion.matrix(copy=False)                       # read only
         m = np.isfinite(X) if mask is None else mask
         far, resid, spread = far_from_data(A, X, m)
         if far:
@@ -130,7 +140,7 @@ def _finish(motion: Motion, A: np.ndarray, lin: np.ndarray, mask: np.ndarray | N
                           f"raise max_iter", MocapWarning, stacklevel=4)
             A = lin.copy()
     if mask is not None:
-        A = evidence_blend(A, lin, mask, motion.observed)
+        A = evidence_blend(A, lin, mask, motion.observed, copy=False)   # A is ours
         starts, stops = windows if windows is not None else (np.array([0]), np.array([len(A)]))
         for a, b in zip(starts, stops):                     # a handful of segments, not frames
             dead = ~mask[a:b].any(axis=0)
@@ -220,7 +230,7 @@ class SVT(Denoiser):
         self._store_params(locals())
 
     def denoise(self, motion: Motion) -> Motion:
-        X, mask, lin = _inputs(motion, self.name)
+        X, mask, _ = _inputs(motion, self.name, lin=False)    # the fill after the solve
         c = _centre(X, mask, self.center)
         noise = (estimate_noise(X, mask, method="diff2-rms", pool="all", fallback=0.0)
                  if self.noise_cm is None else float(self.noise_cm))
@@ -229,6 +239,7 @@ class SVT(Denoiser):
                           tol=float(self.tol), max_iter=int(self.max_iter), return_info=True,
                           overwrite_x=True)                 # X - c is ours: the result goes in it
         A += c
+        lin = _linear_fill(X, mask)
         fit = float(info.extra.get("fit_ratio", 0.0))
         report_convergence(self, info, tol=float(self.tol), max_iter=int(self.max_iter),
                            extra={"fit_ratio": fit},

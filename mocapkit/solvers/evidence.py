@@ -45,12 +45,12 @@ def blend_weight(observed: np.ndarray, lo: float = LO, hi: float = HI) -> np.nda
 
 
 def evidence_blend(A: np.ndarray, L: np.ndarray, mask: np.ndarray, observed: np.ndarray,
-                   lo: float = LO, hi: float = HI) -> np.ndarray:
+                   lo: float = LO, hi: float = HI, *, copy: bool = True) -> np.ndarray:
     """Model fill A (T, C) moved towards the linear fill L (T, C) in frames with little
     evidence; ``mask`` (T, C) True = observed coordinate (left as in A); ``observed``
     (T, J) the per-marker mask the weight is computed from.  Entries where L is not
-    finite keep A."""
-    A = np.array(A, dtype=float, copy=True)
+    finite keep A.  ``copy=False``: a float64 A the caller owns is changed in place."""
+    A = np.array(A, dtype=float, copy=True if copy else None)
     m = np.asarray(mask, dtype=bool)
     beta = blend_weight(observed, lo, hi)
     if (beta >= 1).all():
@@ -83,10 +83,20 @@ def far_from_data(A: np.ndarray, X: np.ndarray, mask: np.ndarray,
     m = np.asarray(mask, dtype=bool)
     if not m.any():
         return False, 0.0, 0.0
-    Xm = np.where(m, X, 0.0)
+    X, A = np.asarray(X, dtype=float), np.asarray(A, dtype=float)
     cnt = m.sum(axis=0)
-    mean = Xm.sum(axis=0) / np.maximum(cnt, 1)
-    spread = float(np.sqrt(np.mean((np.asarray(X) - mean)[m] ** 2)))
+    mean = np.sum(X, axis=0, where=m) / np.maximum(cnt, 1)
+    n, ss, rr = int(cnt.sum()), 0.0, 0.0
     with np.errstate(invalid="ignore", over="ignore"):
-        resid = float(np.sqrt(np.mean((np.asarray(A) - np.asarray(X))[m] ** 2)))
+        for a in range(0, len(X), _BLOCK):        # blocks of frames: no copies of the clip
+            sl = slice(a, a + _BLOCK)
+            d = X[sl] - mean
+            ss += float(np.sum(d * d, where=m[sl]))
+            np.subtract(A[sl], X[sl], out=d)
+            rr += float(np.sum(d * d, where=m[sl]))
+    spread, resid = float(np.sqrt(ss / n)), float(np.sqrt(rr / n))
     return (not resid <= limit * max(spread, 1e-12)), resid, spread
+
+
+_BLOCK = 8192
+"""Frames per block of :func:`far_from_data`."""

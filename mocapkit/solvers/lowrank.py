@@ -284,13 +284,19 @@ def _svt_loop(X: np.ndarray, miss: np.ndarray | None, tau: float, delta: float, 
               tol: float, max_iter: int, gram: bool, normX: float) -> tuple:
     """The SVT iteration of :func:`svt` (Cai et al. 2010, eqs. 1.5 / 3.13), in place.
 
-    Four (m, n) arrays besides X (Y, A, A_new, R).  Y stays zero off Omega by
-    construction (Y_0 = k_0 delta P(X), and every update adds P(.) or scales), so the
-    projection P(Y) of eq. 3.13 is not applied again.  Returns (A, iterations, converged,
-    rank, criterion, fit ratio, restarts, final delta).
+    Two (m, n) arrays besides X (Y and A): each iteration takes the shrinkage
+    ``D_tau(Y) = Y (V f V^T)`` from Y's right singular vectors (eigh of the small Gram
+    matrix, or the SVD for a matrix less than twice as long as wide) and then passes over
+    the rows in blocks (:data:`ROW_BLOCK`): new A, residual ``R = P(X - A)``, its norms
+    and ``Y += delta R`` -- the whole-matrix route kept A_new and R as two more arrays.
+    Y stays zero off Omega by construction (Y_0 = k_0 delta P(X), and every update adds
+    P(.) or scales), so the projection P(Y) of eq. 3.13 is not applied again.  Returns
+    (A, iterations, converged, rank, criterion, fit ratio, restarts, final delta).
     """
     spec = float(_spectral_norm(X))
-    Y, A, An, R = np.empty_like(X), np.zeros_like(X), np.empty_like(X), np.empty_like(X)
+    m, n = X.shape
+    Y, A = np.empty_like(X), np.zeros_like(X)
+    rows = _row_slices(m)
 
     def start(step: float) -> float:
         k0 = int(np.ceil(tau / (step * spec))) if tau > 0 and spec > 0 else 1
@@ -299,13 +305,29 @@ def _svt_loop(X: np.ndarray, miss: np.ndarray | None, tau: float, delta: float, 
 
     s = start(delta)
     converged, it, rank, crit, fit, restarts = False, 0, 0, float("inf"), 0.0, 0
-    taus = np.array([tau])
     for it in range(1, max_iter + 1):
-        rank = int(_shrink_into(Y[None], taus, An[None], gram)[0])
-        np.subtract(X, An, out=R)
-        if miss is not None:
-            np.copyto(R, 0.0, where=miss)
-        res = float(np.sqrt(np.vdot(R, R)))
+        Vk, fk = _shrink_operator(Y, tau, gram)
+        rank = len(fk)
+        # the cheaper product, as _shrink_into: (Y V_k f) V_k^T for a small rank, else Y K
+        K = None if 2 * rank < n else (Vk * fk) @ Vk.T
+        res2 = nA2 = chg2 = ny2 = 0.0
+        for r in rows:                                     # blocks of rows, not frames
+            An = (np.zeros_like(Y[r]) if rank == 0 else
+                  (Y[r] @ Vk * fk) @ Vk.T if K is None else Y[r] @ K)
+            R = X[r] - An
+            if miss is not None:
+                np.copyto(R, 0.0, where=miss[r])
+            res2 += float(np.vdot(R, R))
+            if eps > 0:
+                nA2 += float(np.vdot(An, An))
+                D = A[r] - An
+                chg2 += float(np.vdot(D, D))
+            A[r] = An
+            R *= delta
+            Y[r] += R                                      # Y + delta P(X - A)
+            if eps > 0:
+                ny2 += float(np.vdot(Y[r], Y[r]))
+        res = float(np.sqrt(res2))
         if not (np.isfinite(res) and res <= (2.0 + 2.0 * delta) * normX):
             # diverging: Cai et al. prove convergence for 0 < delta < 2 only, and their
             # 1.2 m n / |Omega| exceeds that once 40 % of the entries are missing (24 at
@@ -319,32 +341,41 @@ def _svt_loop(X: np.ndarray, miss: np.ndarray | None, tau: float, delta: float, 
             crit = float("inf")
             continue
         if eps == 0.0:
-            A, An = An, A
             crit = res / normX
             if crit < tol:
                 converged = True
                 break
-            R *= delta
-            Y += R
             continue
-        nA = float(np.sqrt(np.vdot(An, An)))
-        A -= An
-        change = float(np.sqrt(np.vdot(A, A))) / max(nA, 1e-300)
-        A, An = An, A
+        change = float(np.sqrt(chg2)) / max(float(np.sqrt(nA2)), 1e-300)
         crit = change if it > 1 else float("inf")
         fit = res / eps
         if it > 1 and change < tol and res <= eps * (1 + 1e-3):
             converged = True
             break
-        R *= delta
-        Y += R                                             # Y + delta P(X - A)
         s -= delta * eps
-        ny = float(np.sqrt(np.vdot(Y, Y)))                 # projection on the cone (Sec. 3.3)
+        ny = float(np.sqrt(ny2))                           # projection on the cone (Sec. 3.3)
         if ny > s:
             c = 0.0 if ny <= -s else (ny + s) / (2 * ny)
             Y *= c
             s = c * ny
     return A, it, converged, rank, crit, fit, restarts, delta
+
+
+def _shrink_operator(Y: np.ndarray, tau: float, gram: bool) -> tuple[np.ndarray, np.ndarray]:
+    """``(V_k, f)`` with ``D_tau(Y) = Y V_k diag(f) V_k^T`` (Cai et al. eq. 2.2 through Y's
+    right singular vectors): the k right vectors whose singular value exceeds tau (n, k)
+    and ``f = 1 - tau / sigma`` (k,).  Gram route: eigh of ``Y^T Y``; otherwise the
+    economy SVD of Y."""
+    if gram and Y.shape[0] >= Y.shape[1]:
+        w, V = _linalg.eigh(Y.T @ Y, what="singular value shrinkage")
+        sv = np.sqrt(np.clip(w, 0.0, None))
+    else:
+        _, sv, Vt = _linalg.svd(Y, full_matrices=False, what="singular value shrinkage")
+        V = Vt.T
+    with np.errstate(divide="ignore", invalid="ignore"):
+        f = np.where(sv > tau, 1.0 - tau / np.where(sv > 0, sv, 1.0), 0.0)
+    keep = f > 0
+    return V[:, keep], f[keep]
 
 
 def _rank(A: np.ndarray) -> int:
