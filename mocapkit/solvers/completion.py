@@ -598,12 +598,13 @@ def _kalman_rts(Xc: np.ndarray, A: np.ndarray, Cm: np.ndarray, Q: np.ndarray, Rd
     nxt = np.minimum(np.arange(ns) + 1, ns - 1)
     J_u = Pf_u @ A.T @ Ppinv_u[nxt]                       # J_t = Pf_t A^T Pp_{t+1}^-1
     # filter means: mu_t = (I - K_t C) A mu_{t-1} + K_t x_t, K_t x_t = Pf_t C^T R^-1 x_t
-    Kx = Xc @ CtRinv.T                                    # (T, k)
+    # b_t = K_t x_t in blocks of frames (no (T, k) array of C^T R^-1 x_t besides b)
     b = np.empty((T, k))
     m0 = min(ns, T)
-    b[:m0] = np.einsum("tij,tj->ti", Pf_u[:m0], Kx[:m0])
-    if T > ns:
-        b[ns:] = Kx[ns:] @ Pf_u[-1].T
+    b[:m0] = np.einsum("tij,tj->ti", Pf_u[:m0], Xc[:m0] @ CtRinv.T)
+    KPf = CtRinv.T @ Pf_u[-1].T                           # (C, k): x_t -> Pf C^T R^-1 x_t
+    for a in range(ns, T, 8192):
+        b[a:a + 8192] = Xc[a:a + 8192] @ KPf
     mu = np.empty((T, k))
     mu[0] = Pf_u[0] @ Ppinv_u[0] @ u0 + b[0]
     last = ns - 1
@@ -631,10 +632,9 @@ def _kalman_rts(Xc: np.ndarray, A: np.ndarray, Cm: np.ndarray, Q: np.ndarray, Rd
         Vn = Vt
         t -= 1
     V1 = Vn if T > 1 else Vs_last
-    # smoothed means
-    ms = np.empty((T, k))
-    ms[-1] = mu[-1]
+    # smoothed means, written over the filtered ones (mu_t is last needed at step t)
     Amu = mu @ A.T
+    ms = mu
     D = ms[-1]
     for t in range(T - 2, -1, -1):
         D = mu[t] + J_u[t if t < last else last] @ (D - Amu[t])
