@@ -31,6 +31,7 @@ from scipy.linalg import solveh_banded
 
 from .errors import MocapValueError
 from .motion import Motion
+from .windows import frame_blocks
 
 __all__ = ["trust_data", "trusted_mask", "detect_report", "smoothing_weight"]
 
@@ -81,11 +82,11 @@ def _fit(Pz: np.ndarray, W: np.ndarray, pen: np.ndarray) -> np.ndarray:
     return Z
 
 
-def _distance(P: np.ndarray, Z: np.ndarray, block: int = 8192) -> np.ndarray:
+def _distance(P: np.ndarray, Z: np.ndarray) -> np.ndarray:
     """|P - Z| per sample (T, J), in blocks of frames (no (T, J, 3) temporary)."""
     r = np.empty(P.shape[:2])
-    for a in range(0, len(P), block):
-        r[a:a + block] = np.linalg.norm(P[a:a + block] - Z[a:a + block], axis=2)
+    for sl in frame_blocks(len(P)):
+        r[sl] = np.linalg.norm(P[sl] - Z[sl], axis=2)
     return r
 
 

@@ -410,16 +410,13 @@ def pelvis_neck_frame(positions: np.ndarray, skeleton: Skeleton, fps: float = 12
     return Frame(origin=r, rotation=np.stack([x, y, np.cross(x, y)], axis=2))
 
 
-FRAME_BLOCK = 8192
-"""Frames per block of :func:`frame_in_place`."""
-
-
 def frame_in_place(frame, X: np.ndarray, to: str, block: int | None = None) -> np.ndarray:
     """``frame.to_local(X)`` (``to="local"``) or ``frame.to_world(X)`` (``"world"``) of X
     (T, J, 3) written into X, ``block`` frames at a time: the per-frame products of the
     whole clip at once would take two more (T, J, 3) temporaries. Returns X."""
-    block = FRAME_BLOCK if block is None else block
-    for a in range(0, X.shape[0], block):
-        f = Frame(origin=frame.origin[a:a + block], rotation=frame.rotation[a:a + block])
-        X[a:a + block] = f.to_local(X[a:a + block]) if to == "local" else f.to_world(X[a:a + block])
+    from .windows import frame_blocks
+
+    for sl in frame_blocks(X.shape[0], block):
+        f = Frame(origin=frame.origin[sl], rotation=frame.rotation[sl])
+        X[sl] = f.to_local(X[sl]) if to == "local" else f.to_world(X[sl])
     return X

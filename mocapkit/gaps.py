@@ -49,6 +49,7 @@ from typing import Iterator, NamedTuple
 import numpy as np
 
 from .errors import MocapValueError
+from .windows import frame_blocks
 
 __all__ = ["Gap", "GapPolicy", "DEFAULT_POLICY", "FILL_ALL", "find_gaps", "gap_lengths",
            "gap_table", "supported", "capture_volume", "outside_volume", "outside_envelope", "fill", "frame_centroid",
@@ -228,19 +229,14 @@ def supported(observed: np.ndarray, fps: float, evidence: str,
     return ok
 
 
-_ENVELOPE_BLOCK = 8192
-"""Frames per block of :func:`capture_volume`, :func:`outside_volume` and
-:func:`outside_envelope` (their temporaries stay a few MB on a clip of any length)."""
-
-
 def capture_volume(positions: np.ndarray, observed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Axis-aligned box (lo (3,), hi (3,)) of the observed samples, cm."""
     P, obs = np.asarray(positions), np.asarray(observed, bool)
     if not obs.any():
         return np.full(3, -np.inf), np.full(3, np.inf)
     lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
-    for a in range(0, len(P), _ENVELOPE_BLOCK):            # blocks of frames: no gathered copy
-        Q = P[a:a + _ENVELOPE_BLOCK][obs[a:a + _ENVELOPE_BLOCK]]
+    for sl in frame_blocks(len(P)):                      # blocks of frames: no gathered copy
+        Q = P[sl][obs[sl]]
         if len(Q):
             lo, hi = np.minimum(lo, Q.min(axis=0)), np.maximum(hi, Q.max(axis=0))
     return lo, hi
@@ -251,11 +247,11 @@ def outside_volume(positions: np.ndarray, lo: np.ndarray, hi: np.ndarray, margin
     the box, or not finite."""
     P = np.asarray(positions)
     out = np.empty(P.shape[:-1], bool)
-    for a in range(0, len(P), _ENVELOPE_BLOCK):            # blocks of frames: small temporaries
-        Pb = P[a:a + _ENVELOPE_BLOCK]
+    for sl in frame_blocks(len(P)):                      # blocks of frames: small temporaries
+        Pb = P[sl]
         with np.errstate(invalid="ignore"):
             d = np.linalg.norm(np.maximum(np.maximum(lo - Pb, Pb - hi), 0.0), axis=-1)
-        out[a:a + _ENVELOPE_BLOCK] = (d > margin_cm) | ~np.isfinite(Pb).all(axis=-1)
+        out[sl] = (d > margin_cm) | ~np.isfinite(Pb).all(axis=-1)
     return out
 
 
@@ -277,8 +273,7 @@ def outside_envelope(positions: np.ndarray, observed: np.ndarray, candidate: np.
     if not (cand & frames).any():
         return np.zeros_like(cand)
     d = np.empty(obs.shape)                                                            # (T, J)
-    for a in range(0, len(P), _ENVELOPE_BLOCK):                                       # blocks of frames
-        sl = slice(a, a + _ENVELOPE_BLOCK)
+    for sl in frame_blocks(len(P)):                                                 # blocks of frames
         Pb = P[sl] if fills is None else np.where(obs[sl, :, None], P[sl], fills[sl])
         c, _ = frame_centroid(Pb, obs[sl])
         with np.errstate(invalid="ignore"):

@@ -26,7 +26,12 @@ import numpy as np
 from .errors import MocapValueError
 
 __all__ = ["lagged", "counts", "window_starts", "overlap_add", "overlap_mean", "window_blocks",
-           "overlap_add_into"]
+           "overlap_add_into", "frame_blocks"]
+
+#: frames per block where long-clip code passes over a (T, ...) array a piece at a time
+#: (:func:`frame_blocks`): a few MB per 93-channel block, in cache, and no temporary of
+#: the whole clip's size
+FRAME_BLOCK = 8192
 
 #: bytes of per-window work arrays allowed at once: windows are coded in blocks of about
 #: this size (:func:`window_blocks`; issue 21: the window matrix of a whole 100k-frame clip
@@ -139,3 +144,10 @@ def overlap_add_into(acc: np.ndarray, R: np.ndarray, M: int, first: int,
         acc[rows] += R3[:, m] if w is None else R3[:, m] * w[:, None]
         if cnt is not None:
             cnt[rows] += 1 if w is None else w
+
+
+def frame_blocks(T: int, block: int | None = None) -> list[slice]:
+    """Consecutive blocks of ``block`` frames (default :data:`FRAME_BLOCK`) covering 0..T-1
+    -- the one way long-clip code walks over frames a block at a time (blocks, not frames)."""
+    n = FRAME_BLOCK if block is None else int(block)
+    return [slice(a, min(a + n, T)) for a in range(0, T, n)]

@@ -253,7 +253,9 @@ def test_pooled_noise_estimate_in_frame_blocks(monkeypatch, method):
     d2 = D[ok]
     ref = (np.sqrt(np.mean(d2 ** 2) / 6) if method == "diff2-rms"
            else noise._MAD * np.median(np.abs(d2)) / np.sqrt(6))
-    monkeypatch.setattr(noise, "_FRAME_BLOCK", 37)
+    from mocapkit import windows
+
+    monkeypatch.setattr(windows, "FRAME_BLOCK", 37)
     A[~M] = np.nan
     assert estimate_noise(A, M, method=method, pool="all") == pytest.approx(ref, rel=1e-12)
 

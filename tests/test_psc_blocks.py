@@ -5,7 +5,7 @@ import numpy as np
 
 from mocapkit import Motion, corrupt, denoise, io
 from mocapkit.datasets import bundled
-from mocapkit import frames, windows
+from mocapkit import windows
 
 
 def test_blocked_psc_equals_one_block(monkeypatch):
@@ -19,10 +19,10 @@ def test_blocked_psc_equals_one_block(monkeypatch):
     obs[300:340, arm] = False                    # a whole part missing for > one window
     m = m.with_positions(np.where(obs[..., None], m.positions, np.nan), obs)
     monkeypatch.setattr(windows, "BLOCK_BYTES", 2 ** 40)
-    monkeypatch.setattr(frames, "FRAME_BLOCK", 10 ** 9)
+    monkeypatch.setattr(windows, "FRAME_BLOCK", 10 ** 9)
     one = model.denoise(m)
     monkeypatch.setattr(windows, "BLOCK_BYTES", 1)            # 256 windows per block
-    monkeypatch.setattr(frames, "FRAME_BLOCK", 100)
+    monkeypatch.setattr(windows, "FRAME_BLOCK", 100)
     many = model.denoise(m)
     assert np.isfinite(one.positions[one.observed]).all()
     np.testing.assert_allclose(many.positions, one.positions, rtol=0, atol=1e-9)   # bit-equal here; BLAS may round differently elsewhere

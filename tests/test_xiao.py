@@ -461,17 +461,17 @@ def test_lasso_admm_blocks_equals_one_solve(rng, n_iter, stops):
 def test_blocked_denoise_equals_one_block(monkeypatch, noise):
     """The windows of a long clip coded in many blocks (and the local frame applied by
     blocks of frames) give exactly the numbers of one block."""
-    from mocapkit import frames, windows
+    from mocapkit import windows
 
     train = [synth_motion(T=400, seed=s, phase=s) for s in range(2)]
     model = XiaoSparse(window=7, n_atoms=48, sparsity=3, n_iter=2, noise=noise).fit(train)
     m = synth_motion(T=1500, seed=5, phase=0.7)
     m = m.with_positions(m.positions + np.random.default_rng(1).normal(0, 1.0, m.positions.shape))
     monkeypatch.setattr(windows, "BLOCK_BYTES", 2 ** 40)
-    monkeypatch.setattr(frames, "FRAME_BLOCK", 10 ** 9)
+    monkeypatch.setattr(windows, "FRAME_BLOCK", 10 ** 9)
     one = model.denoise(m)
     monkeypatch.setattr(windows, "BLOCK_BYTES", 1)            # 256 windows per block
-    monkeypatch.setattr(frames, "FRAME_BLOCK", 100)
+    monkeypatch.setattr(windows, "FRAME_BLOCK", 100)
     assert len(windows.window_blocks(1500, 1e3)) > 5
     many = model.denoise(m)
     np.testing.assert_allclose(many.positions, one.positions, rtol=0, atol=1e-9)   # bit-equal here; BLAS may round differently elsewhere

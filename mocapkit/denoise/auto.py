@@ -81,6 +81,7 @@ from ..diagnose import SPIKE_RATE, diagnose, robust_fit, used_columns
 from ..gaps import gap_lengths
 from ..motion import Motion
 from ..solvers.gcv_spline import cutoff_hz, gcv_smooth
+from ..windows import frame_blocks
 from ..solvers.mssa import mssa_denoise, sure
 from .base import Denoiser, get, register
 from .constraints import Integral, Interval, Real
@@ -386,8 +387,7 @@ def _combine(est: dict, holes: np.ndarray, long: np.ndarray, e_long: np.ndarray 
     cols = np.repeat(usable, 3)
     T = holes.shape[0]
     total, count = 0.0, 0
-    for a in range(0, T, _COMBINE_BLOCK):          # blocks of frames: no (T, 3J) temporaries
-        sl = slice(a, a + _COMBINE_BLOCK)
+    for sl in frame_blocks(T):                     # blocks of frames: no (T, 3J) temporaries
         h, lg = holes[sl], long[sl]
         e_l = e_long[sl] if e_long is not None else np.full(h.shape, np.nan)
         hole2 = np.broadcast_to(_rows(est["hole"], sl) ** 2, h.shape)
@@ -400,10 +400,6 @@ def _combine(est: dict, holes: np.ndarray, long: np.ndarray, e_long: np.ndarray 
     if count == 0:
         return None
     return float(np.sqrt(total / count))
-
-
-_COMBINE_BLOCK = 8192
-"""Frames per block of :func:`_combine`."""
 
 
 def _rows(v, sl: slice):

@@ -12,13 +12,12 @@ from typing import Any, Sequence
 import numpy as np
 
 from .. import signal
-from ..frames import Frame, heading_frame, mirror_local, mirror_permutation, up_axis_of
 from ..errors import MocapValueError
+from ..frames import Frame, frame_in_place, heading_frame, mirror_local, mirror_permutation, up_axis_of
 from ..motion import Motion
 from ..solvers import robust_bases as rb
 from ..solvers.evidence import evidence_blend
 from .base import Denoiser, check_training_match, register, report_convergence
-from ..frames import frame_in_place
 from .constraints import Integral, Interval, Options, Real, center_as_string
 
 _POSITIVE = Interval(Real, 0, None, closed="neither")

@@ -15,17 +15,16 @@ import numpy as np
 
 from .. import gaps
 from ..errors import MocapValueError
-from ..frames import Frame, pelvis_neck_frame
+from ..frames import Frame, frame_in_place, pelvis_neck_frame
 from ..motion import Motion
 from ..skeleton import BODY_PARTS
+from ..signal._arrays import channel_blocks
 from ..solvers import llc as _llc
 from ..solvers._linalg import one_blas_thread
-from ..windows import lagged
+from ..windows import lagged, overlap_add_into, window_blocks
 from ._refill import check_motion, known_mask
 from .base import Denoiser, register
 from .constraints import Integral, Interval, Numbers, Real
-from ..frames import frame_in_place
-from ..windows import overlap_add_into, window_blocks
 
 _POSITIVE = Interval(Real, 0, None, closed="neither")
 
@@ -325,8 +324,7 @@ class PSC(Denoiser):
             # joints at a time: the interpolation is per channel)
             km = np.repeat(known, 3, axis=1)
             L2, E2 = L.reshape(T, -1), est.reshape(T, -1)
-            for c in range(0, L2.shape[1], 24):
-                sl = slice(c, c + 24)
+            for sl in channel_blocks(L2.shape[1], 24):
                 res = np.where(km[:, sl], L2[:, sl] - E2[:, sl], np.nan)
                 E2[:, sl] += gaps.fill(res, km[:, sl], never_observed=0.0)
         del L

@@ -101,6 +101,7 @@ from ..errors import MocapValueError
 from ..frames import frame_in_place, pelvis_neck_frame
 from ..motion import Motion
 from ..signal import estimate_noise
+from ..signal._arrays import channel_blocks
 from ..windows import lagged, overlap_add_into, window_blocks, window_starts
 from .base import Denoiser, register, report_convergence, training_matrices
 from .constraints import Integral, Interval, Options, Real, center_as_string
@@ -111,7 +112,6 @@ _INT1 = Interval(Integral, 1, None)
 _NONNEG = Interval(Real, 0, None)
 
 NOISE_TYPES = ("auto", "gaussian", "outliers", "mixed")
-
 
 #: numerics of the coding step, fixed (constructor parameters before; measured in
 #: docs/results/xiao.md): the ADMM over-relaxation alpha of both solvers (Boyd et al. 2011
@@ -152,8 +152,8 @@ def detect_noise(X: np.ndarray, *, outlier_detect_ratio: float = 0.015, n_sigmas
         # instead of (T, C) ones; the flag count, hence the fraction, is exact either way)
         foot = np.array([1, 1, 1, 0, 1, 1, 1], dtype=bool)[:, None]
         n_flags = 0
-        for c in range(0, X.shape[1], 24):
-            Xc = X[:, c:c + 24]
+        for sl in channel_blocks(X.shape[1], 24):
+            Xc = X[:, sl]
             med = 0.5 * (rank_filter(Xc, 2, footprint=foot, mode="mirror")
                          + rank_filter(Xc, 3, footprint=foot, mode="mirror"))
             res = Xc - med
@@ -171,9 +171,6 @@ def detect_noise(X: np.ndarray, *, outlier_detect_ratio: float = 0.015, n_sigmas
     return {"type": kind, "outlier_fraction": frac, "sigma_cm": sigma}
 
 
-# ---------------------------------------------------------------------------------------
-# blocked window helpers (shared with psc): bounded memory, same numbers as unblocked
-# ---------------------------------------------------------------------------------------
 # ---------------------------------------------------------------------------------------
 # training worker (module level so process pools can pickle it)
 # ---------------------------------------------------------------------------------------
@@ -486,11 +483,9 @@ class XiaoSparse(Denoiser):
                     t0 = time.perf_counter()
                     Yi = self._code_part(i, _part_matrix(L, joints), kind, lam2)
                     part_s.append(time.perf_counter() - t0)
-                    if i == len(parts) - 1:
-                        del L                        # not needed any more
                     _part_add(acc, joints, Yi.reshape(T, len(joints), 3))
                     del Yi
-        L = None
+        del L
         acc /= cnt[None, :, None]
         out = frame_in_place(frame, acc, "world")[:T0]
         self._last_info = {**info, "lam": lam2, "lam_l1": float(self.lam_l1),

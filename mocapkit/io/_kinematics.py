@@ -74,6 +74,7 @@ from ..errors import MocapValueError
 from ..skeleton import Skeleton
 from . import _rotations as rot
 from ._rotations import axis_rotation
+from ..windows import frame_blocks
 
 __all__ = ["forward_kinematics", "inverse_kinematics"]
 
@@ -265,21 +266,19 @@ class _Compiled:
         return tr, ang
 
 
-_FK_BLOCK = 8192        # frames per FK block: the (3, 3, bones, block) stacks stay in cache
-
-
 def forward_kinematics(comp: _Compiled, dofs: np.ndarray, angle_rad: bool, f: float) -> np.ndarray:
     """Joint positions (T, J, 3) in cm from dof values (T, D) (file units, file angles).
 
     Bones of the same depth are rotated together (one pass per tree level, none over
-    frames or bones), in blocks of ``_FK_BLOCK`` frames; see :func:`_fk_block`.
+    frames or bones), in blocks of frames (:func:`mocapkit.windows.frame_blocks`: the (3, 3,
+    bones, block) stacks stay in cache); see :func:`_fk_block`.
     """
     dofs = np.asarray(dofs, float)
     T = dofs.shape[0]
     P = np.empty((T, len(comp.names), 3))
-    for s in range(0, T, _FK_BLOCK):
-        Pb, _ = _fk_block(comp, dofs[s:s + _FK_BLOCK], angle_rad)
-        P[s:s + _FK_BLOCK] = np.transpose(Pb, (2, 1, 0))
+    for sl in frame_blocks(T):
+        Pb, _ = _fk_block(comp, dofs[sl], angle_rad)
+        P[sl] = np.transpose(Pb, (2, 1, 0))
     P *= f
     return P
 

@@ -22,6 +22,7 @@ from typing import Literal
 import numpy as np
 
 from ..errors import MocapValueError
+from ..windows import frame_blocks
 from ._arrays import as_2d_view, by_channel_blocks, channel_blocks, require_finite, restore
 
 __all__ = ["gaussian", "butterworth", "savgol", "median", "hampel", "hampel_residuals", "hampel_scores"]
@@ -270,6 +271,14 @@ def _rolling_median_mad(A: np.ndarray, window: int, chunk: int = 4096,
     return med, mad
 
 
+def _hampel_window(window) -> int:
+    """The Hampel window as an int, checked: an odd number of frames >= 3."""
+    window = int(window)
+    if window < 3 or window % 2 == 0:
+        raise MocapValueError(f"hampel window must be an odd number of frames >= 3, got {window}")
+    return window
+
+
 def _global_scale(res: np.ndarray) -> np.ndarray:
     """(C,) 1.4826 x the MAD of each column of ``res`` (T, C) about its median, a block
     of columns at a time (np.median copies its input: a block, not the whole matrix)."""
@@ -298,9 +307,7 @@ def hampel_residuals(X, /, *, window: int = 7, scale: Literal["local", "global",
     the sample is the window's median (1/window of the time), which shrinks the MAD by
     ~15 % (window 7) and inflates false alarms about tenfold at 3 sigmas.
     """
-    window = int(window)
-    if window < 3 or window % 2 == 0:
-        raise MocapValueError(f"hampel window must be an odd number of frames >= 3, got {window}")
+    window = _hampel_window(window)
     if scale not in ("local", "global", "both"):
         raise MocapValueError(f"scale must be 'local', 'global' or 'both', got {scale!r}")
     A, shape, axis = as_2d_view(X, axis)          # read only
@@ -336,9 +343,7 @@ def hampel_scores(X, /, *, window: int = 7, scales: tuple[str, ...] = ("global",
     ~2 x chunk x C x window values: 1,024 frames ran as fast as 4,096 at 100,000 frames,
     2.5 s, and need a quarter of the memory).
     """
-    window = int(window)
-    if window < 3 or window % 2 == 0:
-        raise MocapValueError(f"hampel window must be an odd number of frames >= 3, got {window}")
+    window = _hampel_window(window)
     if not scales or any(sc not in ("global", "local") for sc in scales):
         raise MocapValueError(f"scales must be 'global' and/or 'local', got {scales!r}")
     if reduce not in ("sum", "max"):
@@ -365,8 +370,8 @@ def hampel_scores(X, /, *, window: int = 7, scales: tuple[str, ...] = ("global",
             out["local"][s:e] = score(r, np.maximum(1.4826 * mad, floor))
     if res is not None:
         glob = np.maximum(_global_scale(res), floor)
-        for s in range(0, T, chunk):
-            out["global"][s:s + chunk] = score(res[s:s + chunk], glob)
+        for sl in frame_blocks(T, chunk):
+            out["global"][sl] = score(res[sl], glob)
     return [out[sc] for sc in scales]
 
 

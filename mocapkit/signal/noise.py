@@ -9,6 +9,7 @@ import numpy as np
 
 from ..errors import MocapValueError
 from ._arrays import as_2d_view
+from ..windows import frame_blocks
 
 __all__ = ["estimate_noise"]
 
@@ -123,8 +124,8 @@ def _pooled_diff2(A: np.ndarray, M: np.ndarray, method: str, fallback: float) ->
     # at once (4x the clip at 100,000 frames)
     rms = method == "diff2-rms"
     parts, ss, n = [], 0.0, 0
-    for a in range(0, T - 2, _FRAME_BLOCK):
-        b = min(a + _FRAME_BLOCK, T - 2) + 2
+    for blk in frame_blocks(T - 2):                 # the differences of frames blk, +2 rows
+        a, b = blk.start, blk.stop + 2
         D, ok = _diff2(np.where(M[a:b], A[a:b], 0.0), M[a:b])
         d = D[ok]
         n += d.size
@@ -139,10 +140,6 @@ def _pooled_diff2(A: np.ndarray, M: np.ndarray, method: str, fallback: float) ->
     d = np.concatenate(parts) if len(parts) > 1 else parts[0]
     del parts
     return float(_MAD * _median_inplace(d) / np.sqrt(6.0))
-
-
-_FRAME_BLOCK = 8192
-"""Frames per block of the pooled estimate (:func:`_pooled_diff2`)."""
 
 
 def _median_inplace(d: np.ndarray) -> float:

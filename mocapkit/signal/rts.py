@@ -31,6 +31,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import MocapValueError
+from ..windows import frame_blocks
 from .statespace import gate_threshold
 
 __all__ = ["rts_smoother"]
@@ -306,8 +307,7 @@ def _rts_multi(Y0, used, F, Q, H, R, b, x, P, return_cov, tol=1e-8):
     # at once (a 100,000-frame clip: 5x its size inside the smoother)
     hy = np.empty((T, B, H.shape[1]))                               # (T, B, n)
     invR = 1.0 / R[None]
-    for a in range(0, T, _MULTI_BLOCK):
-        sl = slice(a, a + _MULTI_BLOCK)
+    for sl in frame_blocks(T):
         hy[sl] = np.where(used[sl], Y0[sl] * invR, 0.0) @ H
     upat, pat = np.unique(used.reshape(T, -1), axis=0, return_inverse=True)
     pat = pat.reshape(T)
@@ -388,9 +388,6 @@ def _multi_backward(xf, xp, F, covs_p, covs_f, idx_p, idx_f, return_cov: bool) -
             Ps[t] = covs_f[key[0]] + G @ (Ps[t + 1] - covs_p[key[1]]) @ np.swapaxes(G, -1, -2)
     return xs, (Ps if return_cov else None)
 
-
-_MULTI_BLOCK = 8192
-"""Frames per block where :func:`_rts_multi` forms its weighted observations."""
 
 _RTS_STORE_BYTES = 64 << 20
 """Up to this size (48 bytes per frame and channel) :func:`_rts_scalar` keeps the filtered and

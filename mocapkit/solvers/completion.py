@@ -49,6 +49,7 @@ from scipy import fft as _fft
 
 from .. import gaps
 from ..errors import MocapValueError
+from ..windows import frame_blocks
 from . import _linalg
 from .info import SolveInfo, warn_not_converged
 
@@ -603,8 +604,9 @@ def _kalman_rts(Xc: np.ndarray, A: np.ndarray, Cm: np.ndarray, Q: np.ndarray, Rd
     m0 = min(ns, T)
     b[:m0] = np.einsum("tij,tj->ti", Pf_u[:m0], Xc[:m0] @ CtRinv.T)
     KPf = CtRinv.T @ Pf_u[-1].T                           # (C, k): x_t -> Pf C^T R^-1 x_t
-    for a in range(ns, T, 8192):
-        b[a:a + 8192] = Xc[a:a + 8192] @ KPf
+    for sl in frame_blocks(T - ns):
+        sl = slice(sl.start + ns, sl.stop + ns)
+        b[sl] = Xc[sl] @ KPf
     mu = np.empty((T, k))
     mu[0] = Pf_u[0] @ Ppinv_u[0] @ u0 + b[0]
     last = ns - 1

@@ -25,6 +25,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..windows import frame_blocks
+
 __all__ = ["LO", "HI", "blend_weight", "evidence_blend", "UNUSABLE_RESIDUAL", "far_from_data"]
 
 LO = 0.15
@@ -88,8 +90,7 @@ def far_from_data(A: np.ndarray, X: np.ndarray, mask: np.ndarray,
     mean = np.sum(X, axis=0, where=m) / np.maximum(cnt, 1)
     n, ss, rr = int(cnt.sum()), 0.0, 0.0
     with np.errstate(invalid="ignore", over="ignore"):
-        for a in range(0, len(X), _BLOCK):        # blocks of frames: no copies of the clip
-            sl = slice(a, a + _BLOCK)
+        for sl in frame_blocks(len(X)):             # blocks of frames: no copies of the clip
             d = X[sl] - mean
             ss += float(np.sum(d * d, where=m[sl]))
             np.subtract(A[sl], X[sl], out=d)
@@ -97,6 +98,3 @@ def far_from_data(A: np.ndarray, X: np.ndarray, mask: np.ndarray,
     spread, resid = float(np.sqrt(ss / n)), float(np.sqrt(rr / n))
     return (not resid <= limit * max(spread, 1e-12)), resid, spread
 
-
-_BLOCK = 8192
-"""Frames per block of :func:`far_from_data`."""

@@ -55,6 +55,7 @@ from scipy.stats import chi2
 
 from ..errors import MocapValueError
 from ..signal._arrays import channel_blocks
+from ..windows import frame_blocks
 
 __all__ = ["gcv_smooth", "GCVInfo", "cutoff_hz"]
 
@@ -392,10 +393,6 @@ def _with_hole_error(info: GCVInfo, Y: np.ndarray, W: np.ndarray, s: np.ndarray,
     return replace(info, error=err, hole_error=e_hole, hole_map=hmap)
 
 
-_FRAME_BLOCK = 8192
-"""Frames per block of :func:`_bisquare`."""
-
-
 def _bisquare(Y: np.ndarray, f: np.ndarray, M: np.ndarray, h: np.ndarray, group: int,
               min_scale: float) -> np.ndarray:
     """Bisquare weights (T, C) from the residuals Y - f and mean leverages h (C,), per point.
@@ -404,8 +401,7 @@ def _bisquare(Y: np.ndarray, f: np.ndarray, M: np.ndarray, h: np.ndarray, group:
     their NaN-masked copy and squares were three more matrices of a long clip)."""
     T, C = Y.shape
     norm = np.empty((T, C // group))                                          # (T, points)
-    for a in range(0, T, _FRAME_BLOCK):
-        sl = slice(a, a + _FRAME_BLOCK)
+    for sl in frame_blocks(T):
         R = np.where(M[sl], Y[sl] - f[sl], np.nan).reshape(-1, C // group, group)
         norm[sl] = np.sqrt(np.sum(R ** 2, axis=2))
     # median of a chi distribution with `group` dof: the MAD constant 0.6745 for group 1

@@ -58,6 +58,7 @@ import numpy as np
 from .. import gaps
 from ..errors import MocapValueError
 from . import _linalg
+from ..windows import frame_blocks
 from .info import SolveInfo
 
 __all__ = ["shrink_singular_values", "tsvd", "svt", "rpca_ialm", "slra", "segment_layout", "blend_weights"]
@@ -296,7 +297,7 @@ def _svt_loop(X: np.ndarray, miss: np.ndarray | None, tau: float, delta: float, 
     spec = float(_spectral_norm(X))
     m, n = X.shape
     Y, A = np.empty_like(X), np.zeros_like(X)
-    rows = _row_slices(m)
+    rows = frame_blocks(m, ROW_BLOCK)
 
     def start(step: float) -> float:
         k0 = int(np.ceil(tau / (step * spec))) if tau > 0 and spec > 0 else 1
@@ -424,7 +425,7 @@ def _svt_full(X: np.ndarray, tau: float, eps: float, overwrite: bool = False) ->
         f = np.where(sig > 0, v / np.where(sig > 0, sig, 1.0), 0.0)
     K = (V * f) @ V.T
     out = np.empty_like(X) if out is None else out
-    for rows in _row_slices(m):
+    for rows in frame_blocks(m, ROW_BLOCK):
         out[rows] = X[rows] @ K
     return out, rank
 
@@ -438,11 +439,6 @@ ROW_BLOCK = 4096
 """Rows per block where a whole-clip solver passes over a tall (T, 3J) matrix (svt's closed
 form, whole-clip rpca): ~3 MB per 93-column block, in cache, and no temporary of the
 whole matrix's size."""
-
-
-def _row_slices(m: int) -> list[slice]:
-    """Consecutive row blocks of :data:`ROW_BLOCK` (blocks of frames, not frames)."""
-    return [slice(a, min(a + ROW_BLOCK, m)) for a in range(0, m, ROW_BLOCK)]
 
 
 # --------------------------------------------------------------------------------------
@@ -607,7 +603,7 @@ def _ialm_rows(D: np.ndarray, miss: np.ndarray | None, lam: float, tol: float, m
     if normF == 0 or max_iter < 1:
         A[...] = 0.0
         return 0, normF == 0, 0.0 if normF == 0 else float("inf")
-    rows = _row_slices(m)
+    rows = frame_blocks(m, ROW_BLOCK)
 
     def block_m(r: slice, inv_mu: float) -> np.ndarray:   # M = D - E + Y / mu, one block
         Mb = Y[r] * inv_mu
