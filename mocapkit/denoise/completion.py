@@ -137,7 +137,9 @@ thesis' clips are far shorter, so its protocols are unchanged.  Accuracy, measur
 frames on 6 markers; RMSE away from the trial boundaries; whole clip / 8,192 / 4,096):
 trnn 0.601 / 0.586 / 0.641 cm on all samples, 2.60 / 2.52 / 3.06 cm in the gaps; tsmc
 0.642 / 0.616 / 0.617 and 3.07 / 2.82 / 2.85 cm -- one low-rank model per minute of
-capture fits a long take of changing motions no worse than one for all of it."""
+capture fits a long take of changing motions no worse than one for all of it (at this
+length the three segments cost 27-33 % more CPU time than one solve; at 100,000 frames they
+are faster: docs/results/segments.md, benchmarks/long_clip_segments.py; scaling.md)."""
 
 
 @register
