@@ -1,0 +1,52 @@
+"""Rigid partners and the distance-consistency test of mocapkit.rigid (used by auto's spike
+test)."""
+from __future__ import annotations
+
+import numpy as np
+
+from mocapkit import corrupt, io
+from mocapkit.datasets import bundled
+from mocapkit.rigid import distance_consistency, rigid_partners
+
+
+def _clip():
+    return io.read(bundled("16_15.amc")).slice(2, None)
+
+
+def test_partners_are_the_bones_of_a_cmu_skeleton():
+    m = _clip()
+    part, real, med, scale = rigid_partners(m.positions, m.observed)
+    names = list(m.skeleton.names)
+    j = names.index("lfemur")                        # the knee: hip joint and ankle first
+    assert {names[k] for k in part[j, :2]} == {"lhipjoint", "ltibia"}
+    assert real[j, :2].all() and np.all(scale[j, :2] < 1e-3)
+    B = np.linalg.norm(m.positions[:, j] - m.positions[:, part[j, 0]], axis=-1)
+    assert abs(med[j, 0] - np.median(B)) < 1e-6
+
+
+def test_spikes_disagree_measured_samples_agree():
+    m = _clip()
+    noisy = corrupt.combine(m, [("outliers", {"ratio": 0.1, "magnitude_cm": 15.0})], seed=3)[0]
+    spike = np.linalg.norm(noisy.positions - m.positions, axis=-1) > 1e-9
+    agree, disagree, pinned = distance_consistency(noisy.positions, noisy.observed)
+    # a 15 cm spike in a random direction breaks at least one bone length ...
+    assert (disagree[spike] >= 1).mean() > 0.99
+    # ... and a measured sample breaks none unless a partner is itself a spike there, or a
+    # "rigid" pair is not quite rigid: finger and thumb keep their distance in most frames
+    # (MAD 0) but not all (here 6 of 8,831 samples)
+    part, real, _, _ = rigid_partners(noisy.positions, noisy.observed)
+    partner_spiked = (spike[:, part] & real).any(axis=2)
+    clean = ~spike & ~partner_spiked
+    assert (disagree[clean] > 0).mean() < 1e-3
+    assert (agree[clean] >= 1).all()
+    assert not (pinned & spike & (disagree == 0)).any()
+
+
+def test_unobserved_samples_count_nothing():
+    m = _clip()
+    obs = m.observed.copy()
+    obs[10:20, 5] = False
+    P = np.array(m.positions)
+    P[10:20, 5] = np.nan
+    agree, disagree, _ = distance_consistency(P, obs)
+    assert (agree[10:20, 5] == 0).all() and (disagree[10:20, 5] == 0).all()
