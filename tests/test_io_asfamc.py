@@ -296,6 +296,86 @@ def test_ik_jacobian_matches_finite_differences(walk):
         np.testing.assert_allclose(Jt[:, c], fd.reshape(len(D), -1), atol=1e-6, err_msg=comp.dof_names[c])
 
 
+@pytest.mark.parametrize("angle_rad", [False, True])
+def test_ik_normal_equations_match_dense_jacobian(walk, angle_rad):
+    """The LM normal equations from subtree moments (no Jacobian) equal Jt Jt^T and Jt r of
+    the dense Jacobian, with unusable targets, far from the origin, in both angle units."""
+    comp = kin._Compiled(walk.source["asf"])
+    D = np.asarray(walk.source["per_frame"]["dofs"], float)[::40][:7]
+    if angle_rad:
+        D = D.copy()
+        D[:, 3:] = np.deg2rad(D[:, 3:])
+        D[:, :3] += np.array([300.0, -50.0, 800.0])          # far from the origin
+    P, W = kin._fk_block(comp, D, angle_rad, axes=True)
+    P, W = np.transpose(P, (2, 1, 0)), np.transpose(W, (2, 1, 0))
+    rng = np.random.default_rng(7)
+    usable = rng.random(P.shape[:2]) > 0.15
+    usable[0] = True
+    r = rng.normal(size=P.shape) * usable[..., None]
+    buf = np.zeros((len(D), comp.n_dofs, len(comp.names), 3))
+    Jt = kin._ik_jacobian(comp, P, W, usable, angle_rad, buf)
+    A_ref, g_ref = Jt @ np.swapaxes(Jt, 1, 2), (Jt @ r.reshape(len(D), -1, 1))[..., 0]
+    work = (np.full((9, comp.n_dofs, comp.n_dofs), np.nan), np.full((9, comp.n_dofs, comp.n_dofs), np.nan))
+    for wk in (None, work):
+        A, g = kin._ik_normal_equations(comp, P, W, usable, r, angle_rad, wk)
+        scale = np.abs(A_ref).max()
+        np.testing.assert_allclose(A, A_ref, rtol=0, atol=1e-11 * scale)
+        np.testing.assert_allclose(g, g_ref, rtol=0, atol=1e-11 * np.abs(g_ref).max())
+        assert np.count_nonzero(A_ref == 0) and np.all(A[A_ref == 0] == 0)   # disjoint subtrees: exact 0
+
+
+def test_fk_block_matches_per_bone_reference(walk):
+    """The level-batched FK (F = L C frames, one product per bone) and the all-nodes local
+    rotations equal a plain per-bone loop of L_b = L_p C_b M_b C_b^T, end_b = end_p + L_b v_b."""
+    comp = kin._Compiled(walk.source["asf"])
+    D = np.asarray(walk.source["per_frame"]["dofs"], float)[::30][:8]
+    P, _ = kin._fk_block(comp, D, False)
+    T = len(D)
+    loc = kin._local_rotations(comp, D, False)                          # (T, J, 3, 3)
+    tr, ang = comp.root_split(D, False)
+    Cr = comp.C_root
+    L = {"root": Cr @ kin._euler_matrix(comp.root_axis, ang) @ Cr.T}
+    np.testing.assert_allclose(loc[:, 0], L["root"], atol=1e-13)
+    end = {"root": tr}
+    for j, n in enumerate(comp.bone_order, start=1):
+        a = np.zeros((T, 3))
+        a[:, comp.dof_axes[n]] = np.deg2rad(D[:, comp.dof_cols[n]])
+        Mloc = comp.C[n] @ kin._euler_matrix(comp.order[n], a) @ comp.C[n].T
+        np.testing.assert_allclose(loc[:, j], Mloc, atol=1e-13, err_msg=n)
+        L[n] = L[comp.parent[n]] @ Mloc
+        end[n] = end[comp.parent[n]] + L[n] @ comp.vec[n]
+        np.testing.assert_allclose(P[:, j].T, end[n], atol=1e-11, err_msg=n)
+
+
+def test_fast_rotation_helpers_match_matrix_products():
+    """The component / (3T, 3)-product helpers of the IK pass equal plain 3x3 matmuls."""
+    rng = np.random.default_rng(11)
+    T = 25
+    R = rot.euler_to_matrix([2, 0, 1], rng.uniform(-3, 3, (T, 3)))
+    Lp = rot.euler_to_matrix([0, 1, 2], rng.uniform(-3, 3, (T, 3)))
+    C = rot.euler_to_matrix([1, 2, 0], rng.uniform(-3, 3, 3))
+    np.testing.assert_allclose(kin._conj_t(C, R), C.T @ R @ C, atol=1e-14)
+    v = rng.normal(size=3)
+    np.testing.assert_allclose(kin._mv(R, v), np.einsum("tij,j->ti", R, v), atol=1e-14)
+    for order, axes in (("XYZ", [0, 2]), ("ZYX", [1]), ("YZX", [0, 1, 2])):
+        ang = np.zeros((T, 3))
+        ang[:, axes] = rng.uniform(-3, 3, (T, len(axes)))
+        ref = Lp @ C @ kin._euler_matrix(order, ang) @ C.T
+        np.testing.assert_allclose(kin._compose_local(Lp, C, order, axes, ang), ref, atol=1e-14)
+    U, W = rng.normal(size=(T, 4, 3)), rng.normal(size=(T, 4, 3))
+    x = rng.uniform(-3, 3, (T, 2))
+    for p, q in ((0, 1), (2, 0), (1, 2)):
+        Z = np.einsum("tij,tnj->tni", rot.axis_rotation(q, x[:, 1]) @ rot.axis_rotation(p, x[:, 0]), U)
+        np.testing.assert_allclose(kin._two_dof_cost(p, q, U, W, x), np.sum((Z - W) ** 2, axis=(1, 2)), rtol=1e-12)
+    # the twist angle: the projection formula it replaces, with and without regularisation
+    ax, _ = rot.normalize(rng.normal(size=(T, 3)))
+    a = ax[:, None, :]
+    Up, Wp = U - np.sum(U * a, -1, keepdims=True) * a, W - np.sum(W * a, -1, keepdims=True) * a
+    for reg in (0.0, 2.5):
+        ref = np.arctan2(np.sum(np.cross(Up, Wp) * a, axis=(1, 2)), np.sum(Up * Wp, axis=(1, 2)) + reg)
+        np.testing.assert_allclose(rot.twist_angle(ax, U, W, reg=reg), ref, atol=1e-12)
+
+
 def test_fk_blocks_join_seamlessly(walk, monkeypatch):
     """FK in blocks of frames gives the same positions as one block."""
     comp = kin._Compiled(walk.source["asf"])

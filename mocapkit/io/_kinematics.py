@@ -51,9 +51,10 @@ and vectorised over frames:
    must produce the target's component along the second axis) and the start branch,
    polished by a few 2x2 Gauss-Newton steps when dof-less descendants or low-weight
    children also count; the other angles zero;
-4. a Levenberg-Marquardt polish of all dofs of a frame at once (analytic Jacobian, at
-   most 12 iterations, a step kept only if it lowers that frame's squared position
-   error) runs only on the frames the closed-form pass leaves more than
+4. a Levenberg-Marquardt polish of all dofs of a frame at once (analytic normal
+   equations ``J^T J``, ``J^T r`` from per-subtree position moments, without forming
+   J; at most 12 iterations, a step kept only if it lowers that frame's squared
+   position error) runs only on the frames the closed-form pass leaves more than
    ``min(0.001 cm + 3 x the frame's largest bone-length error of the targets, 0.5 cm)``
    off: the error a target set no pose can reach explains is not chased.
 
@@ -200,7 +201,11 @@ class _Compiled:
         groups)``, a group ``(axis, positions in the level or None for all, dof columns)``
         per rotation step (last letter of the ``axis`` order first) and axis;
         ``jac_pairs``: ``(column, joint, pivot joint)`` for every rotational dof and every
-        joint it moves (the pivot is the rotating node's own start point)."""
+        joint it moves (the pivot is the rotating node's own start point); ``fk_K``,
+        ``fk_U``: the fixed ``C_parent^T C`` and ``C^T vec`` of :func:`_fk_block`;
+        ``local_groups``: the groups of all nodes at once (:func:`_local_rotations`);
+        ``dof_node``, ``dof_pivot``, ``subtree_mat``, ``dof_subtree``, ``nest_lo``, ``nest_hi``: see
+        :func:`_ik_normal_equations`."""
         J = len(self.names)
         self.fk_C = np.zeros((3, 3, J))
         self.fk_V = np.zeros((3, J))
@@ -216,10 +221,14 @@ class _Compiled:
                           for a in ("XYZ".index(x) for x in reversed(self.order[n])) if a in ax])
             depth[j] = depth[self.parent_joint[j]] + 1
         self.fk_CT = np.ascontiguousarray(np.transpose(self.fk_C, (1, 0, 2)))
+        # FK in the frames F_b = L_b C_b: F_child = F_parent K_child with the fixed
+        # K_child = C_parent^T C_child, end_child = end_parent + F_child (C_child^T vec_child)
+        K = [self.fk_C[:, :, 0]] + [self.fk_CT[:, :, self.parent_joint[j]] @ self.fk_C[:, :, j] for j in range(1, J)]
+        self.fk_K = np.stack(K, axis=2)
+        self.fk_U = np.einsum("jib,jb->ib", self.fk_C, self.fk_V)
         self.fk_trans = [(k, "XYZ".index(ch[1])) for k, ch in enumerate(self.root_order) if ch[0] == "T"]
-        self.fk_levels = []
-        for d in range(depth.max() + 1):
-            idx = np.flatnonzero(depth == d)
+
+        def groups_of(idx):
             groups = []
             for s in range(3):
                 for a in range(3):
@@ -227,13 +236,37 @@ class _Compiled:
                     if k:
                         cols = np.array([steps[idx[i]][s][1] for i in k])
                         groups.append((a, None if len(k) == len(idx) else np.array(k), cols))
-            self.fk_levels.append((idx, None if d == 0 else self.parent_joint[idx], groups))
+            return groups
+        self.fk_levels = []
+        for d in range(depth.max() + 1):
+            idx = np.flatnonzero(depth == d)
+            self.fk_levels.append((idx, None if d == 0 else self.parent_joint[idx], groups_of(idx)))
+        self.local_groups = groups_of(np.arange(J))      # local rotations need no tree order
         pairs = np.array([(col, q, 0 if j == 0 else self.parent_joint[j])
                           for j in range(J) for _, col in steps[j] for q in self.subtree[self.names[j]]],
                          dtype=np.intp).reshape(-1, 3)
         self.jac_pairs = tuple(pairs.T)
         # flat positions of the pairs' (column, joint, xyz) entries in a (D, J, 3) array
         self.jac_flat = ((pairs[:, :1] * J + pairs[:, 1:2]) * 3 + np.arange(3)).ravel()
+        # tables of the normal equations without the Jacobian (:func:`_ik_normal_equations`):
+        # the node and pivot joint of every dof column, whether it rotates, the subtree
+        # indicator (node, joint) and which column pairs share joints (nested subtrees)
+        node = np.zeros(self.n_dofs, np.intp)
+        pivot = np.zeros(self.n_dofs, np.intp)
+        for j in range(1, J):
+            node[self.dof_cols[self.names[j]]] = j
+            pivot[self.dof_cols[self.names[j]]] = self.parent_joint[j]
+        self.dof_node, self.dof_pivot = node, pivot
+        self.dof_rot = np.ones(self.n_dofs, bool)
+        self.dof_rot[[col for col, _ in self.fk_trans]] = False
+        sub = np.zeros((J, J))
+        for j, n in enumerate(self.names):
+            sub[j, self.subtree[n]] = 1.0
+        self.subtree_mat = sub
+        self.dof_subtree = np.ascontiguousarray(sub[node])       # (D, J): the joints each column moves
+        inside = sub[node][:, node] > 0                   # [d, e]: node(e) in the subtree of node(d)
+        self.nest_lo = inside.astype(float)
+        self.nest_hi = (inside.T & ~inside).astype(float)
 
     @staticmethod
     def _to_xyz(vals: np.ndarray, order: str) -> np.ndarray:
@@ -288,33 +321,34 @@ def _fk_block(comp: _Compiled, dofs: np.ndarray, angle_rad: bool,
     """FK of one block: positions (3, J, T) in file units and, with ``axes``, the world
     axis (3, D, T) of every rotational dof (zero for translations) for the IK Jacobian.
 
-    Per tree level ``X = L_parent · C`` is formed for all its bones at once, then
-    right-multiplied by the elementary rotations of their dofs, last letter of the
-    ``axis`` order first (``M = R_last ... R_first``); just before the rotation of a dof
-    is applied, column ``a`` of ``X`` is that dof's world axis (``L_p C R_last ... e_a``);
-    finally ``L = X · C^T`` and ``end = end_parent + L · vec``.
+    Per tree level ``X = L_parent · C = F_parent · K`` (``F = L · C`` of the parent,
+    ``K = C_parent^T C`` fixed) is formed for all its bones at once, then right-multiplied
+    by the elementary rotations of their dofs, last letter of the ``axis`` order first
+    (``M = R_last ... R_first``), which gives ``F = L · C``; just before the rotation of a
+    dof is applied, column ``a`` of ``X`` is that dof's world axis (``L_p C R_last ...
+    e_a``); ``end = end_parent + L · vec = end_parent + F · (C^T vec)``. (One 3x3 product
+    per bone instead of forming ``L = X · C^T`` as well.)
     """
     T = dofs.shape[0]
     A = np.ascontiguousarray(dofs.T)
     ang = A if angle_rad else np.deg2rad(A)
-    G = np.empty((3, 3, len(comp.names), T))
+    F = np.empty((3, 3, len(comp.names), T))
     P = np.empty((3, len(comp.names), T))
     W = np.zeros((3, comp.n_dofs, T)) if axes else None
     for idx, par, groups in comp.fk_levels:
         if par is None:                                              # the root
             X = np.repeat(comp.fk_C[:, :, :1, None], T, axis=3)
         else:
-            X = rot.mm_t(G[:, :, par], comp.fk_C[:, :, idx, None])
+            X = rot.mm_t(F[:, :, par], comp.fk_K[:, :, idx, None])
         _rotate_level(X, groups, ang, W)
-        L = rot.mm_t(X, comp.fk_CT[:, :, idx, None])
-        G[:, :, idx] = L
+        F[:, :, idx] = X
         if par is None:
             P[:, 0] = 0.0
             for col, a in comp.fk_trans:
                 P[a, 0] = dofs[:, col]
         else:
-            v = comp.fk_V[:, idx, None]
-            P[:, idx] = P[:, comp.parent_joint[idx]] + L[:, 0] * v[0] + L[:, 1] * v[1] + L[:, 2] * v[2]
+            v = comp.fk_U[:, idx, None]
+            P[:, idx] = P[:, par] + X[:, 0] * v[0] + X[:, 1] * v[1] + X[:, 2] * v[2]
     return P, W
 
 
@@ -333,16 +367,13 @@ def _rotate_level(X: np.ndarray, groups: list, ang: np.ndarray, W: np.ndarray | 
 
 def _local_rotations(comp: _Compiled, dofs: np.ndarray, angle_rad: bool) -> np.ndarray:
     """Local rotation ``C · M(dofs) · C^T`` of every node (T, J, 3, 3) (the root's: C_root
-    M C_root^T), all bones of a level at once."""
+    M C_root^T), all nodes at once (the same products per node as level by level)."""
     A = np.ascontiguousarray(np.asarray(dofs, float).T)
     ang = A if angle_rad else np.deg2rad(A)
     T = A.shape[1]
-    out = np.empty((3, 3, len(comp.names), T))
-    for idx, _, groups in comp.fk_levels:
-        X = np.repeat(comp.fk_C[:, :, idx, None], T, axis=3)
-        _rotate_level(X, groups, ang, None)
-        out[:, :, idx] = rot.mm_t(X, comp.fk_CT[:, :, idx, None])
-    return np.ascontiguousarray(np.transpose(out, (3, 2, 0, 1)))
+    X = np.repeat(comp.fk_C[:, :, :, None], T, axis=3)
+    _rotate_level(X, comp.local_groups, ang, None)
+    return np.ascontiguousarray(np.transpose(rot.mm_t(X, comp.fk_CT[:, :, :, None]), (3, 2, 0, 1)))
 
 
 # ======================================================================================
@@ -350,10 +381,11 @@ def _local_rotations(comp: _Compiled, dofs: np.ndarray, angle_rad: bool) -> np.n
 # ======================================================================================
 def _euler_from(M: np.ndarray, order: str) -> list[np.ndarray]:
     """Both Euler solutions, as (x, y, z) angles in radians, of M = R(angles) for ``order``
-    (Acclaim order: first letter applied first, i.e. the axis sequence reversed)."""
+    (Acclaim order: first letter applied first, i.e. the axis sequence reversed); M (T, 3,
+    3), read through a (3, 3, T) view (the component formulas, no 3x3 stacks)."""
     axes = ["XYZ".index(c) for c in reversed(order)]
     out = []
-    for e in rot.euler_from_matrix(M, axes):
+    for e in rot.euler_from_matrix_t(np.moveaxis(M, 0, 2), axes):
         xyz = np.zeros_like(e)
         xyz[:, axes] = e
         out.append(xyz)
@@ -453,8 +485,34 @@ def _start_angles(S: np.ndarray, comp: _Compiled, n: str, to_rad) -> np.ndarray:
 
 
 def _mv(R: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """R v for R (T, 3, 3) and v (3,) or (T, 3) -> (T, 3) (matmul, no einsum)."""
-    return R @ v if v.ndim == 1 else (R @ v[..., None])[..., 0]
+    """R v for R (T, 3, 3) and v (3,) or (T, 3) -> (T, 3); a fixed v as one (3T, 3) x (3,)
+    product (a stacked matmul costs ~30 ns per 3x3 matrix, several times more)."""
+    if v.ndim == 1:
+        return (R.reshape(-1, 3) @ v).reshape(R.shape[:-1])
+    return (R @ v[..., None])[..., 0]
+
+
+def _conj_t(C: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """``C^T R C`` (T, 3, 3) (a strided view) for a fixed C (3, 3) and R (T, 3, 3): two
+    plain (3T, 3) x (3, 3) products instead of stacked 3x3 matmuls."""
+    T = R.shape[0]
+    RC = (R.reshape(-1, 3) @ C).reshape(T, 3, 3)                    # [t, i, k] = (R C)[i, k]
+    Y = C.T @ np.transpose(RC, (1, 0, 2)).reshape(3, -1)            # [i, (t, k)] = (C^T R C)[i, k]
+    return np.transpose(Y.reshape(3, T, 3), (1, 0, 2))
+
+
+def _compose_local(Lp: np.ndarray, C: np.ndarray, order: str, axes: list[int], ang: np.ndarray) -> np.ndarray:
+    """``Lp C E(ang) C^T`` (T, 3, 3) for a bone whose only nonzero Euler angles (T, 3)
+    (x, y, z radians) are on ``axes``: ``Lp C`` in the (3, 3, T) layout right-multiplied
+    by the elementary rotations of the present axes only (a zero angle is an exact no-op),
+    last letter of ``order`` first as in ``E = R_last ... R_first``."""
+    T = Lp.shape[0]
+    X = np.ascontiguousarray(np.transpose((Lp.reshape(-1, 3) @ C).reshape(T, 3, 3), (1, 2, 0)))
+    for a in ("XYZ".index(ch) for ch in reversed(order)):
+        if a in axes:
+            rot.rotate_right_t(X, a, ang[:, a])
+    X = np.ascontiguousarray(np.transpose(X, (2, 0, 1)))
+    return (X.reshape(-1, 3) @ C.T).reshape(T, 3, 3)
 
 
 def _local(Lp: np.ndarray, C: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -536,7 +594,7 @@ def _ik_root(st: _IKState) -> None:
     Q = _fit_vectors(U, W, T)
     rot_cols = [k for k, ch in enumerate(c.root_order) if ch[0] == "R"]
     if rot_cols:
-        ang = _angles_near(_euler_from(Cr.T @ (Q @ L0) @ Cr, c.root_axis), ang0)
+        ang = _angles_near(_euler_from(_conj_t(Cr, Q @ L0), c.root_axis), ang0)
         if not st.have_start:
             ang = np.unwrap(ang, axis=0)
         for k in rot_cols:
@@ -562,8 +620,7 @@ def _ik_bone(st: _IKState, j: int, n: str) -> None:
     Lb = _fit_vectors([u] + Ur, [w] + Wr, st.T) @ Ls
     if len(axes) == 3 and c.dof_children[n]:
         Lb = _twist_from_children(st, n, j, Lb)
-    M = C.T @ np.swapaxes(Lp, 1, 2) @ Lb @ C
-    ang = _angles_near(_euler_from(M, order), ang0)
+    ang = _angles_near(_euler_from(_conj_t(C, np.swapaxes(Lp, 1, 2) @ Lb), order), ang0)
     if len(axes) < 3:
         ang = _partial_angles(st, n, Lp, w, Wr, ang, ang0)
     for i, a in enumerate(axes):
@@ -572,7 +629,7 @@ def _ik_bone(st: _IKState, j: int, n: str) -> None:
         st.out[:, cols] = st.from_rad(np.unwrap(st.to_rad(st.out[:, cols]), axis=0))
     # three dofs represent Lb exactly (the Euler angles reproduce M to round-off); fewer
     # give the closest representable rotation, which the children must start from
-    st.L[n] = Lb if len(axes) == 3 else Lp @ C @ _euler_matrix(order, _start_angles(st.out, c, n, st.to_rad)) @ C.T
+    st.L[n] = Lb if len(axes) == 3 else _compose_local(Lp, C, order, axes, _start_angles(st.out, c, n, st.to_rad))
     st.done[:, j] = st.done[:, pj] + _mv(st.L[n], c.vec[n])
 
 
@@ -709,9 +766,22 @@ def _fit_partial_fast(order: str, axes: list[int], U: np.ndarray, W: np.ndarray,
     return out
 
 
+def _rotate_vectors(a: int, ang: np.ndarray, V: np.ndarray) -> np.ndarray:
+    """``R_a(ang) v`` for every vector of V (T, n, 3), ang (T,) radians: only the two
+    components off the axis change (no 3x3 matrices)."""
+    c, s = np.cos(ang)[:, None], np.sin(ang)[:, None]
+    i, j = (a + 1) % 3, (a + 2) % 3
+    out = V.copy()
+    out[..., i] = c * V[..., i] - s * V[..., j]
+    out[..., j] = s * V[..., i] + c * V[..., j]
+    return out
+
+
 def _two_dof_cost(p: int, q: int, U: np.ndarray, W: np.ndarray, x: np.ndarray) -> np.ndarray:
-    Z = U @ np.swapaxes(axis_rotation(p, x[:, 0]), 1, 2) @ np.swapaxes(axis_rotation(q, x[:, 1]), 1, 2)
-    return np.sum((Z - W) ** 2, axis=(1, 2))
+    """sum_i |R_q(b) R_p(a) u_i - w_i|^2 (T,) for x = (a, b) (T, 2)."""
+    r = _rotate_vectors(q, x[:, 1], _rotate_vectors(p, x[:, 0], U)) - W
+    r *= r
+    return r.reshape(len(r), -1).sum(axis=1)
 
 
 def _plane_angle(a: int, x: np.ndarray) -> np.ndarray:
@@ -825,7 +895,8 @@ def inverse_kinematics(comp: _Compiled, target_cm: np.ndarray, f: float, angle_r
 def _ik_jacobian(comp: _Compiled, P: np.ndarray, W: np.ndarray, usable: np.ndarray, angle_rad: bool,
                  out: np.ndarray) -> np.ndarray:
     """Transposed Jacobian d positions / d dofs as (T, D, 3J), file units per file unit
-    (degrees when the file uses them), zero for unusable targets.
+    (degrees when the file uses them), zero for unusable targets: the dense reference of
+    :func:`_ik_normal_equations` (which the LM polish uses) and of the tests.
 
     P (T, J, 3) joint positions and W (T, D, 3) world dof axes (from :func:`_fk_block`),
     usable (T, J); a rotational dof moves joint j by ``w x (p_j - pivot)``
@@ -843,19 +914,100 @@ def _ik_jacobian(comp: _Compiled, P: np.ndarray, W: np.ndarray, usable: np.ndarr
     return out.reshape(T, comp.n_dofs, 3 * J)
 
 
+def _cross_planes(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> np.ndarray:
+    """a x b for component planes (3, ...) into ``out`` (3, ...) (not aliasing a or b)."""
+    np.multiply(a[1], b[2], out=out[0])
+    out[0] -= a[2] * b[1]
+    np.multiply(a[2], b[0], out=out[1])
+    out[1] -= a[0] * b[2]
+    np.multiply(a[0], b[1], out=out[2])
+    out[2] -= a[1] * b[0]
+    return out
+
+
+def _ik_normal_equations(comp: _Compiled, P: np.ndarray, W: np.ndarray, usable: np.ndarray,
+                         r: np.ndarray, angle_rad: bool,
+                         work: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """``Jt Jt^T`` (T, D, D) and ``Jt r`` (T, D) of the LM polish without forming ``Jt``
+    (:func:`_ik_jacobian`, the dense reference: same values to round-off).
+
+    P (T, J, 3) joint positions, W (T, D, 3) world dof axes (from :func:`_fk_block`),
+    usable (T, J) target mask, r (T, J, 3) residuals (file units). A rotational dof d
+    with unit axis w about pivot c moves joint j by ``w x (p_j - c) = m + w x p_j`` with
+    the moment ``m = c x w`` (Plücker coordinates ``xi = (w, m)``; a root translation
+    along e_a is ``xi = (0, e_a)``; both scaled by pi/180 for degree files), for the
+    joints j of its node's subtree S only. So
+
+        (Jt Jt^T)[d, e] = xi_d . Lam_S xi_e,   S the smaller of the two nested subtrees,
+        Lam_S xi = (tr(M) w - M w + s x m,  n m - s x w)
+
+    with the subtree sums ``n = sum u_j``, ``s = sum u_j p_j``, ``M = sum u_j p_j p_j^T``
+    (u the usable mask), and 0 for columns whose subtrees are disjoint (a tree: subtrees
+    are nested or disjoint); likewise ``(Jt r)[d] = m . sum r_j + w . sum p_j x r_j``.
+    The subtree sums of all columns come from one product with ``comp.dof_subtree``: per
+    frame O(J) sums and a (D, 6) x (6, D) product instead of the (D, 3J) x (3J, D) one.
+    Positions are taken relative to the root joint (smaller moments, less cancellation).
+    ``work``: two (>= T, D, D) buffers; the first holds the returned matrices (fresh
+    multi-MB temporaries cost more in page faults than the arithmetic).
+    """
+    T, J = usable.shape
+    D = comp.n_dofs
+    u = usable.astype(float)
+    # component planes (xyz first, frames, joints or columns last): contiguous (T, J) / (T, D)
+    # arrays instead of (..., 3) stacks, which numpy handles slowly
+    p = np.moveaxis(P - P[:, :1], 2, 0)                            # (3, T, J)
+    q = np.empty((19, T, J))                    # per joint: u, u p, u p p^T, u r, p x u r
+    q[0] = u
+    np.multiply(p, u, out=q[1:4])
+    np.multiply(q[1:4, None], p[None], out=q[4:13].reshape(3, 3, T, J))
+    np.multiply(np.moveaxis(r, 2, 0), u, out=q[13:16])
+    _cross_planes(p, q[13:16], q[16:19])
+    Q = (q.reshape(-1, J) @ comp.dof_subtree.T).reshape(19, T, D)   # sums over each column's subtree
+    n, s, M = Q[0], Q[1:4], Q[4:13].reshape(3, 3, T, D)
+    xi = np.empty((6, T, D))                    # Plücker coordinates (w, m) of every column
+    w, m = xi[:3], xi[3:]
+    np.multiply(np.moveaxis(W, 2, 0), 1.0 if angle_rad else np.pi / 180.0, out=w)
+    _cross_planes(p[:, :, comp.dof_pivot], w, m)
+    for col, a in comp.fk_trans:
+        m[:, :, col] = 0.0
+        m[a, :, col] = 1.0
+    H = np.empty((6, T, D))                     # Lam_S xi, S the column's own subtree
+    trM = M[0, 0] + M[1, 1] + M[2, 2]
+    _cross_planes(s, m, H[:3])
+    for a in range(3):
+        H[a] += trM * w[a] - M[a, 0] * w[0] - M[a, 1] * w[1] - M[a, 2] * w[2]
+    _cross_planes(s, w, H[3:])
+    np.subtract(n * m, H[3:], out=H[3:])
+    g = np.sum(m * Q[13:16] + w * Q[16:19], axis=0)
+    # [d, e] = xi_d . H_e is the entry when node(e) lies in node(d)'s subtree, xi_e . H_d
+    # (a second small product: no strided transpose) when node(d) lies strictly in node(e)'s
+    # subtree, 0 for disjoint subtrees
+    A, GT = (np.empty((T, D, D)), np.empty((T, D, D))) if work is None else (work[0][:T], work[1][:T])
+    xi_t, H_t = np.moveaxis(xi, 0, 2).copy(), np.moveaxis(H, 0, 2).copy()        # (T, D, 6)
+    np.matmul(xi_t, np.swapaxes(H_t, 1, 2), out=A)
+    np.matmul(H_t, np.swapaxes(xi_t, 1, 2), out=GT)
+    A *= comp.nest_lo                           # 0/1 masks: arithmetic beats copyto(where=)
+    GT *= comp.nest_hi
+    A += GT
+    return A, g
+
+
 def _ik_refine(comp: _Compiled, X: np.ndarray, dofs: np.ndarray, angle_rad: bool, iters: int,
                chunk: int = 512, tol_cm: float = 1e-6, rel_tol: float = 1e-3) -> np.ndarray:
     """Levenberg-Marquardt polish of ``dofs`` towards targets X (file units), per frame.
 
     Each frame has its own damping; a step is kept only if it lowers that frame's sum of
     squared position errors; a frame leaves the active set once its error is below
-    ``tol_cm`` or a step gains less than ``rel_tol`` of it.
+    ``tol_cm`` or a step gains less than ``rel_tol`` of it. Per iteration: the normal
+    equations of the live frames (:func:`_ik_normal_equations`, into two reused (T, D, D)
+    buffers), damped on their diagonal in place, one batched ``np.linalg.solve``, the FK
+    of the trial dofs (:func:`_fk_block`, which also gives the next axes).
     """
     dofs = dofs.copy()
     Wm = np.isfinite(X).all(axis=2)                                 # (T, J) usable targets
     Xf = np.where(Wm[..., None], X, 0.0)
     tol = (tol_cm / 5.0) ** 2
-    eye = np.eye(comp.n_dofs)
+    nd = comp.n_dofs
 
     def cost_of(D, idx):
         Pb, Wb = _fk_block(comp, D, angle_rad, axes=True)
@@ -870,28 +1022,21 @@ def _ik_refine(comp: _Compiled, X: np.ndarray, dofs: np.ndarray, angle_rad: bool
         P, Wa = P.copy(), Wa.copy()                                  # updated in place below
         lam = np.full(len(idx), 1e-3)
         live = cost > tol
-        buf = np.zeros((len(idx), comp.n_dofs, len(comp.names), 3))
-        AA = np.empty((len(idx), comp.n_dofs, comp.n_dofs))
-        gg = np.empty((len(idx), comp.n_dofs))
-        moved = np.ones(len(idx), bool)          # normal equations to (re)build: a rejected
-        for _ in range(iters):                   # step leaves a frame where it was
+        work = (np.empty((len(idx), nd, nd)), np.empty((len(idx), nd, nd)))    # reused
+        for _ in range(iters):
             if not live.any():
                 break
             k = np.flatnonzero(live)
-            new = k[moved[k]]
-            if len(new):
-                Jt = _ik_jacobian(comp, P[new], Wa[new], Wm[idx[new]], angle_rad, buf[:len(new)])
-                AA[new] = Jt @ np.swapaxes(Jt, 1, 2)                 # batched BLAS
-                gg[new] = (Jt @ r[new].reshape(len(new), -1, 1))[..., 0]
-                moved[new] = False
-            A, g = AA[k], gg[k]
-            diag = np.einsum("tii->ti", A)
-            step = -np.linalg.solve(A + (lam[k, None] * (diag + 1e-9))[:, :, None] * eye, g[..., None])[..., 0]
+            # the normal equations of every live frame (cheap without the Jacobian: also
+            # rebuilt, identically, for frames whose last step was rejected), damped in place
+            A, g = _ik_normal_equations(comp, P[k], Wa[k], Wm[idx[k]], r[k], angle_rad, work)
+            diag = A.reshape(len(k), -1)[:, ::nd + 1]                # a view of the diagonals
+            diag += lam[k, None] * (diag + 1e-9)
+            step = -np.linalg.solve(A, g[..., None])[..., 0]
             newc, newr, newP, newW = cost_of(D[k] + step, idx[k])
             ok = newc < cost[k]
             gain = np.where(ok, (cost[k] - newc) / np.maximum(cost[k], 1e-300), 0.0)
             acc = k[ok]
-            moved[acc] = True
             D[acc] += step[ok]
             cost[acc], r[acc], P[acc], Wa[acc] = newc[ok], newr[ok], newP[ok], newW[ok]
             lam[k] = np.where(ok, np.maximum(lam[k] / 5, 1e-9), lam[k] * 8)

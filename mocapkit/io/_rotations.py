@@ -283,13 +283,15 @@ def twist_angle(axis: np.ndarray, U: np.ndarray, W: np.ndarray, reg: float | np.
 
     Exact least squares: ``atan2(sum a.(u_perp x w_perp), sum u_perp.w_perp + reg)``;
     ``reg`` >= 0 pulls towards zero when the projections nearly vanish.
+    With a unit axis, ``a.(u_perp x w_perp) = a.(u x w)`` and ``u_perp.w_perp = u.w -
+    (u.a)(w.a)``: computed so, on the (T, n) component planes (no (T, n, 3) temporaries).
     """
-    a = axis[:, None, :]
-    Up = U - np.sum(U * a, axis=-1, keepdims=True) * a
-    Wp = W - np.sum(W * a, axis=-1, keepdims=True) * a
-    s = np.sum(np.cross(Up, Wp) * a, axis=(-1, -2))
-    c = np.sum(Up * Wp, axis=(-1, -2)) + reg
-    return np.arctan2(s, c)
+    a0, a1, a2 = (axis[:, k, None] for k in range(3))
+    u0, u1, u2 = (U[..., k] for k in range(3))
+    w0, w1, w2 = (W[..., k] for k in range(3))
+    s = a0 * (u1 * w2 - u2 * w1) + a1 * (u2 * w0 - u0 * w2) + a2 * (u0 * w1 - u1 * w0)
+    c = u0 * w0 + u1 * w1 + u2 * w2 - (a0 * u0 + a1 * u1 + a2 * u2) * (a0 * w0 + a1 * w1 + a2 * w2)
+    return np.arctan2(s.sum(axis=-1), c.sum(axis=-1) + reg)
 
 
 def wrap_near(ang: np.ndarray, ref: np.ndarray, period: float = 2 * np.pi) -> np.ndarray:
