@@ -62,10 +62,12 @@ is the RMS over every fitted sample of an estimate per sample, by class:
   own marker (not the worst round, which is right for choosing but biased up as an
   estimate); where fill-auto filled nothing the spline's own validation on the gap.
 
-What it cannot see: spikes the robust fit kept next to another spike, and measured
-samples it rejected in fast motion, whose fill error is the motion the spline cut (runs of
-3-8 rejected frames at 30 fps) -- on the development clips at 30 fps most of the
-remaining misses.
+What it cannot see: measured samples rejected in the fastest motion that no trusted
+partner brings back (a whole hand over 4 frames at 120 fps, a whole leg over 12 frames
+in CMU 05_05), whose fill error is the motion the spline cut: the hidden stretch next to
+the hole moves slower than the hole itself. Most of the remaining spike-case misses of
+docs/results/auto.md are these; the ten-gap cases miss both ways (0.3-3.6x), as ten
+gaps give a heavy-tailed realised error.
 
 >>> from mocapkit import datasets, io, corrupt
 >>> clip = io.read(datasets.bundled("16_15.amc"))
