@@ -230,7 +230,8 @@ def rigid_partners(P: np.ndarray, observed: np.ndarray, *, n_partners: int = 4,
 
 def distance_consistency(P: np.ndarray, observed: np.ndarray, *, n_partners: int = 4,
                          max_scale_cm: float = 1.0, floor_cm: float = 1.0,
-                         n_ref: int = 1024, min_spread: float = 0.1
+                         n_ref: int = 1024, min_spread: float = 0.1,
+                         partners: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
                          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per sample, how many of its point's rigid partners keep their usual distance to it.
 
@@ -251,6 +252,10 @@ def distance_consistency(P: np.ndarray, observed: np.ndarray, *, n_partners: int
     lengths unchanged to first order, and on CMU clips 1 of ~3,000 random 15 cm spikes kept
     them within 0.5 cm. ``pinned`` is True where the unit directions u_k to the agreeing
     partners have ``lambda_min(sum_k u_k u_k^T) >= min_spread``.
+
+    ``partners``: the result of :func:`rigid_partners` on the same P and observed, for a
+    caller that needs it too (computed here when None; ``n_partners``, ``max_scale_cm`` and
+    ``n_ref`` are then unused).
 
     P : (T, J, 3) cm; observed : (T, J) bool. Returns (agree, disagree, pinned), (T, J):
     the number (int8) of observed partners at frame t that agree / disagree (0 and 0 at an
@@ -275,8 +280,9 @@ def distance_consistency(P: np.ndarray, observed: np.ndarray, *, n_partners: int
     pinned = np.zeros((T, J), bool)
     if J < 2 or T < 3:
         return agree, disagree, pinned
-    part, real, mref, scale = rigid_partners(P, obs, n_partners=n_partners,
-                                             max_scale_cm=max_scale_cm, n_ref=n_ref)
+    if partners is None:
+        partners = rigid_partners(P, obs, n_partners=n_partners, max_scale_cm=max_scale_cm, n_ref=n_ref)
+    part, real, mref, scale = partners
     lim = np.maximum(float(floor_cm), 4.685 * np.nan_to_num(scale))
     jj = np.arange(J)
     for sl in frame_blocks(T):                     # blocks of frames: (block, J, K) arrays

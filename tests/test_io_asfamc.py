@@ -275,18 +275,34 @@ def test_ik_recovers_perturbed_dofs(walk, tmp_path):
     np.testing.assert_allclose(back.bone_lengths(), walk.bone_lengths()[:60], atol=1e-9)
 
 
+def _dense_ik_jacobian(comp, P, W, usable, angle_rad):
+    """Reference transposed Jacobian d positions / d dofs (T, D, 3J) built entry by entry:
+    a rotational dof moves each joint of its subtree by ``w x (p_j - pivot)``, a root
+    translation moves every joint along its axis; rows of unusable targets are zero."""
+    T, J = P.shape[0], P.shape[1]
+    scale = 1.0 if angle_rad else np.pi / 180.0
+    Jt = np.zeros((T, comp.n_dofs, J, 3))
+    trans = dict(comp.fk_trans)
+    for d in range(comp.n_dofs):
+        if d in trans:
+            Jt[:, d, :, trans[d]] = usable
+            continue
+        for j in np.flatnonzero(comp.dof_subtree[d] > 0):
+            Jt[:, d, j] = np.cross(W[:, d], P[:, j] - P[:, comp.dof_pivot[d]]) * (usable[:, j] * scale)[:, None]
+    return Jt.reshape(T, comp.n_dofs, 3 * J)
+
+
 def test_ik_jacobian_matches_finite_differences(walk):
-    """The analytic Jacobian of the LM polish (world dof axes from the level-batched FK,
-    ``w x (p_j - pivot)``, root translations) equals central differences of the FK, with
-    the rows of unusable targets zero."""
+    """The Jacobian the LM normal equations stand for (world dof axes from the level-batched
+    FK, ``w x (p_j - pivot)`` over ``dof_subtree``, root translations) equals central
+    differences of the FK, with the rows of unusable targets zero."""
     comp = kin._Compiled(walk.source["asf"])
     D = np.asarray(walk.source["per_frame"]["dofs"], float)[::50][:6]
     P, W = kin._fk_block(comp, D, False, axes=True)
     P, W = np.transpose(P, (2, 1, 0)), np.transpose(W, (2, 1, 0))
     usable = np.ones(P.shape[:2], bool)
     usable[1, 5] = False
-    buf = np.zeros((len(D), comp.n_dofs, len(comp.names), 3))
-    Jt = kin._ik_jacobian(comp, P, W, usable, False, buf)            # (T, D, 3J)
+    Jt = _dense_ik_jacobian(comp, P, W, usable, False)               # (T, D, 3J)
     h = 1e-4
     for c in range(comp.n_dofs):
         e = np.zeros(comp.n_dofs)
@@ -312,8 +328,7 @@ def test_ik_normal_equations_match_dense_jacobian(walk, angle_rad):
     usable = rng.random(P.shape[:2]) > 0.15
     usable[0] = True
     r = rng.normal(size=P.shape) * usable[..., None]
-    buf = np.zeros((len(D), comp.n_dofs, len(comp.names), 3))
-    Jt = kin._ik_jacobian(comp, P, W, usable, angle_rad, buf)
+    Jt = _dense_ik_jacobian(comp, P, W, usable, angle_rad)
     A_ref, g_ref = Jt @ np.swapaxes(Jt, 1, 2), (Jt @ r.reshape(len(D), -1, 1))[..., 0]
     work = (np.full((9, comp.n_dofs, comp.n_dofs), np.nan), np.full((9, comp.n_dofs, comp.n_dofs), np.nan))
     for wk in (None, work):

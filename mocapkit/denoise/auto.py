@@ -282,7 +282,8 @@ def _second_look(X: np.ndarray, M: np.ndarray, cols: np.ndarray, fit: np.ndarray
     rej = info.rejected.copy()
     P0, obs = Xc.reshape(T, -1, 3), Mc[:, ::3]
     # distances to the point's rigid partners first: they hold however fast the motion
-    agree, disagree, pinned = distance_consistency(P0, obs)
+    partners = rigid_partners(P0, obs)
+    agree, disagree, pinned = distance_consistency(P0, obs, partners=partners)
     # at least two partners and none against: what the estimate takes as measured; to be
     # re-admitted the partners must also pin the sample (three independent directions)
     confirmed = obs & (agree >= 2) & (disagree == 0)
@@ -295,7 +296,7 @@ def _second_look(X: np.ndarray, M: np.ndarray, cols: np.ndarray, fit: np.ndarray
     # in a strike or a kick: interpolated, it tells a measured sample from a spike. Any of
     # the partners trusted at that frame will do, so a run of rejected samples along a limb
     # (hip -> knee -> ankle -> toes) comes back a joint per pass
-    part, real, _, _ = rigid_partners(P0, obs)
+    part, real, _, _ = partners
     n_pts = P0.shape[1]
     xyz = np.tile(np.arange(3), n_pts)
     slots = [(np.repeat(np.where(real[:, q], part[:, q], np.arange(n_pts)) * 3, 3) + xyz,

@@ -200,22 +200,21 @@ class _Compiled:
         ``fk_levels``: per tree depth ``(joints, parent joints or None for the root,
         groups)``, a group ``(axis, positions in the level or None for all, dof columns)``
         per rotation step (last letter of the ``axis`` order first) and axis;
-        ``jac_pairs``: ``(column, joint, pivot joint)`` for every rotational dof and every
-        joint it moves (the pivot is the rotating node's own start point); ``fk_K``,
+        ``fk_K``,
         ``fk_U``: the fixed ``C_parent^T C`` and ``C^T vec`` of :func:`_fk_block`;
         ``local_groups``: the groups of all nodes at once (:func:`_local_rotations`);
-        ``dof_node``, ``dof_pivot``, ``subtree_mat``, ``dof_subtree``, ``nest_lo``, ``nest_hi``: see
+        ``dof_pivot``, ``dof_subtree``, ``nest_lo``, ``nest_hi``: see
         :func:`_ik_normal_equations`."""
         J = len(self.names)
         self.fk_C = np.zeros((3, 3, J))
-        self.fk_V = np.zeros((3, J))
+        vec = np.zeros((3, J))
         self.fk_C[:, :, 0] = self.C_root
         rcol = {"XYZ".index(ch[1]): k for k, ch in enumerate(self.root_order) if ch[0] == "R"}
         steps = [[(a, rcol[a]) for a in ("XYZ".index(x) for x in reversed(self.root_axis)) if a in rcol]]
         depth = np.zeros(J, int)
         for j, n in enumerate(self.bone_order, start=1):
             self.fk_C[:, :, j] = self.C[n]
-            self.fk_V[:, j] = self.vec[n]
+            vec[:, j] = self.vec[n]
             ax = self.dof_axes[n]
             steps.append([(a, self.dof_cols[n][ax.index(a)])
                           for a in ("XYZ".index(x) for x in reversed(self.order[n])) if a in ax])
@@ -225,7 +224,7 @@ class _Compiled:
         # K_child = C_parent^T C_child, end_child = end_parent + F_child (C_child^T vec_child)
         K = [self.fk_C[:, :, 0]] + [self.fk_CT[:, :, self.parent_joint[j]] @ self.fk_C[:, :, j] for j in range(1, J)]
         self.fk_K = np.stack(K, axis=2)
-        self.fk_U = np.einsum("jib,jb->ib", self.fk_C, self.fk_V)
+        self.fk_U = np.einsum("jib,jb->ib", self.fk_C, vec)
         self.fk_trans = [(k, "XYZ".index(ch[1])) for k, ch in enumerate(self.root_order) if ch[0] == "T"]
 
         def groups_of(idx):
@@ -242,27 +241,18 @@ class _Compiled:
             idx = np.flatnonzero(depth == d)
             self.fk_levels.append((idx, None if d == 0 else self.parent_joint[idx], groups_of(idx)))
         self.local_groups = groups_of(np.arange(J))      # local rotations need no tree order
-        pairs = np.array([(col, q, 0 if j == 0 else self.parent_joint[j])
-                          for j in range(J) for _, col in steps[j] for q in self.subtree[self.names[j]]],
-                         dtype=np.intp).reshape(-1, 3)
-        self.jac_pairs = tuple(pairs.T)
-        # flat positions of the pairs' (column, joint, xyz) entries in a (D, J, 3) array
-        self.jac_flat = ((pairs[:, :1] * J + pairs[:, 1:2]) * 3 + np.arange(3)).ravel()
         # tables of the normal equations without the Jacobian (:func:`_ik_normal_equations`):
-        # the node and pivot joint of every dof column, whether it rotates, the subtree
-        # indicator (node, joint) and which column pairs share joints (nested subtrees)
+        # the pivot joint of every dof column, the joints each column moves and which
+        # column pairs share joints (nested subtrees)
         node = np.zeros(self.n_dofs, np.intp)
         pivot = np.zeros(self.n_dofs, np.intp)
         for j in range(1, J):
             node[self.dof_cols[self.names[j]]] = j
             pivot[self.dof_cols[self.names[j]]] = self.parent_joint[j]
-        self.dof_node, self.dof_pivot = node, pivot
-        self.dof_rot = np.ones(self.n_dofs, bool)
-        self.dof_rot[[col for col, _ in self.fk_trans]] = False
+        self.dof_pivot = pivot
         sub = np.zeros((J, J))
         for j, n in enumerate(self.names):
             sub[j, self.subtree[n]] = 1.0
-        self.subtree_mat = sub
         self.dof_subtree = np.ascontiguousarray(sub[node])       # (D, J): the joints each column moves
         inside = sub[node][:, node] > 0                   # [d, e]: node(e) in the subtree of node(d)
         self.nest_lo = inside.astype(float)
@@ -892,28 +882,6 @@ def inverse_kinematics(comp: _Compiled, target_cm: np.ndarray, f: float, angle_r
     return out
 
 
-def _ik_jacobian(comp: _Compiled, P: np.ndarray, W: np.ndarray, usable: np.ndarray, angle_rad: bool,
-                 out: np.ndarray) -> np.ndarray:
-    """Transposed Jacobian d positions / d dofs as (T, D, 3J), file units per file unit
-    (degrees when the file uses them), zero for unusable targets: the dense reference of
-    :func:`_ik_normal_equations` (which the LM polish uses) and of the tests.
-
-    P (T, J, 3) joint positions and W (T, D, 3) world dof axes (from :func:`_fk_block`),
-    usable (T, J); a rotational dof moves joint j by ``w x (p_j - pivot)``
-    (``comp.jac_pairs``), a root translation moves every joint. ``out`` (T, D, J, 3) is
-    zero outside those entries (it is reused between iterations: only they are written).
-    """
-    pc, pj, pp = comp.jac_pairs
-    T, J = P.shape[0], P.shape[1]
-    scale = 1.0 if angle_rad else np.pi / 180.0
-    d = np.cross(W[:, pc], P[:, pj] - P[:, pp]) * (usable[:, pj] * scale)[..., None]
-    flat = out.reshape(T, -1)
-    flat[:, comp.jac_flat] = d.reshape(T, -1)
-    for col, a in comp.fk_trans:
-        out[:, col, :, a] = usable
-    return out.reshape(T, comp.n_dofs, 3 * J)
-
-
 def _cross_planes(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> np.ndarray:
     """a x b for component planes (3, ...) into ``out`` (3, ...) (not aliasing a or b)."""
     np.multiply(a[1], b[2], out=out[0])
@@ -929,7 +897,7 @@ def _ik_normal_equations(comp: _Compiled, P: np.ndarray, W: np.ndarray, usable: 
                          r: np.ndarray, angle_rad: bool,
                          work: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """``Jt Jt^T`` (T, D, D) and ``Jt r`` (T, D) of the LM polish without forming ``Jt``
-    (:func:`_ik_jacobian`, the dense reference: same values to round-off).
+    (the tests' dense Jacobian gives the same values to round-off).
 
     P (T, J, 3) joint positions, W (T, D, 3) world dof axes (from :func:`_fk_block`),
     usable (T, J) target mask, r (T, J, 3) residuals (file units). A rotational dof d

@@ -14,7 +14,8 @@ axis_rotation(axis, ang)          (..., 3, 3) rotation about one coordinate axis
 rot_t(axis, ang), mm_t(A, B)      the same and a product in the (3, 3, T) layout
 rotate_right_t(R, axis, ang)      R @ R_axis(ang) in place, (3, 3, T) layout
 euler_to_matrix(axes, angles)     product of axis rotations; angles (..., n) per listed axis
-euler_from_matrix(R, axes)        the three angles of R for three distinct axes (+ other branch)
+rotate_left_t(R, axis, ang)       R_axis(ang) @ R in place, (3, 3, T) layout
+euler_from_matrix_t(R, axes)      the three angles of R (3, 3, T) for three distinct axes (+ other branch)
 min_rotation(a, b)                shortest-arc rotations taking directions a onto b
 kabsch(A, B)                      least-squares rotations Q a_k ~ b_k (+ degenerate mask)
 axis_angle(axis, theta)           Rodrigues rotations
@@ -25,7 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["axis_rotation", "rot_t", "mm_t", "euler_to_matrix", "euler_from_matrix", "min_rotation",
+__all__ = ["axis_rotation", "rot_t", "mm_t", "euler_to_matrix", "min_rotation",
            "kabsch", "rotate_right_t", "rotate_left_t", "euler_from_matrix_t", "axis_angle", "twist_angle", "wrap_near", "normalize", "skew"]
 
 
@@ -96,27 +97,6 @@ def _is_cyclic(i: int, j: int, k: int) -> bool:
     return (i, j, k) in ((0, 1, 2), (1, 2, 0), (2, 0, 1))
 
 
-def euler_from_matrix(R: np.ndarray, axes) -> tuple[np.ndarray, np.ndarray]:
-    """Both angle sets (T, 3) radians with ``R = R_a1 R_a2 R_a3`` for three distinct axes.
-
-    The middle angle comes from the well-conditioned atan2 form, the first from the last
-    column, the third from the residual rotation ``(R_a1 R_a2)^T R``, so the angles
-    reproduce R to round-off even next to gimbal lock (the first angle is set to 0 at
-    exact lock). The second set is the other branch ``(t1 + pi, pi - t2, t3 + pi)``.
-    """
-    i, j, k = axes
-    s = 1.0 if _is_cyclic(i, j, k) else -1.0
-    cb = np.hypot(R[:, i, i], R[:, i, j])
-    beta = np.arctan2(s * R[:, i, k], cb)
-    alpha = np.where(cb < 1e-12, 0.0, np.arctan2(-s * R[:, j, k], R[:, k, k]))
-    M = np.swapaxes(axis_rotation(i, alpha) @ axis_rotation(j, beta), 1, 2) @ R
-    k1, k2 = (k + 1) % 3, (k + 2) % 3
-    gamma = np.arctan2(M[:, k2, k1], M[:, k1, k1])
-    e1 = np.stack([alpha, beta, gamma], axis=1)
-    e2 = np.stack([alpha + np.pi, np.pi - beta, gamma + np.pi], axis=1)
-    return e1, e2
-
-
 def rotate_left_t(R: np.ndarray, axis: int, ang: np.ndarray) -> np.ndarray:
     """``R_axis(ang) @ R`` for R (3, 3, T) in place (only two rows change). Returns R."""
     c, s = np.cos(ang), np.sin(ang)
@@ -128,7 +108,14 @@ def rotate_left_t(R: np.ndarray, axis: int, ang: np.ndarray) -> np.ndarray:
 
 
 def euler_from_matrix_t(R: np.ndarray, axes) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`euler_from_matrix` for R in the (3, 3, T) layout (same formulas, no 3x3 stacks)."""
+    """Both angle sets (T, 3) radians with ``R = R_a1 R_a2 R_a3`` for three distinct axes,
+    R in the (3, 3, T) layout.
+
+    The middle angle comes from the well-conditioned atan2 form, the first from the last
+    column, the third from the residual rotation ``(R_a1 R_a2)^T R``, so the angles
+    reproduce R to round-off even next to gimbal lock (the first angle is set to 0 at
+    exact lock). The second set is the other branch ``(t1 + pi, pi - t2, t3 + pi)``.
+    """
     i, j, k = axes
     s = 1.0 if _is_cyclic(i, j, k) else -1.0
     cb = np.hypot(R[i, i], R[i, j])
