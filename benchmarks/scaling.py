@@ -151,7 +151,50 @@ def child(label: str, frames: int) -> dict:
     conv = (getattr(den, "last_report_", None) or {}).get("convergence")   # of the last run
     if isinstance(conv, dict) and "iterations" in conv:
         row["iterations"] = conv["iterations"]
+    if _method_name(label) in ("rpca", "slra"):
+        row.update(_ialm_counts(den, motion))
     return row
+
+
+def _method_name(label: str) -> str:
+    return VARIANTS.get(label.split("@")[0], (label.split("@")[0], {}))[0]
+
+
+def _ialm_counts(den, motion) -> dict:
+    """One more, untimed ``denoise()`` that counts per IALM matrix (segment) the iterations
+    and those done by the spectral first phase (``lowrank._ialm_spectral_phase``, no
+    ``eigh``): their means over the matrices, for :func:`flop_model`."""
+    from mocapkit.solvers import lowrank
+
+    its, phase = [], []
+    batch, spectral = lowrank._ialm_batch, getattr(lowrank, "_ialm_spectral_phase", None)
+
+    def count_batch(*a, **k):
+        out = batch(*a, **k)
+        its.append(np.asarray(out[2]))
+        return out
+
+    def count_phase(*a, **k):
+        out = spectral(*a, **k)
+        phase.append(np.asarray(out[0]))
+        return out
+
+    lowrank._ialm_batch = count_batch
+    if spectral is not None:
+        lowrank._ialm_spectral_phase = count_phase
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            den.denoise(motion)
+    finally:
+        lowrank._ialm_batch = batch
+        if spectral is not None:
+            lowrank._ialm_spectral_phase = spectral
+    n = sum(len(i) for i in its)
+    if not n:
+        return {}
+    return {"iterations_mean": float(sum(i.sum() for i in its) / n),
+            "spectral_iterations_mean": float(sum(p.sum() for p in phase) / n)}
 
 
 def dgemm_rate() -> float:
@@ -170,11 +213,20 @@ def dgemm_rate() -> float:
     return 10 * 32 * 2 * 200 * 93 * 93 / best
 
 
-def flop_model(label: str, frames: int, iterations: float, n: int = 93) -> float | None:
+def flop_model(label: str, frames: int, iterations: float, n: int = 93,
+               spectral: float | None = None) -> float | None:
     """FLOPs of the IALM of rpca / slra: per iteration and segment (L x n, k = min(L, n))
     ``2 L n k`` (Gram) + ``2 L n k`` (product with the shrinkage matrix) + ``2 k^3``
     (V f V^T) + ``4.7 k^3`` (eigh, LAPACK syevd with vectors, counted as issue 21 does);
-    times segments x mean iterations.  Elementwise passes are not counted."""
+    times segments x mean iterations.  Elementwise passes are not counted.  With
+    ``spectral`` (mean iterations per segment done by the spectral first phase of
+    mocapkit.solvers.lowrank, measured in an untimed run) those iterations cost
+    ``2 L n min(k, 32)`` each (the rank-<=32 product that forms R; an upper bound) instead,
+    plus once per segment the phase's basis: ``2 L n k + 4.7 k^3`` (Gram and eigh of D)
+    and ``2 L n min(k, 32)`` (the other side's vectors); without it (rows measured before
+    the phase existed, or the "pre-phase model" column) every iteration is a full one.
+    The iteration mean is the measured mean over segments where the row has it, else the
+    convergence report's (the worst segment's) count."""
     from mocapkit.solvers.lowrank import segment_layout
 
     name, params = VARIANTS.get(label.split("@")[0], (label.split("@")[0], {}))
@@ -186,7 +238,12 @@ def flop_model(label: str, frames: int, iterations: float, n: int = 93) -> float
     else:
         return None
     k = min(L, n)
-    return p * iterations * (4 * L * n * k + 6.7 * k ** 3)
+    full = 4 * L * n * k + 6.7 * k ** 3
+    if not spectral:
+        return p * iterations * full
+    kt = min(k, 32)
+    basis = 2 * L * n * k + 4.7 * k ** 3 + 2 * L * n * kt
+    return p * ((iterations - spectral) * full + spectral * 2 * L * n * kt + basis)
 
 
 def _run_child(label: str, frames: int, timeout: float) -> dict:
@@ -254,26 +311,31 @@ def to_markdown(rows: list[dict], rate: float, meta: dict) -> str:
              "almost nothing.  A size is skipped when the previous one predicts more than the "
              "time budget per run or more than 4 GB.", "",
              "| method | frames | frames/s | peak RSS MB | growth / input | iterations | "
-             "ideal frames/s (FLOP model) | measured / ideal |",
-             "|---|---:|---:|---:|---:|---:|---:|---:|"]
+             "ideal frames/s (FLOP model) | measured / ideal | measured / ideal (pre-phase model) |",
+             "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for r in rows:
         if "error" in r or "skipped" in r:
             why = r.get("error", r.get("skipped"))
             lines.append(f"| {r['method']} | {r['frames']:,} | -- | -- | -- | -- | -- | "
-                         f"{'skipped: ' + why if 'skipped' in r else 'failed: ' + why[:80]} |")
+                         f"{'skipped: ' + why if 'skipped' in r else 'failed: ' + why[:80]} | |")
             continue
-        it = r.get("iterations")
+        it = r.get("iterations_mean", r.get("iterations"))
         it_mean = float(np.mean(it)) if it is not None else None
-        fl = (flop_model(r["method"], r["frames"], it_mean, r.get("coords", 93))
+        ph = r.get("spectral_iterations_mean")
+        fl = (flop_model(r["method"], r["frames"], it_mean, r.get("coords", 93), ph)
               if it_mean is not None else None)
+        fl0 = (flop_model(r["method"], r["frames"], it_mean, r.get("coords", 93))
+               if it_mean is not None and ph is not None else None)
         ideal = r["frames"] / (fl / rate) if fl else None
+        ideal0 = r["frames"] / (fl0 / rate) if fl0 else None
         lines.append(
             f"| {r['method']}{' (quick fit)' if r.get('trained') else ''}"
             f"{_c3d_note(r)} | {r['frames']:,} | "
             f"{_fmt(r['frames_per_s'])} | {r['peak_rss_mb']:.0f} | {r['growth_over_input']:.1f}x | "
             f"{'' if it_mean is None else format(it_mean, '.1f')} | "
             f"{'' if ideal is None else _fmt(ideal)} | "
-            f"{'' if ideal is None else format(r['frames_per_s'] / ideal, '.2f')} |")
+            f"{'' if ideal is None else format(r['frames_per_s'] / ideal, '.2f')} | "
+            f"{'' if ideal0 is None else format(r['frames_per_s'] / ideal0, '.2f')} |")
     ran = {r["method"] for r in rows}
     heavy = sorted(SKIP_HEAVY - ran)
     other = sorted(set(available()) - ran - SKIP_HEAVY)

@@ -31,8 +31,20 @@ Schur-complement inertia test, a Davis-Kahan bound on the shrinkage error) match
 eigh route to ~1e-10 relative with the same iterations but certified only 16 % (paper
 settings) / 22 % (24-frame overlap) of the shrinkages and measured +4-13 % frames/s at
 10k frames; with ``eigh`` at 63-67 % of the time even a free ``eigh`` would leave ~20k
-frames/s, so it was not kept either.  LAPACK's 93 x 93 ``eigh``
-(0.7-0.9 ms) remains the floor of an exact SVT at ~5-7k frames/s.
+frames/s, so it was not kept either.  A third look (issue 21 item 1, 2026-12-03) measured why:
+at the paper's tol 1e-7 the shrinkage rank of a 200 x 93 CMU segment is 1-14 in iterations
+1-15 but 27-59 (median 53-59) in the 22 iterations after, where 1/mu lies inside the
+continuous noise spectrum. A subspace there has to hold 60-70 of 93 directions, and its Ritz
+vectors next to 1/mu must be exact to ~1e-10 relative, because a Ritz residual rho moves D_tau
+by about rho / sigma however small the gap.  That is no cheaper than ``eigh``, and those 22
+``eigh`` calls alone cap slra at ~13k frames/s.  For 24-frame segments the cost of the 24 x 24
+``eigh`` (47-60 us, ~2.5 GFLOP/s) is LAPACK's per-call overhead, not FLOPs or Python: no
+batched numpy route is faster.  What was kept is exact: :func:`_ialm_spectral_phase`.  While E
+is still 0 (the first 3-12 iterations), the iterates stay in D's singular basis, and those
+iterations need one ``eigh`` of D's Gram matrix and no ``eigh`` per iteration (measured: +13-17 %
+frames/s at paper settings, +25-29 % for 24-frame segments with 12 frames of overlap; same
+iterations; same results to round-off).  LAPACK's 93 x 93 ``eigh`` (0.6-0.9 ms) remains the floor of
+the later iterations.
 
 References
 ----------
@@ -497,16 +509,164 @@ def _shrink_into(M: np.ndarray, tau: np.ndarray, out: np.ndarray, gram: bool) ->
     return rank
 
 
-def _ialm_start(D: np.ndarray, lam: np.ndarray) -> tuple[np.ndarray, ...]:
-    """Lin et al.'s start per matrix: ||D||_F, Y_0, mu_0, mu_bar (Alg. 5, step 1)."""
+def _ialm_start(D: np.ndarray, lam: np.ndarray, basis: bool = False) -> tuple[np.ndarray, ...]:
+    """Lin et al.'s start per matrix: ||D||_F, Y_0, mu_0, mu_bar (Alg. 5, step 1).
+
+    ``basis=True`` also returns the eigen-decomposition ``(w, V)`` of each matrix's small
+    Gram matrix (ascending, as :func:`_small_eigh`), from which ||D||_2 is then taken,
+    for :func:`_ialm_spectral_phase`."""
     normF = np.sqrt(np.einsum("ijk,ijk->i", D, D))
-    norm2 = _spectral_norm(D)
+    if basis:
+        m, n = D.shape[-2:]
+        Dt = np.swapaxes(D, -1, -2)
+        w, V = _linalg.eigh(Dt @ D if m >= n else D @ Dt, what="singular value shrinkage")
+        norm2 = np.sqrt(np.clip(w[:, -1], 0.0, None))
+    else:
+        norm2 = _spectral_norm(D)
     safe2 = np.where(norm2 > 0, norm2, 1.0)
     lam_s = lam if lam.ndim == 1 else lam.min(axis=(1, 2))      # per-entry weights allowed
     norm_inf = np.maximum(D.max(axis=(1, 2)), -D.min(axis=(1, 2))) / lam_s   # no |D| copy
     Y = D / np.maximum(safe2, norm_inf)[:, None, None]
     mu = 1.25 / safe2
+    if basis:
+        return normF, Y, mu, mu * 1e7, (w, V, 1.0 / np.maximum(safe2, norm_inf))
     return normF, Y, mu, mu * 1e7
+
+
+SPECTRAL_K = 32
+"""Leading singular pairs of D tracked by :func:`_ialm_spectral_phase` (the phase ends
+for a matrix before one beyond them could pass the threshold)."""
+
+
+def _spectral_exit_step(D, Y, E, idx, R, thr, a, Lk, Rt, cc, z, mu, bar, rho, normF, tol,
+                        its, crit) -> None:
+    """The iteration in which E first becomes non-zero, for the matrices ``idx`` of
+    :func:`_ialm_spectral_phase` (R = M - A already formed there): the full route's
+    steps from the same M and A -- A = U diag(a) V^T made explicit, E = soft(R) (eqs.
+    5-6), Z = D - A - E, ``Y_{k+1} = Y_k + mu Z`` -- written into Y and E; the matrices
+    then continue in :func:`_ialm_chunk`.  A matrix whose residual ``||Z|| / ||D||``
+    would already be below ``tol`` is left as it was (the full route redoes the step and
+    stops there)."""
+    kk = int(np.flatnonzero((a != 0.0).any(axis=0))[-1]) + 1 if a.any() else 0
+    A = (Lk[idx, :, :kk] * a[:, None, :kk]) @ Rt[idx, :kk] if kk else np.zeros_like(R)
+    En = np.clip(R, -thr, thr)                                # soft threshold of R
+    np.subtract(R, En, out=En)
+    Z = D[idx] - A
+    Z -= En
+    cr = np.sqrt(np.einsum("ijk,ijk->i", Z, Z)) / normF[idx]
+    go = cr >= tol
+    if not go.any():
+        return
+    g_idx, mus = idx[go], mu[idx[go]]
+    Y[g_idx] = (D[g_idx] * cc[g_idx, None, None] + (Lk[g_idx] * z[g_idx, None, :]) @ Rt[g_idx]
+                + Z[go] * mus[:, None, None])
+    E[g_idx] = En[go]
+    mu[g_idx] = np.minimum(mus * rho, bar[g_idx])
+    its[g_idx] += 1
+    crit[g_idx] = cr[go]
+    cc[g_idx] = np.nan                                        # Y is final: not rebuilt
+
+
+def _ialm_spectral_phase(D: np.ndarray, Y: np.ndarray, E: np.ndarray, w: np.ndarray,
+                         V: np.ndarray, c0: np.ndarray, normF: np.ndarray, lam: np.ndarray,
+                         mu: np.ndarray, bar: np.ndarray, rho: float, tol: float,
+                         max_iter: int) -> tuple[np.ndarray, np.ndarray]:
+    """The first IALM iterations (Lin et al. 2010, Alg. 5) in D's singular basis, while E = 0.
+
+    Complete data only (no mask).  While E stays exactly 0, every iterate shares D's
+    singular vectors: with D = sum_l s_l u_l v_l^T and Y = c D + sum_l z_l u_l v_l^T
+    (Y_0 = D / max(||D||_2, ||D||_inf / lam): c = that scale's inverse, z = 0),
+    ``M = D + Y / mu`` has singular values ``m_l = (1 + c / mu) s_l + z_l / mu``, so
+    ``A = D_{1/mu}(M) = sum_l (m_l - 1/mu)_+ u_l v_l^T`` (eq. 4) and, with E = 0,
+    ``Y += mu (D - A)`` is ``c += mu, z_l -= mu a_l``: the step is a recurrence on the
+    scalars (c, z) -- no ``eigh`` of M.  Only the K = :data:`SPECTRAL_K` leading pairs
+    carry z (the others stay inside the ``c D`` term, so their vectors are never formed).
+
+    Why it is exact: the iteration is advanced for a matrix only when it can be checked
+    that E stays 0 in it, i.e. that the soft threshold (eqs. 5-6) of ``R = M - A`` is 0:
+    R is formed explicitly (``(1 + c/mu) D + U_K diag(z/mu - a) V_K^T``, one product of
+    rank <= K) and every ``|R_ij| <= lam / mu`` is tested -- the same test the full route
+    applies entry by entry.  A matrix leaves the phase (and continues in
+    :func:`_ialm_chunk` from the same state, with the same mu) before the first iteration
+    where any entry passes the threshold (that iteration itself is still done from the
+    explicit R, see :func:`_spectral_exit_step`), where a pair beyond the K tracked ones could
+    exceed 1/mu, where some ``m_l < 0``, where ``1/mu < 1e-7 ||D||_2`` (the Gram route's
+    small singular vectors are then not accurate enough), where the residual
+    ``||D - A||_F / ||D||_F`` (from the singular values) falls below ``10 tol + 1e-6``
+    (so the convergence test is always made on explicit matrices), and before the last
+    iteration (max_iter).  The iterates are therefore the full route's, up to round-off
+    (the singular vectors come from one ``eigh`` of D's Gram matrix, as the full route's
+    come from one per iteration).  The phase ends on real mocap segments after 3-12
+    iterations (tau still above the noise floor, E not yet active).
+
+    D, Y, E : (c, m, n) (Y and E, zeros on entry, are overwritten with the state the phase
+    ends in); ``w, V`` the
+    ascending eigen-decomposition of the small Gram matrix of each D; ``c0`` (c,) the
+    scale of Y_0; ``mu`` (c,) is updated in place.  Returns the iterations done (c,) and
+    the last residual of each matrix (inf when none was done).
+    """
+    c, m, n = D.shape
+    q = min(m, n)
+    K = min(q, SPECTRAL_K)
+    lam2 = np.clip(w[:, ::-1], 0.0, None)                  # descending eigenvalues
+    s = np.sqrt(lam2[:, :K])
+    tail = np.sqrt(lam2[:, K]) if K < q else np.zeros(c)   # largest untracked value
+    tail2 = lam2[:, K:].sum(axis=1)                          # ||D||_F^2 of the untracked pairs
+    smax = np.sqrt(lam2[:, 0])
+    Vk = V[..., ::-1][..., :K]
+    inv_s = np.where(s > 0, 1.0 / np.where(s > 0, s, 1.0), 0.0)
+    if m >= n:                                                # V: right singular vectors
+        Rt = np.swapaxes(Vk, -1, -2)                          # (c, K, n)
+        Lk = (D @ Vk) * inv_s[:, None, :]                     # (c, m, K)
+    else:                                                     # V: left singular vectors
+        Lk = Vk
+        Rt = (np.swapaxes(Vk, -1, -2) @ D) * inv_s[:, :, None]
+    cc, z = c0.copy(), np.zeros((c, K))
+    its, crit = np.zeros(c, dtype=int), np.full(c, np.inf)
+    act = np.arange(c)
+    for _ in range(1, max_iter):                              # the last one: full route
+        if act.size == 0:
+            break
+        tau = 1.0 / mu[act]
+        g = 1.0 + cc[act] * tau
+        sa = s[act]
+        mval = g[:, None] * sa + z[act] * tau[:, None]       # singular values of M
+        a = np.clip(mval - tau[:, None], 0.0, None)          # of A (eq. 4)
+        cr = np.sqrt(np.einsum("ij,ij->i", sa - a, sa - a) + tail2[act]) / normF[act]
+        ok = ((g * tail[act] <= tau) & (mval.min(axis=1) >= 0.0) & (tau > 1e-7 * smax[act])
+              & (cr > 10.0 * tol + 1e-6))
+        idx = act[ok]
+        if idx.size == 0:
+            break
+        tau, g, a, cr = tau[ok], g[ok], a[ok], cr[ok]
+        wv = z[idx] * tau[:, None] - a                        # R = g D + U diag(wv) V^T
+        nz = np.flatnonzero((wv != 0.0).any(axis=0))
+        R = D[idx] * g[:, None, None]
+        if nz.size:
+            kk = int(nz[-1]) + 1
+            R += (Lk[idx, :, :kk] * wv[:, None, :kk]) @ Rt[idx, :kk]
+        lt = lam[idx]
+        thr = (lt[:, None, None] if lt.ndim == 1 else lt) * tau[:, None, None]
+        if lt.ndim == 1:
+            fits = (R.max(axis=(1, 2)) <= thr[:, 0, 0]) & (-R.min(axis=(1, 2)) <= thr[:, 0, 0])
+        else:
+            fits = (np.abs(R) <= thr).all(axis=(1, 2))
+        if not fits.all():                  # the phase's last step: E becomes non-zero
+            out = ~fits
+            _spectral_exit_step(D, Y, E, idx[out], R[out], thr[out], a[out], Lk, Rt, cc, z,
+                                mu, bar, rho, normF, tol, its, crit)
+        step = idx[fits]
+        mus = mu[step]
+        cc[step] += mus
+        z[step] -= mus[:, None] * a[fits]
+        its[step] += 1
+        crit[step] = cr[fits]
+        mu[step] = np.minimum(mus * rho, bar[step])
+        act = step
+    done = np.flatnonzero((its > 0) & ~np.isnan(cc))
+    if done.size:
+        Y[done] = D[done] * cc[done, None, None] + (Lk[done] * z[done, None, :]) @ Rt[done]
+    return its, crit
 
 
 def _ialm_chunk(D: np.ndarray, mask: np.ndarray | None, lam: np.ndarray, tol: float,
@@ -518,8 +678,13 @@ def _ialm_chunk(D: np.ndarray, mask: np.ndarray | None, lam: np.ndarray, tol: fl
     Five working arrays of the chunk's size (D, E, Y, M, A_new), all updated in place; a
     matrix leaves the working set (and is written out) in the iteration where it meets
     ``tol`` -- each matrix stops at its own tolerance, exactly as if solved alone.
+    Complete data (no mask) on the Gram route starts with :func:`_ialm_spectral_phase`
+    (the iterations while E = 0, without an ``eigh`` per iteration); each matrix then
+    continues here from its own iteration count.
     """
-    normF, Y, mu, bar = _ialm_start(D, lam)
+    spectral = mask is None and gram and max_iter > 1
+    start = _ialm_start(D, lam, basis=spectral)
+    normF, Y, mu, bar = start[:4]
     run = np.flatnonzero(normF > 0)
     A_out[normF == 0] = 0.0
     if E_out is not None:
@@ -540,9 +705,12 @@ def _ialm_chunk(D: np.ndarray, mask: np.ndarray | None, lam: np.ndarray, tol: fl
     else:
         E = np.zeros_like(Dw)
     Mbuf = np.empty_like(Dw)
-    for it in range(1, max_iter + 1):
-        if run.size == 0:
-            break
+    if spectral and run.size:                              # first iterations, E = 0
+        w, V, c0 = start[4]
+        its, crs = _ialm_spectral_phase(Dw, Yw, E, w[run], V[run], c0[run], nF, lam_w, mu,
+                                        bar, rho, tol, max_iter)
+        iters[run], crit[run] = its, crs
+    while run.size and max_iter >= 1:
         c = run.size
         M, An = Mbuf[:c], Abuf[:c]
         inv_mu = 1.0 / mu
@@ -567,8 +735,7 @@ def _ialm_chunk(D: np.ndarray, mask: np.ndarray | None, lam: np.ndarray, tol: fl
         crit[run] = cr
         done = cr < tol
         conv[run[done]] = True
-        if it == max_iter:
-            done[:] = True
+        done |= iters[run] >= max_iter
         if done.any():
             if not one:                                    # else An already is A_out
                 A_out[run[done]] = An[done]
