@@ -30,7 +30,7 @@ from .gaps import find_gaps
 from .motion import Motion
 from .solvers.gcv_spline import GCVInfo, gcv_smooth
 
-__all__ = ["Diagnosis", "diagnose", "robust_fit", "SPIKE_RATE"]
+__all__ = ["Diagnosis", "diagnose", "diagnosis_of", "robust_fit", "SPIKE_RATE"]
 
 #: spike rate above which a clip is called spiky (and auto removes outliers). Under 1 cm
 #: Gaussian noise alone the test flagged <= 0.3 % of samples on 4 CMU clips at 30/120 fps;
@@ -108,15 +108,22 @@ def diagnose(motion: Motion, fit: tuple | None = None) -> Diagnosis:
     if not isinstance(motion, Motion):
         from .errors import MocapValueError
         raise MocapValueError(f"diagnose: expected a Motion, got {type(motion).__name__}")
-    T, J = motion.observed.shape
-    obs = motion.observed
-    usable = obs.any(axis=0)
-    if T >= 8 and usable.any():
+    if motion.n_frames >= 8 and motion.observed.any():
         _, info, _ = fit if fit is not None else robust_fit(motion)
         noise = float(np.median(info.sigma))
         n_spk = int(info.rejected[:, ::3].sum())
     else:
         noise, n_spk = float("nan"), 0
+    return diagnosis_of(motion, noise, n_spk)
+
+
+def diagnosis_of(motion: Motion, noise_cm: float, n_spikes: int) -> Diagnosis:
+    """The :class:`Diagnosis` of ``motion`` given its noise level (cm) and spike count
+    (points' samples); the gap statistics are measured here."""
+    T, J = motion.observed.shape
+    obs = motion.observed
+    usable = obs.any(axis=0)
+    noise, n_spk = float(noise_cm), int(n_spikes)
     gaps = [g for g in find_gaps(obs) if g.kind != "never"]
     lengths = np.array([g.length for g in gaps], dtype=int)
     bins = {}

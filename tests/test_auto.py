@@ -285,3 +285,65 @@ def test_auto_spikes_in_fast_motion_by_rigid_partners(clip):
     spikes = np.linalg.norm(noisy.positions - m.positions, axis=-1) > 1e-9
     kept = np.linalg.norm(out.positions - noisy.positions, axis=-1) < 1e-9
     assert not (spikes & kept).any()                 # every spike replaced
+
+
+def _long(clip):
+    """The clip forward, backward and forward again: a continuous 1,407-frame motion."""
+    from mocapkit.motion import Motion
+    P = clip.positions
+    return Motion(np.concatenate([P, P[::-1], P]), clip.skeleton, clip.fps)
+
+
+def test_auto_in_pieces_is_seamless(clip, monkeypatch):
+    """A long clip is cleaned in cross-faded pieces (memory O(piece)): every piece is as
+    good as that piece cleaned alone, next to the cuts too, and the report covers the
+    whole clip. (Against the whole-clip route: docs/results/auto.md, a 20,808-frame clip.
+    Not here: this test clip repeats one motion, which the whole clip's MSSA exploits.)"""
+    from mocapkit.denoise import auto as auto_mod
+    truth = _long(clip)
+    noisy = _noisy(truth, [("gaussian", {"sigma_cm": 1.0}), ("outliers", {"ratio": 0.02, "magnitude_cm": 15.0})])
+    monkeypatch.setattr(auto_mod, "PIECE_FRAMES", 400)
+    parts = get("auto").denoise(noisy)
+    src = parts.source["auto"]
+    spans = [p["frames"] for p in src["pieces"]]
+    assert len(spans) == 4 and spans[0][0] == 0 and spans[-1][1] == truth.n_frames
+    assert all(a[1] == b[0] for a, b in zip(spans, spans[1:]))           # contiguous, no frame twice
+    assert src["chain"][0] == "spike removal" and src["rejected"] > 0
+    assert src["diagnosis"]["n_frames"] == truth.n_frames and src["estimated_rmse_cm"] > 0
+    ov = 50                                                              # 2 s, at most piece / 8
+    for lo, hi in spans:
+        a, b = max(0, lo - ov), min(truth.n_frames, hi + ov)
+        alone = get("auto").denoise(noisy.slice(a, b)).positions[lo - a:hi - a]
+        e_alone = np.sqrt(np.mean((alone - truth.positions[lo:hi]) ** 2))
+        e_piece = np.sqrt(np.mean((parts.positions[lo:hi] - truth.positions[lo:hi]) ** 2))
+        assert e_piece < 1.02 * e_alone, (lo, hi, e_piece, e_alone)
+    near = np.zeros(truth.n_frames, bool)
+    for a, _ in spans[1:]:
+        near[a - ov:a + ov] = True
+    e_near, e_far = (np.sqrt(np.mean((parts.positions[w] - truth.positions[w]) ** 2)) for w in (near, ~near))
+    assert e_near < 1.15 * e_far, (e_near, e_far)
+
+
+def test_auto_pieces_cross_fade_to_one(clip, monkeypatch):
+    """Samples kept as measured come back exactly, across the cuts: the cross-fade weights
+    of two pieces sum to one on every frame."""
+    from mocapkit.denoise import auto as auto_mod
+    truth = _long(clip)
+    monkeypatch.setattr(auto_mod, "PIECE_FRAMES", 400)
+    out = get("auto").denoise(truth)
+    src = out.source["auto"]
+    assert len(src["pieces"]) == 4 and src["chain"] == [] and src["rejected"] == 0
+    np.testing.assert_allclose(out.positions, truth.positions, rtol=0, atol=1e-9)
+
+
+def test_piece_cuts_move_off_gaps():
+    """A cut moves (by at most an eighth of a piece) to where nothing is missing within
+    the overlap, and stays put on complete data."""
+    from mocapkit.denoise.auto import _piece_cuts
+    obs = np.ones((4000, 5), bool)
+    assert _piece_cuts(obs, 1000, 50) == [1000, 2000, 3000]
+    obs[950:1080, 2] = False                     # a gap across the first nominal cut
+    cuts = _piece_cuts(obs, 1000, 50)
+    assert cuts[1:] == [2000, 3000] and abs(cuts[0] - 1000) <= 125
+    assert obs[cuts[0] - 50:cuts[0] + 50].all()
+    assert cuts[0] == 900                         # the nearest such frame (1130 on the other side)

@@ -42,7 +42,7 @@ import numpy as np
 
 from ..errors import MocapValueError
 
-__all__ = ["mssa_denoise", "shrink", "sure"]
+__all__ = ["mssa_denoise", "shrink", "sure", "sure_divergence", "sure_risk"]
 
 
 def shrink(y: np.ndarray, beta: float) -> np.ndarray:
@@ -135,10 +135,21 @@ def sure(f: Callable[[np.ndarray], np.ndarray], Y: np.ndarray, sigma: float, *,
     estimate of the mean squared error per entry against the noise-free signal, over the
     entries in ``mask`` (default all). ``fy``: f(Y) if already computed."""
     Y = np.asarray(Y, dtype=float)
-    M = np.ones(Y.shape, bool) if mask is None else np.asarray(mask, bool)
-    N = int(M.sum())
-    if N == 0 or not (sigma > 0):
+    if not (sigma > 0) or (mask is not None and not np.any(mask)):
         return float("nan")
+    f0 = f(Y) if fy is None else fy
+    return sure_risk(Y, f0, sigma, sure_divergence(f, Y, sigma, mask=mask, eps=eps, rng=rng, fy=f0), mask=mask)
+
+
+def sure_divergence(f: Callable[[np.ndarray], np.ndarray], Y: np.ndarray, sigma: float, *,
+                    mask: np.ndarray | None = None, eps: float | None = None, rng=0,
+                    fy: np.ndarray | None = None) -> float:
+    """The Monte-Carlo divergence ``b^T (f(Y + e b) - f(Y)) / e`` of :func:`sure` (one
+    random +-1 probe b on the entries in ``mask``, e = 0.01 sigma unless given). Linear in
+    f for a fixed probe: the divergence of a mean of denoisers is the mean of theirs, so
+    :func:`sure_risk` scores such a mean without running it (same ``rng``)."""
+    Y = np.asarray(Y, dtype=float)
+    M = np.ones(Y.shape, bool) if mask is None else np.asarray(mask, bool)
     g = np.random.default_rng(rng)
     b = np.where(g.random(Y.shape) < 0.5, -1.0, 1.0)
     b *= M
@@ -152,8 +163,24 @@ def sure(f: Callable[[np.ndarray], np.ndarray], Y: np.ndarray, sigma: float, *,
     del Yp
     fp -= f0
     fp *= b
-    div = float(np.sum(fp)) / e
-    np.subtract(Y, f0, out=fp)
-    fp *= fp
-    rss = float(np.sum(fp)) if N == fp.size else float(np.sum(fp[M]))
+    return float(np.sum(fp)) / e
+
+
+def sure_risk(Y: np.ndarray, fy: np.ndarray, sigma: float, div: float, *,
+              mask: np.ndarray | None = None) -> float:
+    """``||Y - f(Y)||^2 / N - sigma^2 + 2 sigma^2 div / N`` over the N entries in ``mask``
+    (:func:`sure` with its divergence given), summed in frame blocks (no temporaries of
+    Y's size)."""
+    from ..windows import frame_blocks
+
+    Y = np.asarray(Y, dtype=float)
+    M = None if mask is None else np.asarray(mask, bool)
+    N = Y.size if M is None else int(M.sum())
+    if N == 0 or not (sigma > 0):
+        return float("nan")
+    rss = 0.0
+    for sl in frame_blocks(Y.shape[0]):
+        r = Y[sl] - fy[sl]
+        r *= r
+        rss += float(r.sum()) if M is None else float(r[M[sl]].sum())
     return rss / N - sigma ** 2 + 2 * sigma ** 2 * div / N
