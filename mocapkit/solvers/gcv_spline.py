@@ -54,6 +54,7 @@ from scipy.linalg import solve_banded, solveh_banded
 from scipy.stats import chi2
 
 from ..errors import MocapValueError
+from ..gaps import _runs
 from ..signal._arrays import channel_blocks
 from ..windows import frame_blocks
 
@@ -288,15 +289,6 @@ def _trace(T: int, s: np.ndarray, order: int) -> np.ndarray:
     for sl in channel_blocks(s.shape[0]):
         tr[sl] = (1.0 / (1.0 + lam * s[None, sl])).sum(axis=0)
     return tr
-
-
-def _runs(H: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(column, start, stop) of every run of True in the columns of H (T, P)."""
-    T, P = H.shape
-    pad = np.zeros((1, P), dtype=np.int8)
-    d = np.diff(np.vstack([pad, H.astype(np.int8), pad]), axis=0).T          # (P, T+1)
-    j, s = np.nonzero(d == 1)
-    return j, s, np.nonzero(d == -1)[1]
 
 
 def _paint(T: int, P: int, j: np.ndarray, a: np.ndarray, b: np.ndarray, val: np.ndarray) -> np.ndarray:
