@@ -90,7 +90,7 @@ def make_clip(frames: int, seed: int = 0):
 def _method(label: str):
     from mocapkit import denoise
 
-    name, params = VARIANTS.get(label.split("@")[0], (label.split("@")[0], {}))
+    name, params = _variant(label)
     cls = denoise.available()[name]
     if cls.needs_training:
         params = {**cls.quick_params(), **params}
@@ -151,13 +151,15 @@ def child(label: str, frames: int) -> dict:
     conv = (getattr(den, "last_report_", None) or {}).get("convergence")   # of the last run
     if isinstance(conv, dict) and "iterations" in conv:
         row["iterations"] = conv["iterations"]
-    if _method_name(label) in ("rpca", "slra"):
+    if _variant(label)[0] in ("rpca", "slra"):
         row.update(_ialm_counts(den, motion))
     return row
 
 
-def _method_name(label: str) -> str:
-    return VARIANTS.get(label.split("@")[0], (label.split("@")[0], {}))[0]
+def _variant(label: str) -> tuple[str, dict]:
+    """(method name, parameters) of a row label such as ``slra(seg=24,ov=12)@c3d``."""
+    base = label.split("@")[0]
+    return VARIANTS.get(base, (base, {}))
 
 
 def _ialm_counts(den, motion) -> dict:
@@ -229,7 +231,7 @@ def flop_model(label: str, frames: int, iterations: float, n: int = 93,
     convergence report's (the worst segment's) count."""
     from mocapkit.solvers.lowrank import segment_layout
 
-    name, params = VARIANTS.get(label.split("@")[0], (label.split("@")[0], {}))
+    name, params = _variant(label)
     if name == "rpca":
         L, p = frames, 1
     elif name == "slra":

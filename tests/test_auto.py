@@ -297,7 +297,7 @@ def _long(clip):
 def test_auto_in_pieces_is_seamless(clip, monkeypatch):
     """A long clip is cleaned in cross-faded pieces (memory O(piece)): every piece is as
     good as that piece cleaned alone, next to the cuts too, and the report covers the
-    whole clip. (Against the whole-clip route: docs/results/auto.md, a 20,808-frame clip.
+    whole clip. (Against the whole-clip route: docs/results/auto_pieces.md, a 20,808-frame clip.
     Not here: this test clip repeats one motion, which the whole clip's MSSA exploits.)"""
     from mocapkit.denoise import auto as auto_mod
     truth = _long(clip)

@@ -41,7 +41,7 @@ The chain, decided from the clip's own diagnosis (:mod:`mocapkit.diagnose`):
 **Long clips** (over 1.5 x :data:`PIECE_FRAMES` = 12,288 frames) are cleaned in pieces of
 ~8,192 frames, each with 2 s of its neighbours' frames each side, cross-faded over the
 overlaps; cuts move to where no sample is missing near them (:func:`_piece_cuts`). Peak
-memory then stays that of one piece (docs/results/scaling.md: 13.6x -> 2.9x the input at
+memory then stays that of one piece (docs/results/scaling.md: 13.6x -> 2.8x the input at
 100,000 frames) and every statistic is the piece's own; on a 20,808-frame clip the result
 is the whole-clip one within noise (docs/results/auto_pieces.md). The report lists the
 pieces (``source['auto']['pieces']``: frames, chain, estimate) and merges them.
@@ -98,7 +98,7 @@ import numpy as np
 from ..diagnose import SPIKE_RATE, diagnose, diagnosis_of, robust_fit, used_columns
 from ..gaps import gap_lengths
 from ..motion import Motion
-from ..solvers.gcv_spline import cutoff_hz, gcv_smooth
+from ..solvers.gcv_spline import _BISQUARE, cutoff_hz, gcv_smooth
 from ..windows import frame_blocks
 from ..solvers.mssa import mssa_denoise, sure_divergence, sure_risk
 from .base import Denoiser, get, register
@@ -389,7 +389,7 @@ def _second_look(X: np.ndarray, M: np.ndarray, cols: np.ndarray, fit: np.ndarray
         kept = Mc & ~rej
         pred = _solve_weighted(Y0, kept.astype(float), s0, 2)
         d = np.sqrt((((pred - Y0) ** 2).reshape(T, -1, 3)).sum(axis=2))
-        back = rej[:, ::3] & (d < 4.685)
+        back = rej[:, ::3] & (d < _BISQUARE)             # the spike limit's 1 cm floor
         for pc, has in slots:
             trusted = kept[:, pc] & has                     # partner measured and kept there
             if not (rej & trusted).any():
@@ -488,7 +488,8 @@ def _partner_fill(X: np.ndarray, kept: np.ndarray, fit: np.ndarray, s: np.ndarra
     # relative-fill estimate 29 cm). The choice leaves such samples out; the estimate below
     # keeps them (at 30 fps a fast hand's fill can miss by that much: leaving them out
     # there made estimates too low).
-    hj = hide[:, ::3] & (np.minimum(da, dr) <= 4.685 ** 2)
+    hp = hide[:, ::3]                                              # (T, J) hidden points
+    hj = hp & (np.minimum(da, dr) <= _BISQUARE ** 2)
     ea = (da * hj).sum(axis=0)
     er = (dr * hj).sum(axis=0)
     use = er < ea
@@ -498,9 +499,8 @@ def _partner_fill(X: np.ndarray, kept: np.ndarray, fit: np.ndarray, s: np.ndarra
     # of its hidden-sample errors. Scaling the spline's hole-by-hole estimate by the
     # validated ratio instead was measured worse (spikes + missing30, 40 cases: within
     # a factor 1.5 of the truth 68 % against 75 %).
-    nh = 3 * hide.reshape(T, J, 3)[:, :, 0].sum(axis=0)
-    er_all = (dr * hide[:, ::3]).sum(axis=0)
-    err = np.repeat(np.where(use, np.sqrt(er_all / np.maximum(nh, 1)), np.nan), 3)
+    er_all = (dr * hp).sum(axis=0)
+    err = np.repeat(np.where(use, np.sqrt(er_all / np.maximum(3 * hp.sum(axis=0), 1)), np.nan), 3)
     vals = np.where(np.repeat(use, 3)[None, :] & fill, relative(kept, fit), fit)
     return vals, err
 
@@ -602,9 +602,10 @@ def _how(smooth: bool, holes: bool, long: bool) -> str:
 
 def _piece_cuts(observed: np.ndarray, piece: int, ov: int) -> list[int]:
     """Frames where a long clip is cut into pieces of about ``piece`` frames: each cut is
-    moved (by up to an eighth of a piece, so pieces stay over ``2 ov`` frames) to where the fewest samples are missing within
-    ``ov`` frames of it, so that a gap seldom spans an overlap (a piece would see it as a
-    gap at its end, which its fills extrapolate or leave to the spline)."""
+    moved (by up to an eighth of a piece, so pieces stay over ``2 ov`` frames) to where
+    the fewest samples are missing within ``ov`` frames of it, the nearest such frame
+    first, so that a gap seldom spans an overlap (a piece would see it as a gap at its
+    end, which its fills extrapolate or leave to the spline)."""
     T = observed.shape[0]
     n = max(1, int(round(T / piece)))
     miss = np.concatenate([[0], np.cumsum((~observed).sum(axis=1))])
