@@ -5,8 +5,8 @@
 * slra with overlapping segments vs an explicit loop over segments + cross-fade blending;
 * results independent of the chunk size (CHUNK_ELEMENTS) and of whether the RTS
   backward pass recomputes the covariances block by block;
-* the in-place helpers of trnn / tsmc (DCT solve, change of a factored product) vs the
-  direct formulas; svt's in-place iteration vs the textbook iteration.
+* the in-place helpers of trnn / tsmc (DCT solve along either axis, Gram-form factor steps,
+  polar factor) vs the direct formulas; svt's in-place iteration vs the textbook iteration.
 """
 from __future__ import annotations
 
@@ -116,16 +116,56 @@ def test_svt_iteration_equals_textbook_loop():
 
 
 @pytest.mark.parametrize("method", ["dct", "banded"])
-def test_inplace_smooth_solve_and_factor_change(method):
+def test_inplace_smooth_solve(method):
     rng = np.random.default_rng(5)
     R = rng.standard_normal((50, 4))
     ref = cp.smooth_solve(R, 0.3, 7.0, method)
     np.testing.assert_allclose(cp._smooth_solve_inplace(R.copy(), 0.3, 7.0, method), ref,
                                rtol=1e-12, atol=1e-12)
-    A, B, Ap, Bp = (rng.standard_normal(s) for s in ((50, 3), (8, 3), (50, 3), (8, 3)))
-    d, nab = cp._factor_change(A, B, A.T @ A, Ap, Bp, Ap.T @ Ap)
-    assert d == pytest.approx(np.linalg.norm(A @ B.T - Ap @ Bp.T), rel=1e-10)
-    assert nab == pytest.approx(np.linalg.norm(A @ B.T), rel=1e-12)
+    # the (C, T) layout of the tsmc / trnn loops: along the last axis
+    np.testing.assert_allclose(cp._smooth_solve_inplace(np.ascontiguousarray(R.T), 0.3, 7.0, method,
+                                                        axis=-1), ref.T, rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.parametrize("d", [8, 3])                    # full width (C x C product), thin
+def test_factor_steps_equal_the_explicit_steps(monkeypatch, d):
+    """Gram-form factor steps (A never formed, W overwritten block by block) = the thesis'
+    explicit steps A = Z B (I + c B^T B)^-1, B = Z^T A (I + c A^T A)^-1 (eqs. 4.9-4.10 /
+    4.24), and P, Q = the SVD polar factors of eq. 4.26."""
+    monkeypatch.setattr(cp, "PRODUCT_BLOCK", 7)             # several blocks and a short last one
+    rng = np.random.default_rng(11)
+    T, C, r, c = 50, 8, 2, 0.7
+    Z, B = rng.standard_normal((T, C)), rng.standard_normal((C, d))
+    P = np.linalg.qr(rng.standard_normal((T, r)))[0].T
+    Q = np.linalg.qr(rng.standard_normal((C, r)))[0].T
+    A = Z @ B @ np.linalg.inv(np.eye(d) + c * B.T @ B)
+    Bn = Z.T @ A @ np.linalg.inv(np.eye(d) + c * A.T @ A)
+
+    def orth_max(N):                                        # Lemma 1: argmax tr(W N), W W^T = I
+        U, _, Vt = np.linalg.svd(N, full_matrices=False)
+        return Vt.T @ U.T
+
+    Pn = orth_max(A @ (Q @ Bn).T)
+    Qn = orth_max(Bn @ (Pn @ A).T)
+    W = np.ascontiguousarray(Z.T)
+    B1, P1, Q1 = cp._factor_steps(W, B, c, P, Q)
+    np.testing.assert_allclose(B1, Bn, rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(W, (A @ Bn.T).T, rtol=1e-10, atol=1e-10)
+    np.testing.assert_allclose(P1, Pn, atol=1e-10)
+    np.testing.assert_allclose(Q1, Qn, atol=1e-10)
+
+
+def test_polar_gram_route_and_svd_fallback():
+    rng = np.random.default_rng(12)
+    for N in (rng.standard_normal((4, 60)),                 # well conditioned: Gram route
+              np.outer([1.0, 1e-9, 0.5, 0.0], rng.standard_normal(60))):   # rank 1: SVD route
+        U, s, Vt = np.linalg.svd(N, full_matrices=False)
+        W = cp._polar(N)
+        np.testing.assert_allclose(W @ W.T, np.eye(4), atol=1e-10)
+        # the maximiser of tr(W N^T): its value is the nuclear norm
+        assert np.trace(W @ N.T) == pytest.approx(s.sum(), rel=1e-10)
+        if s[-1] > 1e-6 * s[0]:
+            np.testing.assert_allclose(W, U @ Vt, atol=1e-10)
 
 
 @pytest.mark.parametrize("gate", [None, 3.0])

@@ -237,14 +237,23 @@ def tsmc(X: Any, mask: Any = None, *, rank: int | str | None = None, alpha: floa
         Y = np.zeros((T, C))
         info = SolveInfo(0, True, 0.0, ALM_CRITERION, {"rank": k, "E": np.zeros((T, C))})
         return (Y, info) if return_info else Y
-    U, V, E, it, converged, crit = _tsmc_loop(
-        X, ~m, V, _alm_multipliers(X, alpha), (float(alpha), float(beta)),
+    Xt, obs = _transposed(X, m)
+    del X
+    UVt, V, Et, it, converged, crit = _tsmc_loop(
+        Xt, obs, V, _alm_multipliers(Xt, alpha), (float(alpha), float(beta)),
         (float(lam1), float(lam2), float(gamma), float(lam_max)), float(tol), int(max_iter), mstep)
-    info = SolveInfo(it, converged, float(crit), ALM_CRITERION, {"rank": k, "E": E})
+    del Xt
+    info = SolveInfo(it, converged, float(crit), ALM_CRITERION, {"rank": k, "E": Et.T})
     if not converged:
         warn_not_converged("tsmc", info, tol, max_iter, stacklevel=2)
-    Y = U @ V.T
+    Y = np.ascontiguousarray(UVt.T)
     return (Y, info) if return_info else Y
+
+
+def _transposed(X: np.ndarray, m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(X^T, mask^T), C-contiguous: the (C, T) layout the tsmc / trnn loops work in, so
+    that the DCT of their M-step runs along contiguous rows (:func:`_smooth_solve_inplace`)."""
+    return np.ascontiguousarray(X.T), np.ascontiguousarray(m.T)
 
 
 def _alm_multipliers(D: np.ndarray, weight: float) -> tuple[np.ndarray, np.ndarray]:
@@ -271,70 +280,65 @@ def _tsmc_rank(X: np.ndarray, m: np.ndarray, rank, rank_threshold: float) -> int
     return min(k, C, T)
 
 
-def _tsmc_loop(X: np.ndarray, miss: np.ndarray, V: np.ndarray, mults: tuple, weights: tuple,
+def _tsmc_loop(Xt: np.ndarray, obs: np.ndarray, V: np.ndarray, mults: tuple, weights: tuple,
                lams: tuple, tol: float, max_iter: int, mstep: str):
-    """Algorithm 2 iterations of :func:`tsmc`, in place on six (T, C) arrays.
+    """Algorithm 2 iterations of :func:`tsmc`, in place, on the transposed (C, T) layout.
 
-    X, E, M, Y1, Y2 and one scratch W (Z, then U V^T, then R1); as in :func:`_trnn_loop`
-    the change of U V^T comes from k x k Gram matrices and ``Y2 += l2 (X - UV - E)`` is
-    folded into the E-step (``Y2_new = l2 clip(Ze, +-alpha/l2)`` on Omega, 0 off it).
+    Xt (the data), E, M, Y1, Y2 and two work arrays: W (Z, then U V^T in place,
+    :func:`_factor_steps`) and Wp (the previous U V^T, then scratch); U is never formed.
+    ``Y2 += l2 (X - UV - E)`` is folded into the E-step (``Y2_new = l2 clip(Ze,
+    +-alpha/l2)`` on Omega, 0 off it; :func:`_sparse_step`).  Returns (U V^T)^T (C, T), V,
+    E (C, T) and the iteration count, convergence flag and last criterion.
     """
     Y1, Y2 = mults
     alpha, beta = weights
     l1, l2, gamma, lam_max = lams
-    T, C = X.shape
-    k = V.shape[1]
-    Ik = np.eye(k)
-    nx = float(np.linalg.norm(X))
-    E, M, W = np.zeros((T, C)), np.zeros((T, C)), np.empty((T, C))
-    U = U_prev = np.zeros((T, k))
-    V_prev, UtU_prev = np.zeros_like(V), np.zeros((k, k))
+    nx = float(np.linalg.norm(Xt))
+    E, M, W, Wp = np.zeros(Xt.shape), np.zeros(Xt.shape), np.empty(Xt.shape), np.zeros(Xt.shape)
     crit, it, converged = np.inf, 0, False
     for it in range(1, max_iter + 1):
-        np.subtract(X, E, out=W)                           # Z = Y1 + Y2 + l1 M + l2 (X - E)
+        np.subtract(Xt, E, out=W)                          # Z = Y1 + Y2 + l1 M + l2 (X - E)
         W *= l2
         W += Y1
         W += Y2
         M *= l1
         W += M
-        U = (W @ V) @ np.linalg.inv(Ik + (l1 + l2) * (V.T @ V))             # eq. 4.9
-        UtU = U.T @ U
-        V = (W.T @ U) @ np.linalg.inv(Ik + (l1 + l2) * UtU)                 # eq. 4.10
-        np.matmul(U, V.T, out=W)                           # W = UV
-        nr2 = _sparse_step(X, W, Y2, M, E, l2, alpha / l2, miss)              # eq. 4.11, 4.14
+        V, _, _ = _factor_steps(W, V, l1 + l2)             # eqs. 4.9, 4.10; W = (U V^T)^T
+        duv, nuv = _change(W, Wp)                          # Wp = scratch from here
+        nr2 = _sparse_step(Xt, W, Y2, M, E, l2, alpha / l2, obs)              # eq. 4.11, 4.14
         np.multiply(W, l1, out=M)
         M -= Y1
-        M = _smooth_solve_inplace(M, l1, beta, mstep)                        # eq. 4.13
-        np.subtract(M, W, out=W)                           # R1 = M - UV
-        nr1 = float(np.linalg.norm(W))
-        W *= l1
-        Y1 += W                                            # eq. 4.14 (Y1)
-        duv, nuv = _factor_change(U, V, UtU, U_prev, V_prev, UtU_prev)
+        M = _smooth_solve_inplace(M, l1, beta, mstep, axis=-1)                # eq. 4.13
+        np.subtract(M, W, out=Wp)                          # R1 = M - UV
+        nr1 = float(np.linalg.norm(Wp))
+        Wp *= l1
+        Y1 += Wp                                           # eq. 4.14 (Y1)
+        W, Wp = Wp, W                                      # Wp = this U V^T
         crit = max(_rel(nr2, nx), _rel(nr1, nx), _rel(duv, nuv))
-        U_prev, V_prev, UtU_prev = U, V, UtU
         l1 = min(gamma * l1, lam_max)
         l2 = min(gamma * l2, lam_max)
         if crit < tol:
             converged = True
             break
-    return U, V, E, it, converged, crit
+    return Wp, V, E, it, converged, crit
 
 
 # --------------------------------------------------------------------------------------
 # truncated nuclear norm (thesis Sec. 4.2)
 # --------------------------------------------------------------------------------------
 def _sparse_step(D: np.ndarray, W: np.ndarray, Y: np.ndarray, M: np.ndarray, S: np.ndarray,
-                 pen: float, thr: float, miss: np.ndarray) -> float:
+                 pen: float, thr: float, obs: np.ndarray) -> float:
     """The sparse-error step shared by the tsmc (eq. 4.11, 4.14) and trnn (4.24) ALMs, in
     place: S = Z - shrink_Omega(Z, thr) with Z = D - W + Y / pen (soft threshold on the
     observed entries, identity on missing ones), then Y <- pen (D - W - S) and
-    ``||D - W - S||_F`` is returned. M is (T, C) scratch; on return M = D - W - S.
-    (Y is used as scratch for the clipped Z, and Y_old + pen R equals pen clip(Z).)"""
+    ``||D - W - S||_F`` is returned. M is scratch of D's shape; on return M = D - W - S.
+    (Y is used as scratch for the clipped Z, and Y_old + pen R equals pen clip(Z).)
+    ``obs`` is the bool observed mask; multiplying by it is 3x faster than a masked copy."""
     np.multiply(Y, 1.0 / pen, out=M)                   # M = Y / pen
     np.subtract(D, W, out=S)
     S += M                                             # S = Z
     np.clip(S, -thr, thr, out=Y)
-    np.copyto(Y, 0.0, where=miss)
+    np.multiply(Y, obs, out=Y)                         # 0 off Omega (the clip is finite)
     S -= Y                                             # soft threshold on Omega
     np.subtract(Y, M, out=M)                           # R = D - W - S
     nr = float(np.linalg.norm(M))
@@ -342,8 +346,14 @@ def _sparse_step(D: np.ndarray, W: np.ndarray, Y: np.ndarray, M: np.ndarray, S: 
     return nr
 
 
-def _smooth_solve_inplace(rhs: np.ndarray, eta: float, mu: float, method: str) -> np.ndarray:
-    """:func:`smooth_solve` that may overwrite ``rhs`` (no extra (T, C) array kept)."""
+def _smooth_solve_inplace(rhs: np.ndarray, eta: float, mu: float, method: str,
+                          axis: int = 0) -> np.ndarray:
+    """:func:`smooth_solve` along ``axis`` (0 or -1 of a 2-d ``rhs``) that may overwrite
+    ``rhs`` (no extra array of its size kept).  The solvers call it with axis=-1 on their
+    (C, T) arrays: a DCT along contiguous rows is ~1.5x faster than down the columns
+    (measured, 10,000 x 93: 3.0 vs 4.6 ms)."""
+    if axis != 0:
+        return _smooth_solve_inplace(rhs.T, eta, mu, method).T
     n = rhs.shape[0]
     if method == "banded" and n > 3:
         from scipy.linalg import solveh_banded
@@ -365,69 +375,107 @@ def _smooth_solve_inplace(rhs: np.ndarray, eta: float, mu: float, method: str) -
     return _fft.idct(y, type=2, axis=0, norm="ortho", overwrite_x=True)
 
 
-def _factor_change(A: np.ndarray, B: np.ndarray, AtA: np.ndarray, Ap: np.ndarray,
-                   Bp: np.ndarray, ApAp: np.ndarray) -> tuple[float, float]:
-    """(||A B^T - Ap Bp^T||_F, ||A B^T||_F) from k x k Gram matrices (no (T, C) array).
-
-    ``||A B^T||^2 = <A^T A, B^T B>``; the squared difference loses ~1e-16 of ``||A B^T||^2``
-    to cancellation, i.e. a relative change below ~1e-7 is not resolved (the solvers' tol
-    is 1e-4)."""
-    BtB = B.T @ B
-    n2 = float(np.sum(AtA * BtB))
-    p2 = float(np.sum(ApAp * (Bp.T @ Bp)))
-    cross = float(np.sum((A.T @ Ap) * (B.T @ Bp)))
-    return float(np.sqrt(max(n2 + p2 - 2.0 * cross, 0.0))), float(np.sqrt(max(n2, 0.0)))
+def _change(W: np.ndarray, Wp: np.ndarray) -> tuple[float, float]:
+    """(||W - Wp||_F, ||W||_F), Wp overwritten by W - Wp (it is scratch afterwards)."""
+    np.subtract(W, Wp, out=Wp)
+    return float(np.linalg.norm(Wp)), float(np.linalg.norm(W))
 
 
-def _trnn_loop(D: np.ndarray, miss: np.ndarray, factors: tuple, mults: tuple, lam: float,
-               mu: float, eta_s: tuple, tol: float, max_iter: int, mstep: str):
-    """Algorithm 3 iterations of :func:`trnn`, in place on six (T, C) arrays.
+#: frames per block of the in-place product of :func:`_factor_steps` (a 93 x 2,048 block
+#: is 1.5 MB: in cache)
+PRODUCT_BLOCK = 2048
 
-    D, S, M, Y1, Y2 (the ALM state) and one scratch; the product A B^T lives in the
-    scratch, the change of A B^T is computed from k x k Gram matrices
-    (:func:`_factor_change`), and ``Y2 += eta (D - AB - S)`` is folded into the
-    S-step (``Y2_new = eta clip(Ts, +-lam/eta)`` on Omega, 0 off it).
+
+def _factor_steps(W: np.ndarray, B: np.ndarray, c: float, P: np.ndarray | None = None,
+                  Q: np.ndarray | None = None):
+    """The two factor steps of the tsmc / trnn ALMs in Gram form; W is overwritten in place
+    by the new product (A B^T)^T.
+
+    With Z = W^T the (T, C) matrix of the step (tsmc's Z, eqs. 4.9-4.10; trnn's T1, eq.
+    4.24) and the current right factor B (C, d)::
+
+        A = Z B (I + c B^T B)^-1 = Z F,     B_new = Z^T A (I + c A^T A)^-1
+
+    Only the (C, C) Gram matrix G = Z^T Z = W W^T touches the T frames: A^T A = F^T G F,
+    B_new = G F (I + c A^T A)^-1, and (A B_new^T)^T = B_new F^T W.  The products are those
+    of the explicit steps (same values to rounding; tests/test_completion_reference.py),
+    for 1.5 instead of 4 (T x C x C) products per iteration at the full width d = C, and A
+    (T, d) is never stored.  With P (r, T), Q (r, C) (trnn, eq. 4.26; r > 0) they are
+    updated from A and B_new too: ``P = argmax tr(P A B^T Q^T)``, then
+    ``Q = argmax tr(Q B A^T P^T)`` (thesis Appendix Lemma 1; :func:`_polar`).
+
+    Returns (B_new, P, Q).
     """
-    A, B, P, Q = factors
-    Y1, Y2 = mults
-    eta, rho, eta_max = eta_s
-    T, C = D.shape
+    C, T = W.shape
     d = B.shape[1]
     Id = np.eye(d)
-    nd = float(np.linalg.norm(D))
-    S, M, W = np.zeros((T, C)), np.zeros((T, C)), np.empty((T, C))
-    A_prev, AtA_prev = np.zeros((T, d)), np.zeros((d, d))
-    B_prev = np.zeros_like(B)
+    G = W @ W.T                                            # (C, C)
+    F = B @ np.linalg.inv(Id + c * (B.T @ B))
+    GF = G @ F
+    Bn = GF @ np.linalg.inv(Id + c * (F.T @ GF))
+    if P is not None and P.shape[0] > 0:
+        P = _polar((Q @ Bn) @ F.T @ W)                     # N^T = Q B_new A^T, (r, T)
+        Q = _polar(((P @ W.T) @ F) @ Bn.T)                 # N^T = P A B_new^T, (r, C)
+    thin = 2 * d < C                                       # B_new (F^T W): fewer flops
+    Z = None if thin else Bn @ F.T
+    for s in frame_blocks(T, PRODUCT_BLOCK):               # blocks, in place: no (C, T) copy
+        W[:, s] = Bn @ (F.T @ W[:, s]) if thin else Z @ W[:, s]
+    return Bn, P, Q
+
+
+def _trnn_loop(Dt: np.ndarray, obs: np.ndarray, factors: tuple, mults: tuple, lam: float,
+               mu: float, eta_s: tuple, tol: float, max_iter: int, mstep: str):
+    """Algorithm 3 iterations of :func:`trnn`, in place, on the transposed (C, T) layout.
+
+    Dt (P_Omega(X)^T), S, M, Y1, Y2 and two work arrays: W (T1, then (A B^T)^T in place,
+    :func:`_factor_steps`) and Wp (the previous product, then scratch); A is never
+    formed.  ``Y2 += eta (D - AB - S)`` is folded into the S-step (``Y2_new = eta
+    clip(Ts, +-lam/eta)`` on Omega, 0 off it; :func:`_sparse_step`).  Returns (A B^T)^T
+    (C, T), S (C, T) and the iteration count, convergence flag and last criterion.
+    """
+    B, P, Q = factors
+    Y1, Y2 = mults
+    eta, rho, eta_max = eta_s
+    nd = float(np.linalg.norm(Dt))
+    S, M, W, Wp = np.zeros(Dt.shape), np.zeros(Dt.shape), np.empty(Dt.shape), np.zeros(Dt.shape)
     crit, it, converged = np.inf, 0, False
     for it in range(1, max_iter + 1):
-        np.add(M, D, out=W)                                # T1 - P^T Q = Y1 + Y2 + eta(M + D - S)
+        np.add(M, Dt, out=W)                               # T1 = P^T Q + Y1 + Y2 + eta(M + D - S)
         W -= S
         W *= eta
         W += Y1
         W += Y2
-        A = (W @ B + P.T @ (Q @ B)) @ np.linalg.inv(Id + 2 * eta * (B.T @ B))      # (4.24)
-        AtA = A.T @ A
-        B = (W.T @ A + Q.T @ (P @ A)) @ np.linalg.inv(Id + 2 * eta * AtA)
-        np.matmul(A, B.T, out=W)                           # W = AB
-        nr2 = _sparse_step(D, W, Y2, M, S, eta, lam / eta, miss)             # soft threshold on Omega
+        if P.shape[0] > 0:
+            _add_product(W, Q.T, P)                        # + (P^T Q)^T, in place
+        B, P, Q = _factor_steps(W, B, 2.0 * eta, P, Q)     # (4.24), (4.26); W = (AB)^T
+        dab, nab = _change(W, Wp)                          # Wp = scratch from here
+        nr2 = _sparse_step(Dt, W, Y2, M, S, eta, lam / eta, obs)             # soft threshold on Omega
         np.multiply(W, eta, out=M)
         M -= Y1
-        M = _smooth_solve_inplace(M, eta, mu, mstep)                                # (4.25)
-        if P.shape[0] > 0:
-            P = _orth_max(A @ (Q @ B).T)                   # (4.26)
-            Q = _orth_max(B @ (P @ A).T)
-        np.subtract(M, W, out=W)                           # R1 = M - AB
-        nr1 = float(np.linalg.norm(W))
-        W *= eta
-        Y1 += W
-        dab, nab = _factor_change(A, B, AtA, A_prev, B_prev, AtA_prev)
+        M = _smooth_solve_inplace(M, eta, mu, mstep, axis=-1)                      # (4.25)
+        np.subtract(M, W, out=Wp)                          # R1 = M - AB
+        nr1 = float(np.linalg.norm(Wp))
+        Wp *= eta
+        Y1 += Wp
+        W, Wp = Wp, W                                      # Wp = this (AB)^T
         crit = max(_rel(nr2, nd), _rel(nr1, nd), _rel(dab, nab))
-        A_prev, B_prev, AtA_prev = A, B, AtA
         eta = min(rho * eta, eta_max)
         if crit < tol:
             converged = True
             break
-    return A, B, S, it, converged, crit
+    return Wp, S, it, converged, crit
+
+
+def _add_product(W: np.ndarray, L: np.ndarray, R: np.ndarray) -> None:
+    """W += L @ R in place by BLAS dgemm (beta = 1), no temporary of W's size.
+
+    W is a C-contiguous (m, n) array, i.e. the Fortran-ordered (n, m) W^T, so the call
+    computes W^T <- R^T L^T + W^T."""
+    from scipy.linalg import blas
+
+    out = blas.dgemm(1.0, R.T, L.T, beta=1.0, c=W.T, overwrite_c=True)
+    if not np.shares_memory(out, W):                     # a copy was made: write it back
+        W[...] = out.T
 
 
 def _trnn_settings(Xlin: np.ndarray, r: int, d, lam: float | None,
@@ -466,10 +514,23 @@ def _trnn_pq(Xlin: np.ndarray, r: int) -> tuple[np.ndarray, np.ndarray]:
     return Ur.T, Vr.T
 
 
-def _orth_max(N: np.ndarray) -> np.ndarray:
-    """argmax_W tr(W N) s.t. W W^T = I (thesis Appendix Lemma 1): W = Q P^T, N = P S Q^T."""
-    P, _, Qt = _linalg.svd(N, full_matrices=False, what="trnn")
-    return Qt.T @ P.T
+#: smallest eigenvalue / largest of N N^T for which :func:`_polar` uses the Gram route
+#: (its error is about eps / this ratio = 1e-8 relative); below it, the SVD
+POLAR_GRAM_RATIO = 1e-8
+
+
+def _polar(N: np.ndarray) -> np.ndarray:
+    """The orthogonal polar factor U V^T of a wide (r, n) matrix N = U S V^T, r <= n: the
+    argmax of tr(W N^T) over W W^T = I (thesis Appendix Lemma 1, written for N^T).
+
+    From the (r, r) Gram matrix, ``U S^-1 U^T N`` with ``N N^T = U S^2 U^T`` (5x faster
+    than the SVD of a 15 x 10,000 N: 0.6 vs 3.4 ms, measured), when N is well conditioned
+    (:data:`POLAR_GRAM_RATIO`); else by the SVD."""
+    w, U = _linalg.eigh(N @ N.T, what="trnn")
+    if w[0] > POLAR_GRAM_RATIO * w[-1]:
+        return (U / np.sqrt(w)) @ (U.T @ N)
+    U, _, Vt = _linalg.svd(N, full_matrices=False, what="trnn")
+    return U @ Vt
 
 
 @_linalg.one_blas_thread
@@ -536,21 +597,23 @@ def trnn(X: Any, mask: Any = None, *, r: int = 15, d: int | str | None = None, l
     r, d, lam = _trnn_settings(Xlin, r, d, lam, rank_threshold)
     if lam < 0 or mu < 0 or eta <= 0 or rho < 1:
         raise MocapValueError("trnn needs lam >= 0, mu >= 0, eta > 0 and rho >= 1")
-    D = X                                                # P_Omega(X): zeros off Omega
-    if np.linalg.norm(D) == 0:
+    if np.linalg.norm(X) == 0:                           # X = P_Omega(X): zeros off Omega
         info = SolveInfo(0, True, 0.0, ALM_CRITERION, {"r": r, "d": d, "S": np.zeros((T, C))})
         return (np.zeros((T, C)), info) if return_info else np.zeros((T, C))
     B = np.random.default_rng(seed).standard_normal((C, d))
     B /= np.linalg.norm(B)
     P, Q = _trnn_pq(Xlin, r)
     del Xlin
-    A, B, S, it, converged, crit = _trnn_loop(        # A (0, d): set in the first iteration
-        D, ~m, (np.zeros((0, d)), B, P, Q), _alm_multipliers(D, lam), float(lam), float(mu),
+    Dt, obs = _transposed(X, m)
+    del X
+    ABt, St, it, converged, crit = _trnn_loop(
+        Dt, obs, (B, P, Q), _alm_multipliers(Dt, lam), float(lam), float(mu),
         (float(eta), float(rho), float(eta_max)), float(tol), int(max_iter), mstep)
-    info = SolveInfo(it, converged, float(crit), ALM_CRITERION, {"r": r, "d": d, "S": S})
+    del Dt
+    info = SolveInfo(it, converged, float(crit), ALM_CRITERION, {"r": r, "d": d, "S": St.T})
     if not converged:
         warn_not_converged("trnn", info, tol, max_iter, stacklevel=2)
-    Xhat = A @ B.T
+    Xhat = np.ascontiguousarray(ABt.T)
     return (Xhat, info) if return_info else Xhat
 
 
