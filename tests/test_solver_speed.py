@@ -189,3 +189,22 @@ def test_rts_recomputed_covariances_do_not_change_results(monkeypatch, gate):
                                         H=np.eye(1, 2), x0=np.zeros(2), P0=1e8 * np.eye(2))
         xs = signal.rts_smoother(Y[:60, :1], F=F, Q=Q, R=0.09)[0]
         np.testing.assert_allclose(xs[:, 0, :], dense[0], rtol=1e-6, atol=1e-6)
+
+
+def test_fast_segment_layout_and_auto_mstep():
+    """tsmc / trnn segments get a fast FFT length (still covering the clip, neighbours
+    sharing at least the overlap), and mstep="auto" solves the same system as the DCT at
+    a fast length and at an awkward one (where it takes the banded route)."""
+    from scipy.fft import next_fast_len
+
+    for T in (20000, 100000, 54321):
+        s, e = lr.segment_layout(T, 8192, 512, fast=True)
+        L = e - s
+        assert s[0] == 0 and e[-1] == T and (L == L[0]).all()
+        assert next_fast_len(int(L[0]), real=True) == L[0]
+        assert (e[:-1] - s[1:] >= 512).all()
+    rng = np.random.default_rng(13)
+    for n in (64, 613):                                     # fast; prime
+        R = rng.standard_normal((n, 3))
+        np.testing.assert_allclose(cp.smooth_solve(R, 0.05, 100.0, "auto"),
+                                   cp.smooth_solve(R, 0.05, 100.0, "dct"), rtol=1e-7, atol=1e-9)

@@ -71,18 +71,20 @@ class _MatrixCompletion(Denoiser):
     _SHARED = {"tol": [_POSITIVE], "max_iter": [Interval(Integral, 1, None)], "detect": [bool],
                "segment": [Interval(Integral, 256, None), None],
                "threshold_cm": [_POSITIVE], "keep_observed": [bool], "unit_cm": [_POSITIVE],
-               "mstep": [Options("dct", "banded")], "seed": [Interval(Integral, 0, None)]}
+               "mstep": [Options("dct", "banded", "auto")], "seed": [Interval(Integral, 0, None)]}
 
     def _solve(self, X: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, SolveInfo]:
         raise NotImplementedError
 
     def _solve_segments(self, X: np.ndarray, km: np.ndarray, unit: float) -> tuple[np.ndarray, SolveInfo]:
         """The solve of the whole (T, 3J) matrix, or of overlapping time segments of
-        ``segment`` frames (neighbours share ``segment // SEGMENT_OVERLAP_DIVISOR``
-        frames, cross-faded linearly, as SLRA's overlap) when the clip is longer; returns
+        ``segment`` frames (neighbours share at least ``segment // SEGMENT_OVERLAP_DIVISOR``
+        frames, cross-faded linearly, as SLRA's overlap; the length rounded up to a fast
+        FFT length for the DCT M-step) when the clip is longer; returns
         the estimate in cm and one summary of the solves."""
         starts, stops = (np.array([0]), np.array([len(X)])) if self.segment is None else \
-            _lr.segment_layout(len(X), int(self.segment), int(self.segment) // SEGMENT_OVERLAP_DIVISOR)
+            _lr.segment_layout(len(X), int(self.segment), int(self.segment) // SEGMENT_OVERLAP_DIVISOR,
+                               fast=True)
         if len(starts) == 1:
             A, info = self._solve(X / unit, km)
             A *= unit
@@ -159,7 +161,9 @@ class TSMC(_MatrixCompletion):
         rule (eq. 4.15) with :func:`~mocapkit.solvers.completion.estimate_rank`.
     tol, max_iter : ALM stopping.
     unit_cm : length unit the weights are read in (default: CMU ASF unit, see below).
-    mstep : "dct" (thesis) or "banded" (same solve, O(T); faster on long clips).
+    mstep : "dct" (thesis), "banded" (same solve, O(T), any length) or "auto" (default: the
+        DCT where the length is a fast FFT length, else banded;
+        :func:`~mocapkit.solvers.completion.smooth_solve`).
     detect : also treat trust-data outliers (``threshold_cm``) as missing.
     keep_observed : return observed (trusted) entries unchanged (gap filling only).
     segment : frames per solve on long clips (default :data:`SEGMENT_FRAMES` = 8,192;
@@ -177,7 +181,7 @@ class TSMC(_MatrixCompletion):
                  lam2: float = 1e-5, gamma: float = 1.4, lam_max: float = 1e10,
                  rank: int | str | None = None, tol: float = 1e-4, max_iter: int = 500,
                  detect: bool = False, threshold_cm: float = 6.0, keep_observed: bool = False,
-                 unit_cm: float = CMU_CM_PER_UNIT, mstep: str = "dct", seed: int = 0,
+                 unit_cm: float = CMU_CM_PER_UNIT, mstep: str = "auto", seed: int = 0,
                  segment: int | None = SEGMENT_FRAMES):
         self._store_params(locals())
 
@@ -219,7 +223,7 @@ class TrNN(_MatrixCompletion):
                  mu: float = 100.0, rho: float = 1.4, eta: float = 1e-5, eta_max: float = 1e6,
                  tol: float = 1e-4, max_iter: int = 500, detect: bool = False,
                  threshold_cm: float = 6.0, keep_observed: bool = False,
-                 unit_cm: float = CMU_CM_PER_UNIT, mstep: str = "dct", seed: int = 0,
+                 unit_cm: float = CMU_CM_PER_UNIT, mstep: str = "auto", seed: int = 0,
                  segment: int | None = SEGMENT_FRAMES):
         self._store_params(locals())
 

@@ -936,7 +936,7 @@ def rpca_ialm(D: Any, lam: float | None = None, mask: Any = None, tol: float = 1
 # segmented low-rank approximation (SLRA, seed 004)
 # --------------------------------------------------------------------------------------
 def segment_layout(T: int, segment: int = 200, overlap: int = 0,
-                   n_segments: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+                   n_segments: int | None = None, fast: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Start and stop frames of the SLRA segments.
 
     Without overlap the T frames are split into ``p = max(1, round(T / segment))``
@@ -945,7 +945,10 @@ def segment_layout(T: int, segment: int = 200, overlap: int = 0,
     max(1, round((T - o) / (segment - o)))`` segments of equal length
     ``L = ceil((T + (p - 1) o) / p)`` start at evenly spaced frames, so neighbours share
     at least o frames.  ``n_segments`` fixes p instead.  A clip shorter than one segment
-    is a single segment (plain RPCA).
+    is a single segment (plain RPCA).  ``fast=True`` (with overlap) lengthens L to the next
+    fast FFT length (:func:`scipy.fft.next_fast_len`; the neighbours then share a few more
+    frames): for the DCT M-step of tsmc / trnn, whose cost at an awkward length is 2.5x
+    (8,165 frames: 8.2 ms a DCT, 8,192: 3.3 ms).
     """
     T, overlap = int(T), int(overlap)
     if T < 1:
@@ -968,6 +971,10 @@ def segment_layout(T: int, segment: int = 200, overlap: int = 0,
         b = np.round(np.linspace(0, T, p + 1)).astype(int)
         return b[:-1], b[1:]
     L = min(T, int(np.ceil((T + (p - 1) * overlap) / p)))
+    if fast:
+        from scipy.fft import next_fast_len
+
+        L = min(T, next_fast_len(L, real=True))
     starts = np.round(np.linspace(0, T - L, p)).astype(int)
     return starts, starts + L
 
