@@ -552,7 +552,7 @@ def _parse_fast(path, raw: bytes):
     if head is None:
         return None
     off, n_head = head
-    if not _plain_lines(raw[:off]):
+    if _plain_lines(raw[:off]) < 0:
         return None
     try:
         nodes, n_frames, frame_time, first = _parse_header(path, raw[:off].decode("ascii").splitlines(), 0)
@@ -574,11 +574,15 @@ class _NotPlain(Exception):
     """A block holds a control character other than tab / CR-LF / LF (the line parser's case)."""
 
 
-def _plain_lines(blk: bytes) -> bool:
-    """No control bytes but tab, LF and CR-LF (so bytes lines = str.splitlines lines)."""
-    n_ctrl = blk.count(b"\t") + blk.count(b"\n") + blk.count(b"\r")
-    return (blk.count(b"\r") == blk.count(b"\r\n")
-            and int(np.count_nonzero(np.frombuffer(blk, np.uint8) < 32)) == n_ctrl)
+def _plain_lines(blk: bytes) -> int:
+    """The block's LF count when it holds no control bytes but tab, LF and CR-LF (so bytes
+    lines = str.splitlines lines), else -1.  Each count is one C pass over the block;
+    the LF count is the caller's line count too (200,000-frame BVH: 4 of its 6 passes)."""
+    n_lf, n_cr = blk.count(b"\n"), blk.count(b"\r")
+    if n_cr and n_cr != blk.count(b"\r\n"):
+        return -1
+    n_ctrl = blk.count(b"\t") + n_lf + n_cr
+    return n_lf if int(np.count_nonzero(np.frombuffer(blk, np.uint8) < 32)) == n_ctrl else -1
 
 
 class _BodyReader:
@@ -606,11 +610,12 @@ class _BodyReader:
             nl = raw.find(b"\n", target) if target < len(raw) else -1
             end = len(raw) if nl < 0 else nl + 1
             blk = raw[pos:end]
-            if not _plain_lines(blk):
+            n_lf = _plain_lines(blk)
+            if n_lf < 0:
                 raise _NotPlain
             if self.extra_line is None:
                 self._block(blk, line_no + n)
-            n += blk.count(b"\n")
+            n += n_lf
             pos = end
         return n + (1 if pos > start and not raw.endswith(b"\n") else 0)
 
