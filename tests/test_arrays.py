@@ -40,6 +40,31 @@ def test_estimate_noise_uses_only_observed_triples_and_falls_back():
         estimate_noise(X, method="mad")
 
 
+def test_estimate_noise_diff4_mad_hand_computed_unbiased_and_less_leaky():
+    rng = np.random.default_rng(3)
+    X = np.cumsum(rng.standard_normal((40, 2)), axis=0)
+    M = np.ones_like(X, bool)
+    M[20, 1] = False
+    D = X[4:] - 4 * X[3:-1] + 6 * X[2:-2] - 4 * X[1:-3] + X[:-4]
+    keep = np.ones(36, bool)
+    keep[16:21] = False                                   # quintuples touching frame 20
+    d1 = D[keep, 1]
+    expect = 1.4826 * np.median(np.abs(d1 - np.median(d1))) / np.sqrt(70)
+    assert estimate_noise(np.where(M, X, 1e6), M, method="diff4-mad")[1] == pytest.approx(expect)
+    pooled = np.concatenate([D[:, 0], d1])
+    assert estimate_noise(X, M, method="diff4-mad", pool="all") == pytest.approx(
+        1.4826 * np.median(np.abs(pooled)) / np.sqrt(70))
+    # white noise: the same sigma as diff2; a smooth motion leaks in far less
+    t = np.arange(4000)[:, None] / 30.0
+    motion = 20.0 * np.sin(2 * np.pi * 1.5 * t) * [1.0, 0.5, 2.0]
+    noise = 0.05 * rng.standard_normal(motion.shape)
+    assert estimate_noise(noise, method="diff4-mad", pool="all") == pytest.approx(0.05, rel=0.05)
+    s2 = estimate_noise(motion + noise, method="diff2-mad", pool="all")
+    s4 = estimate_noise(motion + noise, method="diff4-mad", pool="all")
+    assert s4 < 0.5 * s2 and s4 < 0.08
+    assert np.isnan(estimate_noise(X[:4], method="diff4-mad")).all()     # < 5 frames
+
+
 def test_estimate_noise_wavelet_mad_is_donoho_johnstone():
     pywt = pytest.importorskip("pywt")
     rng = np.random.default_rng(1)

@@ -241,10 +241,13 @@ class Auto(Denoiser):
             # samples kept as measured: their error is the noise. The per-channel GCV
             # sigma also holds the spline's misfit on fast channels (0.04-0.1 cm RMS on
             # noise-free CMU clips at 120 fps); the package's robust estimate from the
-            # whole matrix is another upper bound -- the smaller of the two is charged
+            # whole matrix's fourth differences is another upper bound, the tighter one
+            # where the noise is small against the motion (its docstring) -- the smaller
+            # of the two is charged
             from ..signal import estimate_noise
             kept_m = used_columns(M, cols) & ~holes[:, cols]       # not the rejected spikes
-            est["kept"] = np.fmin(est["kept"], estimate_noise(used_columns(X, cols), kept_m, pool="all", fallback=0.0))
+            est["kept"] = np.fmin(est["kept"], estimate_noise(used_columns(X, cols), kept_m, method="diff4-mad",
+                                                              pool="all", fallback=0.0))
             if spiky:
                 est["kept_extra"] = np.zeros(X.shape)
                 est["kept_extra"][:, cols] = _end_spikes_kept(X, M, cols, fit, info, diag.spike_rate,
