@@ -71,6 +71,10 @@ CANDIDATES = {
     "+ bone-direction view": {"views": ["joints", "arms", "bones"]},
     "+ reach view (head, elbows, wrists about the hips)": {"views": ["joints", "arms", "reach"]},
     "wider ridge grid (1e-6..1e5)": {"alphas": [float(a) for a in np.logspace(-6, 5, 23)]},
+    # third round (2026-12-03): the augmentation's strength and the kernels' channel count
+    "rotation augmentation 30 deg": {"rot_deg": 30.0},
+    "time warp 0.2": {"time_warp": 0.2},
+    "up to 12 channels per kernel": {"max_channels": 12},
 }
 SEL_FILE = RES / "recognition_selection.json"
 

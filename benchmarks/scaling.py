@@ -228,7 +228,15 @@ def flop_model(label: str, frames: int, iterations: float, n: int = 93,
     and ``2 L n min(k, 32)`` (the other side's vectors); without it (rows measured before
     the phase existed, or the "pre-phase model" column) every iteration is a full one.
     The iteration mean is the measured mean over segments where the row has it, else the
-    convergence report's (the worst segment's) count."""
+    convergence report's (the worst segment's) count.
+
+    tsmc / trnn (ALM of the thesis, Gram-form factor steps; segments of
+    mocapkit.denoise.completion's layout, L x n each, factor width d = min(L, n)): per
+    iteration ``2 L n d`` (Gram) + ``2 L n d`` (the product, in place) + ``6 L n r`` (trnn's
+    P, Q steps and its rank-r term, r = 15) + ``5 L n log2 L`` (the two DCTs of the M-step,
+    counted as FFTs: 2.5 L log2 L per row each) + ``10 d^3`` (the d x d steps); the ~24
+    elementwise passes of the ALM are not counted, and the DCTs run far below the dgemm
+    rate, so measured / ideal reads how much of an iteration is not dgemm work."""
     from mocapkit.solvers.lowrank import segment_layout
 
     name, params = _variant(label)
@@ -237,6 +245,15 @@ def flop_model(label: str, frames: int, iterations: float, n: int = 93,
     elif name == "slra":
         st, sp = segment_layout(frames, params.get("segment", 200), params.get("overlap", 0))
         L, p = float(np.mean(sp - st)), len(st)
+    elif name in ("tsmc", "trnn"):
+        from mocapkit.denoise.completion import SEGMENT_FRAMES, SEGMENT_OVERLAP_DIVISOR
+
+        st, sp = segment_layout(frames, SEGMENT_FRAMES, SEGMENT_FRAMES // SEGMENT_OVERLAP_DIVISOR, fast=True)
+        L, p = float(np.mean(sp - st)), len(st)
+        d = min(L, n)
+        r = 15 if name == "trnn" else 0
+        per = 4 * L * n * d + 6 * L * n * r + 5 * L * n * np.log2(L) + 10 * d ** 3
+        return p * iterations * per
     else:
         return None
     k = min(L, n)
@@ -345,7 +362,7 @@ def to_markdown(rows: list[dict], rate: float, meta: dict) -> str:
     lines += ["", f"Not run: {', '.join(heavy) or 'none'} (neural denoisers: they need real "
               "training data, not a quick fit)" + (f"; not requested in this run: "
                                                    f"{', '.join(other)}" if other else ""), "",
-              "FLOP model (low-rank IALM): " + doc, ""]
+              "FLOP model (low-rank IALM; tsmc / trnn): " + doc, ""]
     return "\n".join(lines) + "\n"
 
 
