@@ -98,6 +98,7 @@ import numpy as np
 from ..diagnose import SPIKE_RATE, diagnose, diagnosis_of, robust_fit, used_columns
 from ..gaps import gap_lengths
 from ..motion import Motion
+from ..solvers import lowrank as _lr
 from ..solvers.gcv_spline import _BISQUARE, cutoff_hz, gcv_smooth
 from ..windows import frame_blocks
 from ..solvers.mssa import mssa_denoise, sure_divergence, sure_risk
@@ -181,18 +182,14 @@ class Auto(Denoiser):
         ov = min(max(32, int(round(PIECE_OVERLAP_S * motion.fps))), PIECE_FRAMES // 8)
         cuts = _piece_cuts(motion.observed, PIECE_FRAMES, ov)
         bounds = list(zip([0] + cuts, cuts + [T]))
+        starts = np.array([max(0, lo - ov) for lo, _ in bounds])
+        stops = np.array([min(T, hi + ov) for _, hi in bounds])
         out = np.zeros((T, 3 * motion.n_joints))
         rejected = 0
         pieces, sq, chain, how, noise, hz = [], 0.0, [], [], [], []
-        ramp = (np.arange(2 * ov) + 0.5) / (2 * ov)              # 0 -> 1 over a cut's overlap
-        for i, (lo, hi) in enumerate(bounds):
-            a, b = max(0, lo - ov), min(T, hi + ov)
+        # linear ramps over each cut's 2 ov shared frames, as tsmc / trnn / slra segments
+        for (lo, hi), a, b, w in zip(bounds, starts, stops, _lr.blend_weights(starts, stops)):
             Y, src, rej = self._denoise(motion.slice(a, b))
-            w = np.ones(b - a)
-            if i > 0:
-                w[:2 * ov] = ramp
-            if i < len(bounds) - 1:
-                w[-2 * ov:] = ramp[::-1]
             Y *= w[:, None]
             out[a:b] += Y
             rejected += int(rej[lo - a:hi - a].sum())             # the frames this piece owns

@@ -38,10 +38,11 @@ Speed: tsmc and trnn iterate on the transposed (C, T) matrix (C coordinates, T f
 so that the DCT of the M-step runs along contiguous rows.  The two factor steps are taken
 in Gram form (:func:`_factor_steps`): only the (C, C) Gram matrix of the step's (T, C)
 matrix and one (C, C) x (C, T) product touch the frames, the left factor (T x k) is never
-stored, and the product overwrites its input block by block.  Per iteration at 10,000
-frames x 93 coordinates (one core, measured): ~9 ms of products, 7 ms for the two DCTs,
-~11 ms for the ~24 element-wise passes of the ALM -- O(T C^2 + T C log T), linear in the
-number of frames.  No step loops over frames in Python except the Kalman/RTS recursions
+stored, and the product overwrites its input block by block.  Per trnn iteration at
+10,000 frames x 93 coordinates (one core, measured 2026-12-03, 40 ms in all at a slow
+moment of this shared machine): factor steps 14.6 ms (products, P and Q steps, polar
+factors 1.9 ms), the M-step with its two DCTs 10.3 ms, the sparse step 5.8 ms, the other
+element-wise passes about 9 ms -- O(T C^2 + T C log T), linear in the number of frames.  No step loops over frames in Python except the Kalman/RTS recursions
 of DynaMMo, which are sequential by nature and handle only k x k matrices (the
 data-dependent parts are batched).
 """
