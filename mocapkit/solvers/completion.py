@@ -38,16 +38,20 @@ Speed: tsmc and trnn iterate on the transposed (C, T) matrix (C coordinates, T f
 so that the DCT of the M-step runs along contiguous rows.  The two factor steps are taken
 in Gram form (:func:`_factor_steps`): only the (C, C) Gram matrix of the step's (T, C)
 matrix and one (C, C) x (C, T) product touch the frames, the left factor (T x k) is never
-stored, and the product overwrites its input block by block.  Per trnn iteration at
-10,000 frames x 93 coordinates (one core, measured 2026-12-03, 40 ms in all at a slow
-moment of this shared machine): factor steps 14.6 ms (products, P and Q steps, polar
-factors 1.9 ms), the M-step with its two DCTs 10.3 ms, the sparse step 5.8 ms, the other
-element-wise passes about 9 ms -- O(T C^2 + T C log T), linear in the number of frames.  No step loops over frames in Python except the Kalman/RTS recursions
+stored, and the product overwrites its input block by block.  The element-wise steps
+around them are fused into two passes over blocks of channels (:func:`_step_matrix`,
+:func:`_post_factor`), so that a block's arrays stay in cache.  Per trnn iteration at
+10,000 frames x 93 coordinates (one core, measured 2026-12-03 at a loaded moment of this
+shared machine, 44 ms in all): the step matrix 7.9 ms, its Gram matrix 2.9, the factor
+coefficients with the polar factors 5.0, the product 4.3, the fused sparse step, M-step
+with its two DCTs and multiplier update 24.1 -- O(T C^2 + T C log T), linear in the
+number of frames.  No step loops over frames in Python except the Kalman/RTS recursions
 of DynaMMo, which are sequential by nature and handle only k x k matrices (the
 data-dependent parts are batched).
 """
 from __future__ import annotations
 
+import functools
 from typing import Any
 
 import numpy as np
@@ -117,6 +121,15 @@ def smooth_solve(rhs: np.ndarray, eta: float, mu: float, method: str = "dct") ->
     """
     # one implementation; a copy keeps the caller's array intact
     return _smooth_solve_inplace(np.array(rhs, dtype=np.float64, copy=True), eta, mu, method)
+
+
+@functools.lru_cache(maxsize=4)
+def _dct_gain(n: int, eta: float, mu: float) -> np.ndarray:
+    """``Gamma_ii = 1 / (eta + mu xi_i^2)`` of the DCT M-step (read-only, cached: the loops
+    solve one block of channels at a time with the same eta)."""
+    g = 1.0 / (eta + mu * dct_eigenvalues(n) ** 2)
+    g.setflags(write=False)
+    return g
 
 
 def soft_threshold(A: np.ndarray, tau: float) -> np.ndarray:
@@ -310,24 +323,14 @@ def _tsmc_loop(Xt: np.ndarray, obs: np.ndarray, V: np.ndarray, mults: tuple, wei
     E, M, W, Wp = np.zeros(Xt.shape), np.zeros(Xt.shape), np.empty(Xt.shape), np.zeros(Xt.shape)
     crit, it, converged = np.inf, 0, False
     for it in range(1, max_iter + 1):
-        np.subtract(Xt, E, out=W)                          # Z = Y1 + Y2 + l1 M + l2 (X - E)
-        W *= l2
-        W += Y1
-        W += Y2
-        M *= l1
-        W += M
-        V, _, _ = _factor_steps(W, V, l1 + l2)             # eqs. 4.9, 4.10; W = (U V^T)^T
-        duv, nuv = _change(W, Wp)                          # Wp = scratch from here
-        nr2 = _sparse_step(Xt, W, Y2, M, E, l2, alpha / l2, obs)              # eq. 4.11, 4.14
-        np.multiply(W, l1, out=M)
-        M -= Y1
-        M = _smooth_solve_inplace(M, l1, beta, mstep, axis=-1)                # eq. 4.13
-        np.subtract(M, W, out=Wp)                          # R1 = M - UV
-        nr1 = float(np.linalg.norm(Wp))
-        Wp *= l1
-        Y1 += Wp                                           # eq. 4.14 (Y1)
+        # Z = Y1 + Y2 + l1 M + l2 (X - E), one pass
+        _step_matrix(W, Xt, E, M, Y1, Y2, l2, l1)
+        F, V, _, _ = _factor_coefficients(W @ W.T, W, V, l1 + l2)                    # eqs. 4.9, 4.10
+        _apply_factors(F, V, W)                            # W = (U V^T)^T
+        # E-step (4.11), M-step (4.13), Y1 (4.14), in place, one pass
+        duv, nuv, nr2, nr1 = _post_factor(W, Wp, Xt, E, M, Y1, Y2, obs, (l2, l1), alpha / l2, beta, mstep)
         W, Wp = Wp, W                                      # Wp = this U V^T
-        crit = max(_rel(nr2, nx), _rel(nr1, nx), _rel(duv, nuv))
+        crit = max(_rel(np.sqrt(nr2), nx), _rel(np.sqrt(nr1), nx), _rel(np.sqrt(duv), np.sqrt(nuv)))
         l1 = min(gamma * l1, lam_max)
         l2 = min(gamma * l2, lam_max)
         if crit < tol:
@@ -363,11 +366,13 @@ def _smooth_solve_inplace(rhs: np.ndarray, eta: float, mu: float, method: str,
                           axis: int = 0) -> np.ndarray:
     """:func:`smooth_solve` along ``axis`` (0 or -1 of a 2-d ``rhs``) that may overwrite
     ``rhs`` (no extra array of its size kept).  The solvers call it with axis=-1 on their
-    (C, T) arrays: a DCT along contiguous rows is ~1.5x faster than down the columns
-    (measured, 10,000 x 93: 3.0 vs 4.6 ms)."""
-    if axis != 0:
-        return _smooth_solve_inplace(rhs.T, eta, mu, method).T
-    n = rhs.shape[0]
+    (C, T) arrays: a DCT along contiguous rows is faster than down the columns, and
+    pocketfft must be called along that axis itself -- on the transposed view it runs 2x
+    slower (measured, 93 x 10,000: 6.3 vs 13.6 ms at a loaded moment)."""
+    ax = axis % rhs.ndim
+    if ax not in (0, rhs.ndim - 1):
+        raise MocapValueError(f"axis must be the first or the last, got {axis}")
+    n = rhs.shape[ax]
     if method == "auto":
         method = "dct" if _fft.next_fast_len(n, real=True) == n else "banded"
     if method == "banded" and n > 3:
@@ -381,61 +386,149 @@ def _smooth_solve_inplace(rhs: np.ndarray, eta: float, mu: float, method: str,
         ab[2] = eta + mu * d0
         ab[1, 1:] = mu * d1
         ab[0, 2:] = mu
+        if ax != 0:                                      # LAPACK solves down the columns
+            return solveh_banded(ab, rhs.T, overwrite_b=True, check_finite=False).T
         return solveh_banded(ab, rhs, overwrite_b=True, check_finite=False)
     if method not in ("dct", "banded"):
         raise MocapValueError(f"method must be 'dct', 'banded' or 'auto', got {method!r}")
-    gamma = 1.0 / (eta + mu * dct_eigenvalues(n) ** 2)
-    y = _fft.dct(rhs, type=2, axis=0, norm="ortho", overwrite_x=True)
-    y *= gamma.reshape((n,) + (1,) * (rhs.ndim - 1))
-    return _fft.idct(y, type=2, axis=0, norm="ortho", overwrite_x=True)
+    gamma = _dct_gain(n, float(eta), float(mu))
+    y = _fft.dct(rhs, type=2, axis=ax, norm="ortho", overwrite_x=True)
+    y *= gamma if ax == rhs.ndim - 1 else gamma.reshape((n,) + (1,) * (rhs.ndim - 1))
+    return _fft.idct(y, type=2, axis=ax, norm="ortho", overwrite_x=True)
 
 
-def _change(W: np.ndarray, Wp: np.ndarray) -> tuple[float, float]:
-    """(||W - Wp||_F, ||W||_F), Wp overwritten by W - Wp (it is scratch afterwards)."""
-    np.subtract(W, Wp, out=Wp)
-    return float(np.linalg.norm(Wp)), float(np.linalg.norm(W))
-
-
-#: frames per block of the in-place product of :func:`_factor_steps` (a 93 x 2,048 block
-#: is 1.5 MB: in cache)
+#: frames per block of the in-place product of the factor steps (:func:`_apply_factors`;
+#: a 93 x 2,048 block is 1.5 MB: in cache)
 PRODUCT_BLOCK = 2048
 
+#: elements per block of channels (rows of the (C, T) arrays) of the fused element-wise
+#: passes of the tsmc / trnn loops (:func:`_step_matrix`, :func:`_post_factor`): rows
+#: are contiguous (a block of frames, i.e. columns, is strided, and numpy's element-wise
+#: loops run 4x slower on it, measured), and a block of 2^16 elements (0.5 MB an
+#: array) keeps the ~9 arrays of one pass in cache instead of streaming each (C, T)
+#: array from memory once per operation (trnn at 10,000 x 93, ms per iteration: 2^13
+#: 52.5, 2^15 44.6, 2^16 41.0, 2^17 44.6, unblocked 47.9; measured interleaved)
+FUSE_BLOCK = 1 << 16
 
-def _factor_steps(W: np.ndarray, B: np.ndarray, c: float, P: np.ndarray | None = None,
-                  Q: np.ndarray | None = None):
-    """The two factor steps of the tsmc / trnn ALMs in Gram form; W is overwritten in place
-    by the new product (A B^T)^T.
+#: matrices up to this many elements (4 MB an array) are one block: their arrays fit in
+#: the last-level cache together, and blocks would only add calls (the 3,678 x 78 C3D
+#: of docs/results/scaling.md ran 5 % slower in 5 blocks)
+FUSE_WHOLE = 1 << 19
+
+
+def _channel_blocks(C: int, T: int) -> list[slice]:
+    """Blocks of whole rows of a (C, T) array, :data:`FUSE_BLOCK` elements or one row
+    (one block up to :data:`FUSE_WHOLE` elements)."""
+    if C * T <= FUSE_WHOLE:
+        return [slice(0, C)]
+    return frame_blocks(C, max(1, FUSE_BLOCK // max(T, 1)))
+
+
+def _factor_coefficients(G: np.ndarray, W: np.ndarray, B: np.ndarray, c: float,
+                         P: np.ndarray | None = None, Q: np.ndarray | None = None):
+    """The small matrices of the two factor steps of the tsmc / trnn ALMs in Gram form.
 
     With Z = W^T the (T, C) matrix of the step (tsmc's Z, eqs. 4.9-4.10; trnn's T1, eq.
-    4.24) and the current right factor B (C, d)::
+    4.24), G = Z^T Z = W W^T its (C, C) Gram matrix and the current right factor B (C, d)::
 
         A = Z B (I + c B^T B)^-1 = Z F,     B_new = Z^T A (I + c A^T A)^-1
 
-    Only the (C, C) Gram matrix G = Z^T Z = W W^T touches the T frames: A^T A = F^T G F,
-    B_new = G F (I + c A^T A)^-1, and (A B_new^T)^T = B_new F^T W.  The products are those
+    Only G touches the T frames: A^T A = F^T G F, B_new = G F (I + c A^T A)^-1, and the new
+    product is (A B_new^T)^T = B_new F^T W (:func:`_apply_factors`).  The products are those
     of the explicit steps (same values to rounding; tests/test_completion_reference.py),
     for 1.5 instead of 4 (T x C x C) products per iteration at the full width d = C, and A
     (T, d) is never stored.  With P (r, T), Q (r, C) (trnn, eq. 4.26; r > 0) they are
     updated from A and B_new too: ``P = argmax tr(P A B^T Q^T)``, then
     ``Q = argmax tr(Q B A^T P^T)`` (thesis Appendix Lemma 1; :func:`_polar`).
 
-    Returns (B_new, P, Q).
+    Returns (F, B_new, P, Q).
     """
-    C, T = W.shape
     d = B.shape[1]
     Id = np.eye(d)
-    G = W @ W.T                                            # (C, C)
     F = B @ np.linalg.inv(Id + c * (B.T @ B))
     GF = G @ F
     Bn = GF @ np.linalg.inv(Id + c * (F.T @ GF))
     if P is not None and P.shape[0] > 0:
         P = _polar((Q @ Bn) @ F.T @ W)                     # N^T = Q B_new A^T, (r, T)
         Q = _polar(((P @ W.T) @ F) @ Bn.T)                 # N^T = P A B_new^T, (r, C)
-    thin = 2 * d < C                                       # B_new (F^T W): fewer flops
+    return F, Bn, P, Q
+
+
+def _apply_factors(F: np.ndarray, Bn: np.ndarray, W: np.ndarray) -> None:
+    """``W <- B_new F^T W`` in place, block of frames by block (:data:`PRODUCT_BLOCK`; no
+    (C, T) copy): the new product (A B_new^T)^T of :func:`_factor_coefficients`.  The thin
+    order, (d, n) first, where 2 d < C takes fewer flops."""
+    thin = 2 * Bn.shape[1] < Bn.shape[0]
     Z = None if thin else Bn @ F.T
-    for s in frame_blocks(T, PRODUCT_BLOCK):               # blocks, in place: no (C, T) copy
+    for s in frame_blocks(W.shape[1], PRODUCT_BLOCK):
         W[:, s] = Bn @ (F.T @ W[:, s]) if thin else Z @ W[:, s]
+
+
+def _factor_steps(W: np.ndarray, B: np.ndarray, c: float, P: np.ndarray | None = None,
+                  Q: np.ndarray | None = None):
+    """Both factor steps (:func:`_factor_coefficients`, :func:`_apply_factors`): W is
+    overwritten in place by the new product (A B^T)^T; returns (B_new, P, Q)."""
+    F, Bn, P, Q = _factor_coefficients(W @ W.T, W, B, c, P, Q)
+    _apply_factors(F, Bn, W)
     return Bn, P, Q
+
+
+def _sq(a: np.ndarray) -> float:
+    """Squared Frobenius norm of a C-contiguous array (BLAS dot on its flat view)."""
+    v = a.reshape(-1)
+    return float(v @ v)
+
+
+def _step_matrix(W: np.ndarray, D: np.ndarray, S: np.ndarray, M: np.ndarray, Y1: np.ndarray,
+                 Y2: np.ndarray, a: float, b: float, PQ: tuple | None = None) -> None:
+    """The factor steps' matrix ``W = a (D - S) + b M + Y1 + Y2 [+ Q^T P]`` (tsmc's Z: a =
+    l2, b = l1; trnn's T1: a = b = eta, PQ = (Q^T, P)) written into W in one pass, block of
+    channels by block (:func:`_channel_blocks`).  M may be scaled in place where a != b
+    (it is scratch until the M-step)."""
+    for s in _channel_blocks(*W.shape):
+        w = W[s]
+        if a == b:
+            np.add(M[s], D[s], out=w)
+            w -= S[s]
+            w *= a
+        else:
+            np.subtract(D[s], S[s], out=w)
+            w *= a
+            m = M[s]
+            m *= b
+            w += m
+        w += Y1[s]
+        w += Y2[s]
+        if PQ is not None:
+            w += PQ[0][s] @ PQ[1]                          # (P^T Q)^T = Q^T P, rows s
+
+
+def _post_factor(W: np.ndarray, Wp: np.ndarray, D: np.ndarray, S: np.ndarray, M: np.ndarray,
+                 Y1: np.ndarray, Y2: np.ndarray, obs: np.ndarray, pens: tuple, thr: float,
+                 mu: float, mstep: str) -> tuple[float, float, float, float]:
+    """Everything of one tsmc / trnn iteration after the new product W, in place, in one
+    pass over blocks of channels (:func:`_channel_blocks`; the M-step's DCT runs along
+    them): the change of W from the previous product Wp, the sparse step
+    (:func:`_sparse_step`, penalty ``pens[0]``, threshold ``thr``), the M-step
+    ``M = solve(pens[1] W - Y1)`` (:func:`_smooth_solve_inplace`), ``R1 = M - W`` into Wp
+    and ``Y1 += pens[1] R1``.  Returns the squared norms (||W - Wp||, ||W||,
+    ||D - W - S||, ||R1||); Wp is scratch afterwards (it holds pens[1] R1)."""
+    pen2, pen1 = pens
+    dab = nab = nr2 = nr1 = 0.0
+    for s in _channel_blocks(*W.shape):
+        w, p, m, y1 = W[s], Wp[s], M[s], Y1[s]
+        nab += _sq(w)
+        np.subtract(w, p, out=p)
+        dab += _sq(p)                                      # p = scratch from here
+        nr2 += _sparse_step(D[s], w, Y2[s], p, S[s], pen2, thr, obs[s]) ** 2
+        np.multiply(w, pen1, out=m)
+        m -= y1
+        m = M[s] = _smooth_solve_inplace(m, pen1, mu, mstep, axis=-1)
+        np.subtract(m, w, out=p)                           # R1 = M - W
+        nr1 += _sq(p)
+        p *= pen1
+        y1 += p
+    return dab, nab, nr2, nr1
 
 
 def _trnn_loop(Dt: np.ndarray, obs: np.ndarray, factors: tuple, mults: tuple, lam: float,
@@ -455,42 +548,19 @@ def _trnn_loop(Dt: np.ndarray, obs: np.ndarray, factors: tuple, mults: tuple, la
     S, M, W, Wp = np.zeros(Dt.shape), np.zeros(Dt.shape), np.empty(Dt.shape), np.zeros(Dt.shape)
     crit, it, converged = np.inf, 0, False
     for it in range(1, max_iter + 1):
-        np.add(M, Dt, out=W)                               # T1 = P^T Q + Y1 + Y2 + eta(M + D - S)
-        W -= S
-        W *= eta
-        W += Y1
-        W += Y2
-        if P.shape[0] > 0:
-            _add_product(W, Q.T, P)                        # + (P^T Q)^T, in place
-        B, P, Q = _factor_steps(W, B, 2.0 * eta, P, Q)     # (4.24), (4.26); W = (AB)^T
-        dab, nab = _change(W, Wp)                          # Wp = scratch from here
-        nr2 = _sparse_step(Dt, W, Y2, M, S, eta, lam / eta, obs)             # soft threshold on Omega
-        np.multiply(W, eta, out=M)
-        M -= Y1
-        M = _smooth_solve_inplace(M, eta, mu, mstep, axis=-1)                      # (4.25)
-        np.subtract(M, W, out=Wp)                          # R1 = M - AB
-        nr1 = float(np.linalg.norm(Wp))
-        Wp *= eta
-        Y1 += Wp
+        # T1 = P^T Q + Y1 + Y2 + eta (M + D - S), one pass
+        _step_matrix(W, Dt, S, M, Y1, Y2, eta, eta, (Q.T, P) if P.shape[0] > 0 else None)
+        F, B, P, Q = _factor_coefficients(W @ W.T, W, B, 2.0 * eta, P, Q)           # (4.24), (4.26)
+        _apply_factors(F, B, W)                            # W = (A B^T)^T
+        # S-step (soft threshold on Omega), M-step (4.25), Y1, in place, one pass
+        dab, nab, nr2, nr1 = _post_factor(W, Wp, Dt, S, M, Y1, Y2, obs, (eta, eta), lam / eta, mu, mstep)
         W, Wp = Wp, W                                      # Wp = this (AB)^T
-        crit = max(_rel(nr2, nd), _rel(nr1, nd), _rel(dab, nab))
+        crit = max(_rel(np.sqrt(nr2), nd), _rel(np.sqrt(nr1), nd), _rel(np.sqrt(dab), np.sqrt(nab)))
         eta = min(rho * eta, eta_max)
         if crit < tol:
             converged = True
             break
     return Wp, S, it, converged, crit
-
-
-def _add_product(W: np.ndarray, L: np.ndarray, R: np.ndarray) -> None:
-    """W += L @ R in place by BLAS dgemm (beta = 1), no temporary of W's size.
-
-    W is a C-contiguous (m, n) array, i.e. the Fortran-ordered (n, m) W^T, so the call
-    computes W^T <- R^T L^T + W^T."""
-    from scipy.linalg import blas
-
-    out = blas.dgemm(1.0, R.T, L.T, beta=1.0, c=W.T, overwrite_c=True)
-    if not np.shares_memory(out, W):                     # a copy was made: write it back
-        W[...] = out.T
 
 
 def _trnn_settings(Xlin: np.ndarray, r: int, d, lam: float | None,
