@@ -53,9 +53,8 @@ and vectorised over frames:
    children also count; the other angles zero;
 4. a Levenberg-Marquardt polish of all dofs of a frame at once (analytic normal
    equations ``J^T J``, ``J^T r`` from per-subtree position moments, without forming
-   J; damping ``lam (diag(J^T J) + its mean)``: Marquardt's scaling alone leaves a dof
-   the targets cannot see undamped; at most 12 iterations, a step kept only if it
-   lowers that frame's squared position error) runs only on the frames the closed-form pass leaves more than
+   J; at most 12 iterations, a step kept only if it lowers that frame's squared
+   position error) runs only on the frames the closed-form pass leaves more than
    ``min(0.001 cm + 3 x the frame's largest bone-length error of the targets, 0.5 cm)``
    off: the error a target set no pose can reach explains is not chased.
 
@@ -969,9 +968,7 @@ def _ik_refine(comp: _Compiled, X: np.ndarray, dofs: np.ndarray, angle_rad: bool
     squared position errors; a frame leaves the active set once its error is below
     ``tol_cm`` or a step gains less than ``rel_tol`` of it. Per iteration: the normal
     equations of the live frames (:func:`_ik_normal_equations`, into two reused (T, D, D)
-    buffers), damped on their diagonal in place by ``lam (diag + mean diag)`` (on 1 cm
-    noisy targets of 131_02 the pure Marquardt damping rejected ~40 % of the first steps and
-    12 iterations left RMS 1.120 cm, max 7.0; now 1.111, max 4.2), one batched ``np.linalg.solve``, the FK
+    buffers), damped on their diagonal in place, one batched ``np.linalg.solve``, the FK
     of the trial dofs (:func:`_fk_block`, which also gives the next axes).
     """
     dofs = dofs.copy()
@@ -1002,10 +999,7 @@ def _ik_refine(comp: _Compiled, X: np.ndarray, dofs: np.ndarray, angle_rad: bool
             # rebuilt, identically, for frames whose last step was rejected), damped in place
             A, g = _ik_normal_equations(comp, P[k], Wa[k], Wm[idx[k]], r[k], angle_rad, work)
             diag = A.reshape(len(k), -1)[:, ::nd + 1]                # a view of the diagonals
-            # damping lam (diag + mean diag): Marquardt's scaling alone leaves a dof the
-            # targets do not see (the twist of a bone without a child end, ~0 on the
-            # diagonal) undamped, and its huge steps were rejected in ~40 % of the frames
-            diag += lam[k, None] * (diag + diag.mean(axis=1, keepdims=True))
+            diag += lam[k, None] * (diag + 1e-9)
             step = -np.linalg.solve(A, g[..., None])[..., 0]
             newc, newr, newP, newW = cost_of(D[k] + step, idx[k])
             ok = newc < cost[k]
