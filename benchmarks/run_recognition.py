@@ -152,6 +152,17 @@ def nmc_thesis(ctx) -> dict:
     return out
 
 
+def cnn_note() -> str:
+    """One paragraph on the CNN comparison, from docs/results/recognition_cnn.json."""
+    f = RES / "recognition_cnn.json"
+    if not f.is_file():
+        return "Not run (recognition_cnn.md)."
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    import run_recognition_cnn as cnn
+
+    return cnn.summary_line(json.loads(f.read_text()))
+
+
 def selection_table() -> str:
     if not SEL_FILE.is_file():
         return ""
@@ -489,6 +500,8 @@ def main() -> None:
           "scores of an ensemble are summed. Inner folds (training clips only, the choice): leave one of the "
           "training subjects 1,3,5,7,9 out, and the inner half splits; the outer columns are shown for the "
           "record, not used to choose.", "", explore_table(), "",
+          "### A small temporal CNN (torch), alone and with the default (`benchmarks/run_recognition_cnn.py`)", "",
+          cnn_note(), "",
           "## Targets", "", verdicts(rows), "",
           nmc_note(rows), "",
           "## Where the remaining errors are (default classifier)", "", errors(rows), "",
