@@ -51,14 +51,25 @@ def shrink(y: np.ndarray, beta: float) -> np.ndarray:
     return np.where(y > 1 + np.sqrt(beta), np.sqrt(np.maximum(t, 0)) / np.maximum(y, 1e-300), 0.0)
 
 
-def _block(X: np.ndarray, sigma: float, window: int) -> np.ndarray:
-    """One block: embed, shrink, average back. X (T, C) centred.
+#: first rank the randomized SVD of a block tries (doubled until the smallest value found
+#: is under the noise edge)
+RANK0 = 128
+
+
+def _block(X: np.ndarray, sigma: float, window: int, k0: int = RANK0) -> tuple[np.ndarray, int]:
+    """One block: embed, shrink, average back. X (T, C) centred. Returns the block and the
+    rank to start the next block with.
 
     Only the singular values above the noise edge survive (GD7), so a randomized SVD
     (Halko, Martinsson & Tropp 2011; scikit-learn's implementation, fixed seed so the
-    map is deterministic) of growing rank replaces the full decomposition: it stops once
-    the smallest value it found is under the edge. Measured 15-20x faster than the full
-    eigendecomposition of the (C L)^2 Gram matrix at 120 fps (93 channels x 16 lags).
+    map is deterministic) of growing rank replaces the full decomposition: it starts at
+    ``k0`` and doubles until the smallest value it found is under the edge. Measured
+    15-20x faster than the full eigendecomposition of the (C L)^2 Gram matrix at 120 fps
+    (93 channels x 16 lags). The next block starts at the smallest power-of-2 multiple of
+    :data:`RANK0` above the number of values kept here (the rank this block's doubling
+    would have stopped at, or a smaller one): neighbouring blocks of one clip keep similar
+    ranks, and a clip whose blocks keep 130-250 values paid a rank-128 try per block before
+    its rank-256 one (mssa_denoise at 10,000 frames, 120 fps: 4.7-5.4 -> 3.6-3.9 s).
     """
     from sklearn.utils.extmath import randomized_svd
 
@@ -70,7 +81,7 @@ def _block(X: np.ndarray, sigma: float, window: int) -> np.ndarray:
     big, beta = max(m, n), min(m, n) / max(m, n)
     unit = sigma * np.sqrt(big)
     edge = unit * (1 + np.sqrt(beta))
-    k = 128
+    k = int(k0)
     while True:
         if 2 * k >= min(m, n):                 # small matrix: the exact SVD is cheaper
             U, S, Vt = np.linalg.svd(H, full_matrices=False)
@@ -80,10 +91,13 @@ def _block(X: np.ndarray, sigma: float, window: int) -> np.ndarray:
             break
         k *= 2
     keep = S > edge
+    nxt = RANK0
+    while nxt <= keep.sum():
+        nxt *= 2
     if not keep.any():
-        return np.zeros_like(X)
+        return np.zeros_like(X), nxt
     Hd = (U[:, keep] * shrink(S[keep] / unit, beta) * unit) @ Vt[keep]
-    return overlap_mean(Hd, T, window)
+    return overlap_mean(Hd, T, window), nxt
 
 
 def mssa_denoise(X, sigma: float, *, window: int, block: int = 2048) -> np.ndarray:
@@ -103,13 +117,14 @@ def mssa_denoise(X, sigma: float, *, window: int, block: int = 2048) -> np.ndarr
         return X.copy()
     mu = X.mean(axis=0)
     if T <= block:
-        return _block(X - mu, float(sigma), window) + mu
+        return _block(X - mu, float(sigma), window)[0] + mu
     # long clips: each block is centred on its own copy and the tapered sum is scaled in
     # place (no centred copy of the whole clip and no whole-clip temporaries; the same
     # element operations as centring first)
     ov = 4 * window                                                    # overlap per side
     out = np.zeros_like(X)
     wsum = np.zeros(T)
+    k = RANK0
     for a in range(0, T, block - 2 * ov):
         b = min(T, a + block)
         a = max(0, b - block)
@@ -119,7 +134,9 @@ def mssa_denoise(X, sigma: float, *, window: int, block: int = 2048) -> np.ndarr
             w[:ov] = ramp
         if b < T:
             w[-ov:] = ramp[::-1]
-        out[a:b] += _block(X[a:b] - mu, float(sigma), window) * w[:, None]
+        y, k = _block(X[a:b] - mu, float(sigma), window, k)
+        y *= w[:, None]
+        out[a:b] += y
         wsum[a:b] += w
         if b == T:
             break
