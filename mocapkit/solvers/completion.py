@@ -42,7 +42,9 @@ stored, and the product overwrites its input block by block.  The element-wise s
 around them are fused into two passes over blocks of channels (:func:`_step_matrix`,
 :func:`_post_factor`), so that a block's arrays stay in cache.  Per trnn iteration at
 10,000 frames x 93 coordinates (one core, measured 2026-12-03 at a loaded moment of this
-shared machine, 44 ms in all): the step matrix 7.9 ms, its Gram matrix 2.9, the factor
+shared machine, 44 ms in all; interleaved with the unfused loops: tsmc +16 %, trnn +-0 at
+10,000 frames, both +-5 % on a 3,678-frame C3D, +9 / +16 % while another job loaded the
+memory bus): the step matrix 7.9 ms, its Gram matrix 2.9, the factor
 coefficients with the polar factors 5.0, the product 4.3, the fused sparse step, M-step
 with its two DCTs and multiplier update 24.1 -- O(T C^2 + T C log T), linear in the
 number of frames.  No step loops over frames in Python except the Kalman/RTS recursions
@@ -500,7 +502,7 @@ def _step_matrix(W: np.ndarray, D: np.ndarray, S: np.ndarray, M: np.ndarray, Y1:
         w += Y1[s]
         w += Y2[s]
         if PQ is not None:
-            w += PQ[0][s] @ PQ[1]                          # (P^T Q)^T = Q^T P, rows s
+            _add_product(w, PQ[0][s], PQ[1])               # (P^T Q)^T = Q^T P, rows s
 
 
 def _post_factor(W: np.ndarray, Wp: np.ndarray, D: np.ndarray, S: np.ndarray, M: np.ndarray,
@@ -561,6 +563,18 @@ def _trnn_loop(Dt: np.ndarray, obs: np.ndarray, factors: tuple, mults: tuple, la
             converged = True
             break
     return Wp, S, it, converged, crit
+
+
+def _add_product(W: np.ndarray, L: np.ndarray, R: np.ndarray) -> None:
+    """W += L @ R in place by BLAS dgemm (beta = 1), no temporary of W's size.
+
+    W is a C-contiguous (m, n) array, i.e. the Fortran-ordered (n, m) W^T, so the call
+    computes W^T <- R^T L^T + W^T."""
+    from scipy.linalg import blas
+
+    out = blas.dgemm(1.0, R.T, L.T, beta=1.0, c=W.T, overwrite_c=True)
+    if not np.shares_memory(out, W):                     # a copy was made: write it back
+        W[...] = out.T
 
 
 def _trnn_settings(Xlin: np.ndarray, r: int, d, lam: float | None,
