@@ -125,6 +125,32 @@ def test_mssa_long_clip_in_blocks_matches_one_block():
     assert e1 < 0.2 and e2 < 1.2 * e1
 
 
+def test_mssa_blocks_start_at_the_rank_the_previous_needed_and_a_probe_reuses_them(monkeypatch):
+    """Block ranks: each block of a long clip starts its randomized SVD where the previous
+    one's kept count says (one try per block instead of a rank-128 try before each
+    doubling), and ``ranks`` filled by a first call makes a second call compute the same
+    map with one try per block (SURE's probe in auto)."""
+    from sklearn.utils import extmath
+
+    rng = np.random.default_rng(5)
+    truth = np.cumsum(rng.normal(size=(2000, 90)), axis=0)            # many components
+    Y = truth + rng.normal(0, 0.5, truth.shape)
+    calls = []
+    orig = extmath.randomized_svd
+    monkeypatch.setattr(extmath, "randomized_svd", lambda H, k, **kw: (calls.append(k), orig(H, k, **kw))[1])
+    ranks: list[int] = []
+    a = mssa_denoise(Y, 0.5, window=6, block=700, ranks=ranks)
+    first = list(calls)
+    assert len(ranks) >= 3 and max(ranks) > mssa.RANK0                 # doubling happened
+    assert len(first) <= len(ranks) + int(np.log2(max(ranks) // mssa.RANK0))   # not once per block
+    calls.clear()
+    b = mssa_denoise(Y, 0.5, window=6, block=700, ranks=ranks)
+    assert calls == ranks                                               # one try per block
+    np.testing.assert_array_equal(a, b)
+    c = mssa_denoise(Y, 0.5, window=6, block=700)                       # no list: same blocks
+    np.testing.assert_array_equal(a, c)
+
+
 def test_diagnose_reports_noise_spikes_and_gaps(clip):
     m = _noisy(clip, [("gaussian", {"sigma_cm": 1.0}), ("outliers", {"ratio": 0.05, "magnitude_cm": 15.0}),
                       ("block_gaps", {"n_markers": 1, "length": 30, "n_blocks": 3})], seed=2)

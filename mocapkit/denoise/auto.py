@@ -574,8 +574,11 @@ def _smooth(Y: np.ndarray, kept: np.ndarray, fit: np.ndarray, sigma: float,
     def f_gcv(Z):
         return gcv_smooth(Z, kept, group=3)[0]
 
+    ranks: list[int] = []                  # filled by the first run: the probe's run then
+                                           # takes the same ranks, i.e. the same map
+
     def f_mssa(Z):
-        return mssa_denoise(Z, sigma, window=window)
+        return mssa_denoise(Z, sigma, window=window, ranks=ranks)
 
     if Y.shape[0] < 4 * window:
         return fit, "gcv-spline", float(sigma)

@@ -56,20 +56,25 @@ def shrink(y: np.ndarray, beta: float) -> np.ndarray:
 RANK0 = 128
 
 
-def _block(X: np.ndarray, sigma: float, window: int, k0: int = RANK0) -> tuple[np.ndarray, int]:
-    """One block: embed, shrink, average back. X (T, C) centred. Returns the block and the
-    rank to start the next block with.
+def _next_rank(kept: int) -> int:
+    """The smallest power-of-2 multiple of :data:`RANK0` above ``kept``: where the next
+    block's randomized SVD starts (:func:`_block`)."""
+    k = RANK0
+    while k <= kept:
+        k *= 2
+    return k
+
+
+def _block(X: np.ndarray, sigma: float, window: int, k0: int = RANK0) -> tuple[np.ndarray, int, int]:
+    """One block: embed, shrink, average back. X (T, C) centred. Returns the block, the
+    rank its randomized SVD ended at and the number of singular values kept.
 
     Only the singular values above the noise edge survive (GD7), so a randomized SVD
     (Halko, Martinsson & Tropp 2011; scikit-learn's implementation, fixed seed so the
     map is deterministic) of growing rank replaces the full decomposition: it starts at
     ``k0`` and doubles until the smallest value it found is under the edge. Measured
     15-20x faster than the full eigendecomposition of the (C L)^2 Gram matrix at 120 fps
-    (93 channels x 16 lags). The next block starts at the smallest power-of-2 multiple of
-    :data:`RANK0` above the number of values kept here (the rank this block's doubling
-    would have stopped at, or a smaller one): neighbouring blocks of one clip keep similar
-    ranks, and a clip whose blocks keep 130-250 values paid a rank-128 try per block before
-    its rank-256 one (mssa_denoise at 10,000 frames, 120 fps: 4.7-5.4 -> 3.6-3.9 s).
+    (93 channels x 16 lags).
     """
     from sklearn.utils.extmath import randomized_svd
 
@@ -91,20 +96,27 @@ def _block(X: np.ndarray, sigma: float, window: int, k0: int = RANK0) -> tuple[n
             break
         k *= 2
     keep = S > edge
-    nxt = RANK0
-    while nxt <= keep.sum():
-        nxt *= 2
     if not keep.any():
-        return np.zeros_like(X), nxt
+        return np.zeros_like(X), k, 0
     Hd = (U[:, keep] * shrink(S[keep] / unit, beta) * unit) @ Vt[keep]
-    return overlap_mean(Hd, T, window), nxt
+    return overlap_mean(Hd, T, window), k, int(keep.sum())
 
 
-def mssa_denoise(X, sigma: float, *, window: int, block: int = 2048) -> np.ndarray:
+def mssa_denoise(X, sigma: float, *, window: int, block: int = 2048,
+                 ranks: list[int] | None = None) -> np.ndarray:
     """Denoise a complete (T, C) matrix (cm) with white noise of std ``sigma`` (cm).
 
     window : embedding length in frames (about 0.13 s: 4 at 30 fps, 16 at 120 fps was
         measured best on CMU clips). block : frames per block for long clips.
+    ranks : where each block's randomized SVD starts (:func:`_block`). Empty (or None):
+        the first block at :data:`RANK0`, each next one at the smallest power-of-2
+        multiple of it above the previous block's kept count (neighbouring blocks keep
+        similar ranks: a clip whose blocks keep 130-250 values paid a rank-128 try per
+        block before its rank-256 one; mssa_denoise at 10,000 frames, 120 fps: 4.7-5.4 ->
+        3.6-4.5 s). Given as a list, it is filled with the rank each block ended at; a
+        list so filled makes a second call (SURE's probe of :func:`sure_divergence`)
+        start every block where the first ended, i.e. compute the same map without the
+        first call's tries.
     """
     X = np.asarray(X, dtype=float)
     if X.ndim != 2 or not np.isfinite(X).all():
@@ -115,33 +127,42 @@ def mssa_denoise(X, sigma: float, *, window: int, block: int = 2048) -> np.ndarr
         raise MocapValueError(f"mssa: window must be 2..T/2 frames, got {window} for T={T}")
     if not (sigma > 0):
         return X.copy()
+    given = list(ranks) if ranks else []
+    used = []
     mu = X.mean(axis=0)
     if T <= block:
-        return _block(X - mu, float(sigma), window)[0] + mu
-    # long clips: each block is centred on its own copy and the tapered sum is scaled in
-    # place (no centred copy of the whole clip and no whole-clip temporaries; the same
-    # element operations as centring first)
-    ov = 4 * window                                                    # overlap per side
-    out = np.zeros_like(X)
-    wsum = np.zeros(T)
-    k = RANK0
-    for a in range(0, T, block - 2 * ov):
-        b = min(T, a + block)
-        a = max(0, b - block)
-        w = np.ones(b - a)
-        ramp = np.linspace(0.0, 1.0, ov + 2)[1:-1]
-        if a > 0:
-            w[:ov] = ramp
-        if b < T:
-            w[-ov:] = ramp[::-1]
-        y, k = _block(X[a:b] - mu, float(sigma), window, k)
-        y *= w[:, None]
-        out[a:b] += y
-        wsum[a:b] += w
-        if b == T:
-            break
-    out /= wsum[:, None]
-    out += mu
+        y, k, _ = _block(X - mu, float(sigma), window, given[0] if given else RANK0)
+        used.append(k)
+        out = y + mu
+    else:
+        # long clips: each block is centred on its own copy and the tapered sum is scaled
+        # in place (no centred copy of the whole clip and no whole-clip temporaries; the
+        # same element operations as centring first)
+        ov = 4 * window                                                # overlap per side
+        out = np.zeros_like(X)
+        wsum = np.zeros(T)
+        k0 = RANK0
+        for i, a in enumerate(range(0, T, block - 2 * ov)):
+            b = min(T, a + block)
+            a = max(0, b - block)
+            w = np.ones(b - a)
+            ramp = np.linspace(0.0, 1.0, ov + 2)[1:-1]
+            if a > 0:
+                w[:ov] = ramp
+            if b < T:
+                w[-ov:] = ramp[::-1]
+            y, k, kept = _block(X[a:b] - mu, float(sigma), window, given[i] if i < len(given) else k0)
+            used.append(k)
+            k0 = _next_rank(kept)
+            y *= w[:, None]
+            out[a:b] += y
+            wsum[a:b] += w
+            if b == T:
+                break
+        out /= wsum[:, None]
+        out += mu
+    if ranks is not None:
+        ranks[:] = used
     return out
 
 
