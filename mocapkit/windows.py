@@ -63,6 +63,40 @@ def lagged(X, M: int, *, view: bool = False) -> np.ndarray:
     return V if view else V.copy()
 
 
+def lagged_gram(X, M: int) -> np.ndarray:
+    """``H^T H`` of ``H = lagged(X, M)`` (X (T, C) float), (M C, M C), without forming H.
+
+    Block (i, j) (lags i, j; C x C) is ``X[i:i+S]^T X[j:j+S]``, S = T - M + 1: the M blocks
+    of the first block row are computed, and each next one from its upper-left neighbour by
+    the window's sliding, ``G(i+1, j+1) = G(i, j) - x_i x_j^T + x_{i+S} x_{j+S}^T``: M
+    products of C x S x C instead of the (M C)^2 S of ``H.T @ H`` (16 lags: 16x fewer flops).
+
+    >>> import numpy as np
+    >>> X = np.random.default_rng(0).normal(size=(50, 3))
+    >>> H = lagged(X, 4)
+    >>> bool(np.allclose(lagged_gram(X, 4), H.T @ H))
+    True
+    """
+    X = np.asarray(X, dtype=float)
+    T, C = X.shape
+    M = int(M)
+    S = T - M + 1
+    if S < 1:
+        raise MocapValueError(f"need at least {M} frames for windows of {M}, got {T}")
+    G = np.empty((M * C, M * C))
+    for j in range(M):
+        G[:C, j * C:(j + 1) * C] = X[:S].T @ X[j:j + S]
+    for i in range(1, M):                          # along the diagonals: rank-2 updates
+        for j in range(i, M):
+            G[i * C:(i + 1) * C, j * C:(j + 1) * C] = (G[(i - 1) * C:i * C, (j - 1) * C:j * C]
+                                                       - np.outer(X[i - 1], X[j - 1])
+                                                       + np.outer(X[i - 1 + S], X[j - 1 + S]))
+    for i in range(M):                             # the lower blocks: transposes
+        for j in range(i + 1, M):
+            G[j * C:(j + 1) * C, i * C:(i + 1) * C] = G[i * C:(i + 1) * C, j * C:(j + 1) * C].T
+    return G
+
+
 def counts(T: int, M: int) -> np.ndarray:
     """n_t (T,) float: how many of the length-M windows (starts 0..T-M) contain frame t."""
     S = T - M + 1

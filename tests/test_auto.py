@@ -136,8 +136,9 @@ def test_mssa_blocks_start_at_the_rank_the_previous_needed_and_a_probe_reuses_th
     truth = np.cumsum(rng.normal(size=(2000, 90)), axis=0)            # many components
     Y = truth + rng.normal(0, 0.5, truth.shape)
     calls = []
-    orig = extmath.randomized_svd
+    orig, orig_gram = extmath.randomized_svd, mssa._gram_svd
     monkeypatch.setattr(extmath, "randomized_svd", lambda H, k, **kw: (calls.append(k), orig(H, k, **kw))[1])
+    monkeypatch.setattr(mssa, "_gram_svd", lambda H, G, k, **kw: (calls.append(k), orig_gram(H, G, k, **kw))[1])
     ranks: list[int] = []
     a = mssa_denoise(Y, 0.5, window=6, block=700, ranks=ranks)
     first = list(calls)
@@ -149,6 +150,34 @@ def test_mssa_blocks_start_at_the_rank_the_previous_needed_and_a_probe_reuses_th
     np.testing.assert_array_equal(a, b)
     c = mssa_denoise(Y, 0.5, window=6, block=700)                       # no list: same blocks
     np.testing.assert_array_equal(a, c)
+
+
+def test_gram_svd_of_tall_blocks_matches_the_exact_svd():
+    """The tall-block route (subspace iteration on H^T H from the window's sliding) gives
+    the exact SVD's singular values to 1e-5 and its rank-40 part as closely as the
+    randomized SVD on H it replaces; the Gram matrix itself equals H^T H to rounding."""
+    from mocapkit.windows import lagged, lagged_gram
+
+    rng = np.random.default_rng(6)
+    truth = np.cumsum(rng.normal(size=(800, 40)), axis=0)
+    X = truth + rng.normal(0, 0.5, truth.shape)
+    X -= X.mean(axis=0)
+    H = lagged(X, 8)                                                     # 793 x 320: tall
+    G = lagged_gram(X, 8)
+    np.testing.assert_allclose(G, H.T @ H, rtol=0, atol=1e-9 * np.abs(G).max())
+    U, S, Vt = mssa._gram_svd(H, G, 64)
+    S_exact = np.linalg.svd(H, compute_uv=False)[:64]
+    np.testing.assert_allclose(S[:40], S_exact[:40], rtol=1e-5)
+    np.testing.assert_allclose((U * S) @ Vt, (U * S) @ Vt @ Vt.T @ Vt, atol=1e-8 * S[0])   # orthonormal V
+    from sklearn.utils.extmath import randomized_svd
+
+    Ue, Se, Vte = np.linalg.svd(H, full_matrices=False)
+    Us, Ss, Vts = randomized_svd(H, 64, n_oversamples=10, n_iter=4, random_state=0)   # the wide route
+    k = 40
+    exact = (Ue[:, :k] * Se[:k]) @ Vte[:k]
+    err = np.sqrt(np.mean(((U[:, :k] * S[:k]) @ Vt[:k] - exact) ** 2))
+    err_sk = np.sqrt(np.mean(((Us[:, :k] * Ss[:k]) @ Vts[:k] - exact) ** 2))
+    assert err < 1e-4 * np.abs(H).max() and err <= 1.5 * err_sk
 
 
 def test_diagnose_reports_noise_spikes_and_gaps(clip):
