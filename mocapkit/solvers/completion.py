@@ -313,7 +313,7 @@ def _tsmc_loop(Xt: np.ndarray, obs: np.ndarray, V: np.ndarray, mults: tuple, wei
     """Algorithm 2 iterations of :func:`tsmc`, in place, on the transposed (C, T) layout.
 
     Xt (the data), E, M, Y1, Y2 and two work arrays: W (Z, then U V^T in place,
-    :func:`_factor_steps`) and Wp (the previous U V^T, then scratch); U is never formed.
+    :func:`_factor_coefficients`, :func:`_apply_factors`) and Wp (the previous U V^T, then scratch); U is never formed.
     ``Y2 += l2 (X - UV - E)`` is folded into the E-step (``Y2_new = l2 clip(Ze,
     +-alpha/l2)`` on Omega, 0 off it; :func:`_sparse_step`).  Returns (U V^T)^T (C, T), V,
     E (C, T) and the iteration count, convergence flag and last criterion.
@@ -538,7 +538,7 @@ def _trnn_loop(Dt: np.ndarray, obs: np.ndarray, factors: tuple, mults: tuple, la
     """Algorithm 3 iterations of :func:`trnn`, in place, on the transposed (C, T) layout.
 
     Dt (P_Omega(X)^T), S, M, Y1, Y2 and two work arrays: W (T1, then (A B^T)^T in place,
-    :func:`_factor_steps`) and Wp (the previous product, then scratch); A is never
+    :func:`_factor_coefficients`, :func:`_apply_factors`) and Wp (the previous product, then scratch); A is never
     formed.  ``Y2 += eta (D - AB - S)`` is folded into the S-step (``Y2_new = eta
     clip(Ts, +-lam/eta)`` on Omega, 0 off it; :func:`_sparse_step`).  Returns (A B^T)^T
     (C, T), S (C, T) and the iteration count, convergence flag and last criterion.
