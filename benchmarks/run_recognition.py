@@ -79,6 +79,21 @@ CANDIDATES = {
 SEL_FILE = RES / "recognition_selection.json"
 
 
+def inner_folds(y: np.ndarray, g: np.ndarray) -> list[tuple[str, str, np.ndarray, np.ndarray]]:
+    """(kind, fold name, train, test) of the inner validation, training clips only: leave one
+    of the training subjects 1,3,5,7,9 out, and a per-class half split inside the training
+    halves of outer splits 0 and 1 (labels y, subjects g)."""
+    from mocapkit.bench.protocols import retrieval as R
+
+    tr_cs = np.flatnonzero(g % 2 == 1)
+    out = [("cross-subject", f"loso{s}", tr_cs[g[tr_cs] != s], tr_cs[g[tr_cs] == s]) for s in (1, 3, 5, 7, 9)]
+    for o in (0, 1):
+        tr = R._class_halves(y, o)[0]
+        a, b = R._class_halves(y[tr], 100 + o)
+        out.append(("half", f"ihalf{o}", tr[a], tr[b]))
+    return out
+
+
 def select(ctx, names: list[str], seeds=(0, 1)) -> None:
     """Inner validation of CANDIDATES on the training clips only (module doc)."""
     from mocapkit.bench.protocols import retrieval as R
@@ -89,12 +104,7 @@ def select(ctx, names: list[str], seeds=(0, 1)) -> None:
     series = {64: X}                                     # inputs per resampled length
     out = json.loads(SEL_FILE.read_text()) if SEL_FILE.is_file() else []
     done = {(e["candidate"], e["seed"]) for e in out}
-    tr_cs = np.flatnonzero(g % 2 == 1)
-    folds = [("cross-subject", tr_cs[g[tr_cs] != s], tr_cs[g[tr_cs] == s]) for s in (1, 3, 5, 7, 9)]
-    for o in (0, 1):
-        tr = R._class_halves(y, o)[0]
-        a, b = R._class_halves(y[tr], 100 + o)
-        folds.append(("half", tr[a], tr[b]))
+    folds = inner_folds(y, g)
     for name in names:
         for seed in seeds:
             if (name, seed) in done:
@@ -108,7 +118,7 @@ def select(ctx, names: list[str], seeds=(0, 1)) -> None:
             right = {"cross-subject": 0, "half": 0}
             n = {"cross-subject": 0, "half": 0}
             alphas = []
-            for kind, a, b in folds:
+            for kind, _, a, b in folds:
                 m = RocketClassifier(seed=seed, **CANDIDATES[name]).fit_series(XL[a], y[a], keypoints=D["keypoints"])
                 right[kind] += int((m.predict_series(XL[b]) == y[b]).sum())
                 n[kind] += len(b)

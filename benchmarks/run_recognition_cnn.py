@@ -85,16 +85,11 @@ def load_data(data: str | None) -> dict:
 
 
 def inner_folds(y: np.ndarray, g: np.ndarray) -> list[tuple[str, str, np.ndarray, np.ndarray]]:
-    """(kind, fold name, train, test): exactly the folds of run_recognition.select()."""
-    from mocapkit.bench.protocols import retrieval as R
+    """The folds of run_recognition.select() (its :func:`inner_folds`)."""
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    from run_recognition import inner_folds as folds
 
-    tr_cs = np.flatnonzero(g % 2 == 1)
-    out = [("cross-subject", f"loso{s}", tr_cs[g[tr_cs] != s], tr_cs[g[tr_cs] == s]) for s in (1, 3, 5, 7, 9)]
-    for o in (0, 1):
-        tr = R._class_halves(y, o)[0]
-        a, b = R._class_halves(y[tr], 100 + o)
-        out.append(("half", f"ihalf{o}", tr[a], tr[b]))
-    return out
+    return folds(y, g)
 
 
 def outer_folds(y: np.ndarray, g: np.ndarray) -> list[tuple[str, str, np.ndarray, np.ndarray, tuple]]:

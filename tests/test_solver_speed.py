@@ -148,11 +148,32 @@ def test_factor_steps_equal_the_explicit_steps(monkeypatch, d):
     Pn = orth_max(A @ (Q @ Bn).T)
     Qn = orth_max(Bn @ (Pn @ A).T)
     W = np.ascontiguousarray(Z.T)
-    B1, P1, Q1 = cp._factor_steps(W, B, c, P, Q)
+    _, B1, P1, Q1 = cp._factor_coefficients(W @ W.T, W, B, c, P, Q)
+    cp._apply_factors(cp._factor_coefficients(W @ W.T, W, B, c)[0], B1, W)
     np.testing.assert_allclose(B1, Bn, rtol=1e-10, atol=1e-12)
     np.testing.assert_allclose(W, (A @ Bn.T).T, rtol=1e-10, atol=1e-10)
     np.testing.assert_allclose(P1, Pn, atol=1e-10)
     np.testing.assert_allclose(Q1, Qn, atol=1e-10)
+
+
+@pytest.mark.parametrize("solver", ["trnn", "tsmc"])
+@pytest.mark.parametrize("mstep", ["dct", "banded"])
+def test_fused_passes_in_blocks_of_channels_equal_one_block(monkeypatch, solver, mstep):
+    """The fused element-wise passes (_step_matrix, _post_factor) in blocks of a few
+    channels -- the route of clips over FUSE_WHOLE elements -- give the one-block result
+    (same iterations; values to rounding), with a short last block."""
+    rng = np.random.default_rng(13)
+    t = np.linspace(0, 6, 256)[:, None]
+    X = np.hstack([np.sin(t * (1 + 0.2 * k) + k) * (3 + k) for k in range(11)]) + rng.normal(0, 0.1, (256, 11))
+    M = rng.random(X.shape) > 0.2
+    f = getattr(cp, solver)
+    one, i1 = f(np.where(M, X, np.nan), M, mstep=mstep, return_info=True)
+    monkeypatch.setattr(cp, "FUSE_WHOLE", 0)
+    monkeypatch.setattr(cp, "FUSE_BLOCK", 3 * 256)                 # 3 channels a block: 3, 3, 3, 2
+    assert [s.stop - s.start for s in cp._channel_blocks(11, 256)] == [3, 3, 3, 2]
+    many, i2 = f(np.where(M, X, np.nan), M, mstep=mstep, return_info=True)
+    assert i1.n_iter == i2.n_iter
+    np.testing.assert_allclose(many, one, rtol=1e-9, atol=1e-9 * np.abs(one).max())
 
 
 def test_polar_gram_route_and_svd_fallback():

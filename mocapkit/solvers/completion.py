@@ -36,8 +36,8 @@ Misprints of the thesis fixed here (see ../shared/specs/METHODS.md Sec. 4)
 
 Speed: tsmc and trnn iterate on the transposed (C, T) matrix (C coordinates, T frames),
 so that the DCT of the M-step runs along contiguous rows.  The two factor steps are taken
-in Gram form (:func:`_factor_steps`): only the (C, C) Gram matrix of the step's (T, C)
-matrix and one (C, C) x (C, T) product touch the frames, the left factor (T x k) is never
+in Gram form (:func:`_factor_coefficients`, :func:`_apply_factors`): only the (C, C) Gram
+matrix of the step's (T, C) matrix and one (C, C) x (C, T) product touch the frames, the left factor (T x k) is never
 stored, and the product overwrites its input block by block.  The element-wise steps
 around them are fused into two passes over blocks of channels (:func:`_step_matrix`,
 :func:`_post_factor`), so that a block's arrays stay in cache.  Per trnn iteration at
@@ -313,7 +313,8 @@ def _tsmc_loop(Xt: np.ndarray, obs: np.ndarray, V: np.ndarray, mults: tuple, wei
     """Algorithm 2 iterations of :func:`tsmc`, in place, on the transposed (C, T) layout.
 
     Xt (the data), E, M, Y1, Y2 and two work arrays: W (Z, then U V^T in place,
-    :func:`_factor_coefficients`, :func:`_apply_factors`) and Wp (the previous U V^T, then scratch); U is never formed.
+    :func:`_factor_coefficients`, :func:`_apply_factors`) and Wp (the previous U V^T, then
+    scratch); U is never formed.
     ``Y2 += l2 (X - UV - E)`` is folded into the E-step (``Y2_new = l2 clip(Ze,
     +-alpha/l2)`` on Omega, 0 off it; :func:`_sparse_step`).  Returns (U V^T)^T (C, T), V,
     E (C, T) and the iteration count, convergence flag and last criterion.
@@ -332,7 +333,7 @@ def _tsmc_loop(Xt: np.ndarray, obs: np.ndarray, V: np.ndarray, mults: tuple, wei
         # E-step (4.11), M-step (4.13), Y1 (4.14), in place, one pass
         duv, nuv, nr2, nr1 = _post_factor(W, Wp, Xt, E, M, Y1, Y2, obs, (l2, l1), alpha / l2, beta, mstep)
         W, Wp = Wp, W                                      # Wp = this U V^T
-        crit = max(_rel(np.sqrt(nr2), nx), _rel(np.sqrt(nr1), nx), _rel(np.sqrt(duv), np.sqrt(nuv)))
+        crit = max(_rel(nr2, nx), _rel(nr1, nx), _rel(duv, nuv))
         l1 = min(gamma * l1, lam_max)
         l2 = min(gamma * l2, lam_max)
         if crit < tol:
@@ -349,7 +350,7 @@ def _sparse_step(D: np.ndarray, W: np.ndarray, Y: np.ndarray, M: np.ndarray, S: 
     """The sparse-error step shared by the tsmc (eq. 4.11, 4.14) and trnn (4.24) ALMs, in
     place: S = Z - shrink_Omega(Z, thr) with Z = D - W + Y / pen (soft threshold on the
     observed entries, identity on missing ones), then Y <- pen (D - W - S) and
-    ``||D - W - S||_F`` is returned. M is scratch of D's shape; on return M = D - W - S.
+    ``||D - W - S||_F^2`` is returned. M is scratch of D's shape; on return M = D - W - S.
     (Y is used as scratch for the clipped Z, and Y_old + pen R equals pen clip(Z).)
     ``obs`` is the bool observed mask; multiplying by it is 3x faster than a masked copy."""
     np.multiply(Y, 1.0 / pen, out=M)                   # M = Y / pen
@@ -359,9 +360,9 @@ def _sparse_step(D: np.ndarray, W: np.ndarray, Y: np.ndarray, M: np.ndarray, S: 
     np.multiply(Y, obs, out=Y)                         # 0 off Omega (the clip is finite)
     S -= Y                                             # soft threshold on Omega
     np.subtract(Y, M, out=M)                           # R = D - W - S
-    nr = float(np.linalg.norm(M))
+    nr2 = _sq(M)
     Y *= pen                                           # = Y_old + pen R, since Y holds the clip
-    return nr
+    return nr2
 
 
 def _smooth_solve_inplace(rhs: np.ndarray, eta: float, mu: float, method: str,
@@ -466,15 +467,6 @@ def _apply_factors(F: np.ndarray, Bn: np.ndarray, W: np.ndarray) -> None:
         W[:, s] = Bn @ (F.T @ W[:, s]) if thin else Z @ W[:, s]
 
 
-def _factor_steps(W: np.ndarray, B: np.ndarray, c: float, P: np.ndarray | None = None,
-                  Q: np.ndarray | None = None):
-    """Both factor steps (:func:`_factor_coefficients`, :func:`_apply_factors`): W is
-    overwritten in place by the new product (A B^T)^T; returns (B_new, P, Q)."""
-    F, Bn, P, Q = _factor_coefficients(W @ W.T, W, B, c, P, Q)
-    _apply_factors(F, Bn, W)
-    return Bn, P, Q
-
-
 def _sq(a: np.ndarray) -> float:
     """Squared Frobenius norm of a C-contiguous array (BLAS dot on its flat view)."""
     v = a.reshape(-1)
@@ -513,8 +505,9 @@ def _post_factor(W: np.ndarray, Wp: np.ndarray, D: np.ndarray, S: np.ndarray, M:
     them): the change of W from the previous product Wp, the sparse step
     (:func:`_sparse_step`, penalty ``pens[0]``, threshold ``thr``), the M-step
     ``M = solve(pens[1] W - Y1)`` (:func:`_smooth_solve_inplace`), ``R1 = M - W`` into Wp
-    and ``Y1 += pens[1] R1``.  Returns the squared norms (||W - Wp||, ||W||,
-    ||D - W - S||, ||R1||); Wp is scratch afterwards (it holds pens[1] R1)."""
+    and ``Y1 += pens[1] R1``.  Returns the Frobenius norms (||W - Wp||, ||W||,
+    ||D - W - S||, ||R1||), summed over the blocks as squares; Wp is scratch afterwards
+    (it holds pens[1] R1)."""
     pen2, pen1 = pens
     dab = nab = nr2 = nr1 = 0.0
     for s in _channel_blocks(*W.shape):
@@ -522,7 +515,7 @@ def _post_factor(W: np.ndarray, Wp: np.ndarray, D: np.ndarray, S: np.ndarray, M:
         nab += _sq(w)
         np.subtract(w, p, out=p)
         dab += _sq(p)                                      # p = scratch from here
-        nr2 += _sparse_step(D[s], w, Y2[s], p, S[s], pen2, thr, obs[s]) ** 2
+        nr2 += _sparse_step(D[s], w, Y2[s], p, S[s], pen2, thr, obs[s])
         np.multiply(w, pen1, out=m)
         m -= y1
         m = M[s] = _smooth_solve_inplace(m, pen1, mu, mstep, axis=-1)
@@ -530,7 +523,7 @@ def _post_factor(W: np.ndarray, Wp: np.ndarray, D: np.ndarray, S: np.ndarray, M:
         nr1 += _sq(p)
         p *= pen1
         y1 += p
-    return dab, nab, nr2, nr1
+    return tuple(float(np.sqrt(v)) for v in (dab, nab, nr2, nr1))
 
 
 def _trnn_loop(Dt: np.ndarray, obs: np.ndarray, factors: tuple, mults: tuple, lam: float,
@@ -538,8 +531,8 @@ def _trnn_loop(Dt: np.ndarray, obs: np.ndarray, factors: tuple, mults: tuple, la
     """Algorithm 3 iterations of :func:`trnn`, in place, on the transposed (C, T) layout.
 
     Dt (P_Omega(X)^T), S, M, Y1, Y2 and two work arrays: W (T1, then (A B^T)^T in place,
-    :func:`_factor_coefficients`, :func:`_apply_factors`) and Wp (the previous product, then scratch); A is never
-    formed.  ``Y2 += eta (D - AB - S)`` is folded into the S-step (``Y2_new = eta
+    :func:`_factor_coefficients`, :func:`_apply_factors`) and Wp (the previous product, then
+    scratch); A is never formed.  ``Y2 += eta (D - AB - S)`` is folded into the S-step (``Y2_new = eta
     clip(Ts, +-lam/eta)`` on Omega, 0 off it; :func:`_sparse_step`).  Returns (A B^T)^T
     (C, T), S (C, T) and the iteration count, convergence flag and last criterion.
     """
@@ -557,7 +550,7 @@ def _trnn_loop(Dt: np.ndarray, obs: np.ndarray, factors: tuple, mults: tuple, la
         # S-step (soft threshold on Omega), M-step (4.25), Y1, in place, one pass
         dab, nab, nr2, nr1 = _post_factor(W, Wp, Dt, S, M, Y1, Y2, obs, (eta, eta), lam / eta, mu, mstep)
         W, Wp = Wp, W                                      # Wp = this (AB)^T
-        crit = max(_rel(np.sqrt(nr2), nd), _rel(np.sqrt(nr1), nd), _rel(np.sqrt(dab), np.sqrt(nab)))
+        crit = max(_rel(nr2, nd), _rel(nr1, nd), _rel(dab, nab))
         eta = min(rho * eta, eta_max)
         if crit < tol:
             converged = True

@@ -96,7 +96,9 @@ def _block(X: np.ndarray, sigma: float, window: int, k0: int = RANK0) -> tuple[n
             U, S, Vt = np.linalg.svd(H, full_matrices=False)
             break
         if m >= n:                             # tall (blocks of long clips): on H^T H
-            U, S, Vt = _gram_svd(H, G if G is not None else (G := lagged_gram(X, window)), k)
+            if G is None:
+                G = lagged_gram(X, window)
+            U, S, Vt = _gram_svd(H, G, k)
         else:
             U, S, Vt = randomized_svd(H, k, n_oversamples=10, n_iter=4, random_state=0)
         if S[-1] <= edge:
@@ -140,10 +142,10 @@ def mssa_denoise(X, sigma: float, *, window: int, block: int = 2048,
         multiple of it above the previous block's kept count (neighbouring blocks keep
         similar ranks: a clip whose blocks keep 130-250 values paid a rank-128 try per
         block before its rank-256 one; that alone took mssa_denoise at 10,000 frames,
-        120 fps, from 4.7-5.4 to 3.6-4.5 s). Given as a list, it is filled with the rank each block ended at; a
-        list so filled makes a second call (SURE's probe of :func:`sure_divergence`)
-        start every block where the first ended, i.e. compute the same map without the
-        first call's tries.
+        120 fps, from 4.7-5.4 to 3.6-4.5 s). Given as a list, it is filled with the rank
+        each block ended at; a list so filled makes a second call (SURE's probe of
+        :func:`sure_divergence`) start every block where the first ended, i.e. compute the
+        same map without the first call's tries.
     """
     X = np.asarray(X, dtype=float)
     if X.ndim != 2 or not np.isfinite(X).all():
