@@ -50,10 +50,15 @@ The error estimate (cm RMS over all coordinates, ``source['auto']['estimated_rms
 is the RMS over every fitted sample of an estimate per sample, by class:
 
 * *kept and smoothed*: the chosen smoother's SURE;
-* *kept as measured* (no smoothing): the noise, as the smaller of the per-channel GCV
-  sigma and the package's robust noise level of the kept samples of the whole matrix
-  (:func:`mocapkit.signal.estimate_noise`, pooled) -- both are upper bounds, the GCV sigma
-  also holding the spline's misfit on fast channels; on a spiky clip, plus the spikes
+* *kept as measured* (no smoothing): the noise, as the smallest of the per-channel GCV
+  sigma, the package's robust noise level of the kept samples of the whole matrix
+  (:func:`mocapkit.signal.estimate_noise`, fourth differences, pooled) and the spread of
+  the distances between rigid partners (:func:`mocapkit.rigid.distance_noise`) -- upper
+  bounds of white positional noise, the GCV sigma also holding the spline's misfit on fast
+  channels and the fourth differences the motion at 30 fps (0.02-0.13 cm on noise-free
+  clips), which the distances do not see (0 on joint data; charging the fourth
+  differences instead put walk@30 / dance@30 / balance@30 spikes at 1.71 / 1.51 / 1.92 x
+  their true error, with the distances 1.48 / 1.25 / 1.06 x); on a spiky clip, plus the spikes
   the robust fit kept on the end frames (:func:`_end_spikes_kept`: end samples off their
   one-sided prediction by more than the robust limit and not vouched for by their rigid
   partners' distances, charged that residual times the
@@ -240,11 +245,16 @@ class Auto(Denoiser):
             # noise-free CMU clips at 120 fps); the package's robust estimate from the
             # whole matrix's fourth differences is another upper bound, the tighter one
             # where the noise is small against the motion (its docstring) -- the smaller
-            # of the two is charged
+            # of the two is charged; where rigid partners exist, the spread of their
+            # distances is a third, which no motion leaks into (rigid.distance_noise:
+            # 0 on noise-free joint data where diff4-mad reads up to 0.09 cm at 30 fps)
+            from ..rigid import distance_noise
             from ..signal import estimate_noise
             kept_m = used_columns(M, cols) & ~holes[:, cols]       # not the rejected spikes
-            est["kept"] = np.fmin(est["kept"], estimate_noise(used_columns(X, cols), kept_m, method="diff4-mad",
-                                                              pool="all", fallback=0.0))
+            d4 = estimate_noise(used_columns(X, cols), kept_m, method="diff4-mad", pool="all", fallback=0.0)
+            T = X.shape[0]
+            sig_r = distance_noise(X.reshape(T, -1, 3)[:, usable], kept_m.reshape(T, -1, 3).all(axis=2))
+            est["kept"] = np.fmin(est["kept"], np.fmin(d4, sig_r))
             if spiky:
                 est["kept_extra"] = np.zeros(X.shape)
                 est["kept_extra"][:, cols] = _end_spikes_kept(X, M, cols, fit, info, diag.spike_rate,

@@ -73,6 +73,9 @@ def estimate_noise(X, mask=None, /, *, method: Literal["diff2-mad", "diff2-rms",
     GCV-chosen smoothing spline, RSS / (n - tr H), on the samples its spike test keeps --
     a model fit, slower, which also sees noise that is not white; the estimates here are
     local (three samples), need no fit and are what the solvers use to set thresholds.
+    For points of rigid segments (joints of a skeleton, markers of a cluster)
+    :func:`mocapkit.rigid.distance_noise` reads the noise from the spread of their
+    distances instead, which no motion enters (``auto`` charges the smallest of them).
 
     >>> rng = np.random.default_rng(0)
     >>> t = np.linspace(0, 1, 2000)[:, None]
