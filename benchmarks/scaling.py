@@ -377,7 +377,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--render", action="store_true",
                     help="only re-render <out>.md from <out>.json (dgemm rate re-measured)")
     ap.add_argument("--merge", action="store_true",
-                    help="replace only the rows of --methods in an existing <out>.json")
+                    help="replace only the rows of --methods at --frames in an existing <out>.json")
     a = ap.parse_args(argv)
     if a.child:
         print(json.dumps(child(a.child[0], int(a.child[1]))))
@@ -399,8 +399,10 @@ def main(argv: list[str] | None = None) -> int:
                    save=lambda r: partial.write_text(json.dumps(r, indent=1)))
     if a.merge and Path(a.out + ".json").is_file():
         old = json.loads(Path(a.out + ".json").read_text())
-        redo = set(methods)
-        rows = [r for r in old["rows"] if r["method"] not in redo] + rows
+        # only the (method, size) pairs of this run are replaced: a run at one size keeps
+        # the method's rows at the others
+        redo = {(r["method"], r["frames"]) for r in rows}
+        rows = [r for r in old["rows"] if (r["method"], r["frames"]) not in redo] + rows
         order = {m: i for i, m in enumerate(dict.fromkeys(r["method"] for r in old["rows"]))}
         rows.sort(key=lambda r: (order.get(r["method"], len(order)), r["frames"]))
         a.note = old["meta"]["note"] + f"; rows of {', '.join(methods)} re-measured: {a.note}"

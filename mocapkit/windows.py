@@ -63,19 +63,25 @@ def lagged(X, M: int, *, view: bool = False) -> np.ndarray:
     return V if view else V.copy()
 
 
-def lagged_gram(X, M: int) -> np.ndarray:
-    """``H^T H`` of ``H = lagged(X, M)`` (X (T, C) float), (M C, M C), without forming H.
+def lagged_gram(X, M: int, side: str = "columns") -> np.ndarray:
+    """The Gram matrix of ``H = lagged(X, M)`` (X (T, C) float) without forming H:
+    ``H^T H`` (M C, M C) for ``side="columns"``, ``H H^T`` (S, S), S = T - M + 1, for
+    ``side="rows"`` -- the smaller one is what a decomposition of H needs.
 
-    Block (i, j) (lags i, j; C x C) is ``X[i:i+S]^T X[j:j+S]``, S = T - M + 1: the M blocks
-    of the first block row are computed, and each next one from its upper-left neighbour by
+    Columns: block (i, j) (lags i, j; C x C) is ``X[i:i+S]^T X[j:j+S]``: the M blocks of
+    the first block row are computed, and each next one from its upper-left neighbour by
     the window's sliding, ``G(i+1, j+1) = G(i, j) - x_i x_j^T + x_{i+S} x_{j+S}^T``: M
     products of C x S x C instead of the (M C)^2 S of ``H.T @ H`` (16 lags: 16x fewer flops).
+    Rows: entry (s, u) is ``sum_l x_{s+l} . x_{u+l}``, the sum of the frame Gram matrix
+    ``F = X X^T`` along its diagonals over M lags: one T x C x T product and M additions
+    of S x S instead of the S^2 M C of ``H @ H.T`` (e.g. 960 frames, 93 channels, 16 lags:
+    0.17 against 2.7 GFLOP).
 
     >>> import numpy as np
     >>> X = np.random.default_rng(0).normal(size=(50, 3))
     >>> H = lagged(X, 4)
-    >>> bool(np.allclose(lagged_gram(X, 4), H.T @ H))
-    True
+    >>> bool(np.allclose(lagged_gram(X, 4), H.T @ H)), bool(np.allclose(lagged_gram(X, 4, "rows"), H @ H.T))
+    (True, True)
     """
     X = np.asarray(X, dtype=float)
     T, C = X.shape
@@ -83,6 +89,14 @@ def lagged_gram(X, M: int) -> np.ndarray:
     S = T - M + 1
     if S < 1:
         raise MocapValueError(f"need at least {M} frames for windows of {M}, got {T}")
+    if side == "rows":
+        F = X @ X.T
+        G = F[:S, :S].copy()
+        for lag in range(1, M):                    # M lags, each an S x S addition
+            G += F[lag:lag + S, lag:lag + S]
+        return G
+    if side != "columns":
+        raise MocapValueError(f"side must be 'columns' or 'rows', got {side!r}")
     G = np.empty((M * C, M * C))
     for j in range(M):
         G[:C, j * C:(j + 1) * C] = X[:S].T @ X[j:j + S]

@@ -126,19 +126,16 @@ def test_mssa_long_clip_in_blocks_matches_one_block():
 
 
 def test_mssa_blocks_start_at_the_rank_the_previous_needed_and_a_probe_reuses_them(monkeypatch):
-    """Block ranks: each block of a long clip starts its randomized SVD where the previous
-    one's kept count says (one try per block instead of a rank-128 try before each
+    """Block ranks: each block of a long clip starts its subspace iteration where the
+    previous one's kept count says (one try per block instead of a rank-128 try before each
     doubling), and ``ranks`` filled by a first call makes a second call compute the same
     map with one try per block (SURE's probe in auto)."""
-    from sklearn.utils import extmath
-
     rng = np.random.default_rng(5)
     truth = np.cumsum(rng.normal(size=(2000, 90)), axis=0)            # many components
     Y = truth + rng.normal(0, 0.5, truth.shape)
     calls = []
-    orig, orig_gram = extmath.randomized_svd, mssa._gram_svd
-    monkeypatch.setattr(extmath, "randomized_svd", lambda H, k, **kw: (calls.append(k), orig(H, k, **kw))[1])
-    monkeypatch.setattr(mssa, "_gram_svd", lambda H, G, k, **kw: (calls.append(k), orig_gram(H, G, k, **kw))[1])
+    orig = mssa._gram_eig
+    monkeypatch.setattr(mssa, "_gram_eig", lambda G, k, **kw: (calls.append(k), orig(G, k, **kw))[1])
     ranks: list[int] = []
     a = mssa_denoise(Y, 0.5, window=6, block=700, ranks=ranks)
     first = list(calls)
@@ -152,32 +149,47 @@ def test_mssa_blocks_start_at_the_rank_the_previous_needed_and_a_probe_reuses_th
     np.testing.assert_array_equal(a, c)
 
 
-def test_gram_svd_of_tall_blocks_matches_the_exact_svd():
-    """The tall-block route (subspace iteration on H^T H from the window's sliding) gives
-    the exact SVD's singular values to 1e-5 and its rank-40 part as closely as the
-    randomized SVD on H it replaces; the Gram matrix itself equals H^T H to rounding."""
-    from mocapkit.windows import lagged, lagged_gram
-
-    rng = np.random.default_rng(6)
-    truth = np.cumsum(rng.normal(size=(800, 40)), axis=0)
-    X = truth + rng.normal(0, 0.5, truth.shape)
-    X -= X.mean(axis=0)
-    H = lagged(X, 8)                                                     # 793 x 320: tall
-    G = lagged_gram(X, 8)
-    np.testing.assert_allclose(G, H.T @ H, rtol=0, atol=1e-9 * np.abs(G).max())
-    U, S, Vt = mssa._gram_svd(H, G, 64)
-    S_exact = np.linalg.svd(H, compute_uv=False)[:64]
-    np.testing.assert_allclose(S[:40], S_exact[:40], rtol=1e-5)
-    np.testing.assert_allclose((U * S) @ Vt, (U * S) @ Vt @ Vt.T @ Vt, atol=1e-8 * S[0])   # orthonormal V
+@pytest.mark.parametrize("frames", [800, 250])
+def test_gram_route_matches_the_exact_svd(frames):
+    """Both Gram routes of a block -- H^T H of a tall H (800 frames: 793 x 320), H H^T of a
+    wide one (250 frames: 243 x 320) -- give the exact SVD's largest 40 singular values to
+    1e-4 (as close as scikit-learn's randomized SVD) and its rank-40 part as closely as scikit-learn's randomized SVD on H (the wide route
+    before); the Gram matrices themselves equal H^T H / H H^T to rounding; and a block's
+    shrinkage matches the exact SVD's (mssa._block against a direct GD7 shrinkage)."""
     from sklearn.utils.extmath import randomized_svd
 
+    from mocapkit.windows import lagged, lagged_gram, overlap_mean
+
+    rng = np.random.default_rng(6)
+    truth = np.cumsum(rng.normal(size=(frames, 40)), axis=0)
+    X = truth + rng.normal(0, 0.5, truth.shape)
+    X -= X.mean(axis=0)
+    H = lagged(X, 8)
+    tall = H.shape[0] >= H.shape[1]
+    G = lagged_gram(X, 8, "columns" if tall else "rows")
+    np.testing.assert_allclose(G, H.T @ H if tall else H @ H.T, rtol=0, atol=1e-9 * np.abs(G).max())
+    lam, W = mssa._gram_eig(G, 64)
+    S = np.sqrt(lam)
     Ue, Se, Vte = np.linalg.svd(H, full_matrices=False)
-    Us, Ss, Vts = randomized_svd(H, 64, n_oversamples=10, n_iter=4, random_state=0)   # the wide route
+    Us, Ss, Vts = randomized_svd(H, 64, n_oversamples=10, n_iter=4, random_state=0)
+    np.testing.assert_allclose(S[:40], Se[:40], rtol=1e-4)
+    assert np.abs(S[:40] - Se[:40]).max() <= 1.5 * np.abs(Ss[:40] - Se[:40]).max()
+    np.testing.assert_allclose(W.T @ W, np.eye(64), atol=1e-10)                 # orthonormal
     k = 40
+    part = ((H @ W[:, :k]) @ W[:, :k].T) if tall else (W[:, :k] @ (W[:, :k].T @ H))
     exact = (Ue[:, :k] * Se[:k]) @ Vte[:k]
-    err = np.sqrt(np.mean(((U[:, :k] * S[:k]) @ Vt[:k] - exact) ** 2))
+    err = np.sqrt(np.mean((part - exact) ** 2))
     err_sk = np.sqrt(np.mean(((Us[:, :k] * Ss[:k]) @ Vts[:k] - exact) ** 2))
     assert err < 1e-4 * np.abs(H).max() and err <= 1.5 * err_sk
+    # the block: GD7 on the exact SVD
+    sigma = 0.5
+    big, beta = max(H.shape), min(H.shape) / max(H.shape)
+    unit = sigma * np.sqrt(big)
+    keep = Se > unit * (1 + np.sqrt(beta))
+    ref = overlap_mean((Ue[:, keep] * mssa.shrink(Se[keep] / unit, beta) * unit) @ Vte[keep], frames, 8)
+    got, _, kept = mssa._block(X, sigma, 8, k0=16)
+    assert kept == keep.sum()
+    assert np.sqrt(np.mean((got - ref) ** 2)) < 1e-3 * sigma
 
 
 def test_diagnose_reports_noise_spikes_and_gaps(clip):

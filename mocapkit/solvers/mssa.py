@@ -51,14 +51,14 @@ def shrink(y: np.ndarray, beta: float) -> np.ndarray:
     return np.where(y > 1 + np.sqrt(beta), np.sqrt(np.maximum(t, 0)) / np.maximum(y, 1e-300), 0.0)
 
 
-#: first rank the randomized SVD of a block tries (doubled until the smallest value found
+#: first rank the subspace iteration of a block tries (doubled until the smallest value found
 #: is under the noise edge)
 RANK0 = 128
 
 
 def _next_rank(kept: int) -> int:
     """The smallest power-of-2 multiple of :data:`RANK0` above ``kept``: where the next
-    block's randomized SVD starts (:func:`_block`)."""
+    block's subspace iteration starts (:func:`_block`)."""
     k = RANK0
     while k <= kept:
         k *= 2
@@ -67,68 +67,77 @@ def _next_rank(kept: int) -> int:
 
 def _block(X: np.ndarray, sigma: float, window: int, k0: int = RANK0) -> tuple[np.ndarray, int, int]:
     """One block: embed, shrink, average back. X (T, C) centred. Returns the block, the
-    rank its randomized SVD ended at and the number of singular values kept.
+    rank its subspace iteration ended at and the number of singular values kept.
 
-    Only the singular values above the noise edge survive (GD7), so a randomized SVD
-    (Halko, Martinsson & Tropp 2011; scikit-learn's implementation, fixed seed so the
-    map is deterministic) of growing rank replaces the full decomposition: it starts at
-    ``k0`` and doubles until the smallest value it found is under the edge. Measured
-    15-20x faster than the full eigendecomposition of the (C L)^2 Gram matrix at 120 fps
-    (93 channels x 16 lags). On a tall block (more windows than columns: the blocks of
-    long clips) the same subspace iteration runs on ``H^T H``, formed by the window's
-    sliding (:func:`mocapkit.windows.lagged_gram`) at a tenth of a pass over H
-    (:func:`_gram_svd`).
+    Only the singular values above the noise edge survive (GD7), so the decomposition is
+    of growing rank: it starts at ``k0`` and doubles until the smallest value it found is
+    under the edge (:func:`_gram_eig`: subspace iteration, Halko, Martinsson & Tropp 2011,
+    on the Gram matrix of H's smaller side, formed from X by
+    :func:`mocapkit.windows.lagged_gram` without a pass over H -- ``H^T H`` on a tall block
+    (more windows than columns: the blocks of long clips), ``H H^T`` on a wide one (clips
+    up to ~1,500 frames at 120 fps)); where twice the rank reaches the smaller side, the
+    whole Gram matrix is decomposed (``eigh``). Then only the kept directions are carried
+    to H's other side, one thin product. Measured against the route before (scikit-learn's
+    randomized SVD on the wide H, the exact SVD where twice the rank reached its smaller
+    side), mssa_denoise of CMU 135_02 with 1 cm noise, CPU time, one thread: 8 s at 120 fps
+    (one 945 x 1,488 block) 134-271 -> 78 ms and 3.9e-3 -> 3.2e-3 cm RMS from the exact
+    SVD's shrinkage; 12 s at 120 fps (1,425 x 1,488) 199-219 -> 177-187 ms, 1.1e-2 ->
+    8.7e-3 cm; 8 s at 30 fps (237 x 372, exact either way) 10.1 -> 4.4 ms; 10,000 frames
+    (tall blocks, the route unchanged but for the thin product) 2.1-3.0 -> 2.0-2.1 s, the
+    same output to 6e-15 cm.
+    The Gram matrix squares the condition number, which touches only singular values under
+    ~1e-8 of the largest: far under the noise edge, where GD7 returns 0 anyway.
     """
-    from sklearn.utils.extmath import randomized_svd
-
     from ..windows import lagged, lagged_gram, overlap_mean
 
     T, C = X.shape
-    H = lagged(X, window)                                             # (m, C window)
-    G = None
+    H = lagged(X, window, view=True)                                  # (m, C window), no copy
     m, n = H.shape
+    right = m >= n                      # decompose H^T H (right vectors) or H H^T (left)
+    G = lagged_gram(X, window, "columns" if right else "rows")
     big, beta = max(m, n), min(m, n) / max(m, n)
     unit = sigma * np.sqrt(big)
     edge = unit * (1 + np.sqrt(beta))
     k = int(k0)
     while True:
-        if 2 * k >= min(m, n):                 # small matrix: the exact SVD is cheaper
-            U, S, Vt = np.linalg.svd(H, full_matrices=False)
+        if 2 * k >= min(m, n):                 # small matrix: the whole Gram matrix
+            lam, W = np.linalg.eigh(G)
+            lam, W = lam[::-1], W[:, ::-1]
             break
-        if m >= n:                             # tall (blocks of long clips): on H^T H
-            if G is None:
-                G = lagged_gram(X, window)
-            U, S, Vt = _gram_svd(H, G, k)
-        else:
-            U, S, Vt = randomized_svd(H, k, n_oversamples=10, n_iter=4, random_state=0)
-        if S[-1] <= edge:
+        lam, W = _gram_eig(G, k)
+        if np.sqrt(max(lam[-1], 0.0)) <= edge:
             break
         k *= 2
+    S = np.sqrt(np.maximum(lam, 0.0))
     keep = S > edge
     if not keep.any():
         return np.zeros_like(X), k, 0
-    Hd = (U[:, keep] * shrink(S[keep] / unit, beta) * unit) @ Vt[keep]
+    W, S = W[:, keep], S[keep]
+    f = shrink(S / unit, beta) * unit / S             # eta(s) / s: H's kept part, shrunk
+    if right:                                         # H V diag(f) V^T
+        Hd = ((H @ W) * f) @ W.T
+    else:                                             # U diag(f) U^T H
+        Hd = (W * f) @ (W.T @ H)
     return overlap_mean(Hd, T, window), k, int(keep.sum())
 
 
-def _gram_svd(H: np.ndarray, G: np.ndarray, k: int, n_iter: int = 5, oversample: int = 10):
-    """Rank-k SVD ``(U, S, Vt)`` of a tall H (m >= n) from its Gram matrix G = H^T H (n, n):
-    subspace iteration ``Q <- orth(G Q)`` from a seeded Gaussian (n, k + oversample) start
-    (Halko, Martinsson & Tropp 2011, Alg. 4.4 on G), Rayleigh-Ritz on ``Q^T G Q``, then
-    ``U = H V / S``. ``n_iter`` products with G span what sklearn's ``randomized_svd`` with
-    ``n_iter - 1`` power iterations on H spans (``G^n_iter`` times the start), each at
-    n / 2m of the flops of a pass over H and back: on a 2,033 x 1,488 block
-    of a CMU clip, k = 256, n_iter = 5: 0.38 s against 0.52 s, and 1.5e-3 cm RMS from the
-    exact SVD's shrinkage against 1.9e-3 (n_iter = 4 would give 3.0e-3)."""
+def _gram_eig(G: np.ndarray, k: int, n_iter: int = 5, oversample: int = 10
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """The k largest eigenpairs ``(lam (k,), W (N, k))``, descending, of a Gram matrix G
+    (N, N) -- squared singular values and one side's singular vectors of the matrix it is
+    the Gram matrix of: subspace iteration ``Q <- orth(G Q)`` from a seeded Gaussian
+    (N, k + oversample) start (Halko, Martinsson & Tropp 2011, Alg. 4.4 on G), then
+    Rayleigh-Ritz on ``Q^T G Q``. ``n_iter`` products with G span what scikit-learn's
+    ``randomized_svd`` with ``n_iter - 1`` power iterations on H spans (``G^n_iter`` times
+    the start), each at a fraction of the flops of a pass over H and back: on a
+    2,033 x 1,488 block of a CMU clip, k = 256, n_iter = 5: 0.38 s against 0.52 s, and
+    1.5e-3 cm RMS from the exact SVD's shrinkage against 1.9e-3 (n_iter = 4 would give
+    3.0e-3)."""
     Q = np.random.default_rng(0).standard_normal((G.shape[0], min(k + oversample, G.shape[0])))
     for _ in range(n_iter):
         Q, _ = np.linalg.qr(G @ Q)
     lam, W = np.linalg.eigh(Q.T @ G @ Q)
-    lam, W = lam[::-1][:k], W[:, ::-1][:, :k]
-    V = Q @ W
-    S = np.sqrt(np.maximum(lam, 0.0))
-    U = (H @ V) / np.maximum(S, 1e-300)
-    return U, S, V.T
+    return lam[::-1][:k], Q @ W[:, ::-1][:, :k]
 
 
 def mssa_denoise(X, sigma: float, *, window: int, block: int = 2048,
@@ -137,7 +146,7 @@ def mssa_denoise(X, sigma: float, *, window: int, block: int = 2048,
 
     window : embedding length in frames (about 0.13 s: 4 at 30 fps, 16 at 120 fps was
         measured best on CMU clips). block : frames per block for long clips.
-    ranks : where each block's randomized SVD starts (:func:`_block`). Empty (or None):
+    ranks : where each block's subspace iteration starts (:func:`_block`). Empty (or None):
         the first block at :data:`RANK0`, each next one at the smallest power-of-2
         multiple of it above the previous block's kept count (neighbouring blocks keep
         similar ranks: a clip whose blocks keep 130-250 values paid a rank-128 try per
