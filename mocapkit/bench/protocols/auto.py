@@ -181,12 +181,14 @@ def auto_protocol(ctx: Context) -> Iterator[Row]:
 
 def _picked(case: dict[str, Row]) -> str:
     """The candidate auto's chain ran (for the time ratio): the last of its steps that is
-    a method of the run (fill-auto, mssa, gcv-spline robust or plain)."""
+    a method of the run (fill-auto, mssa, kalman-cv, gcv-spline robust or plain)."""
     chain = case["auto"].extra.get("chain") or []
     if "fill-auto" in chain:
         return "fill-auto"
     if any("mssa" in c for c in chain):
         return "mssa"
+    if any("kalman" in c for c in chain):
+        return "kalman-cv"
     return "gcv-spline-robust" if "spike removal" in chain else "gcv-spline"
 
 
