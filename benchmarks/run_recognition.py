@@ -75,6 +75,8 @@ CANDIDATES = {
     "rotation augmentation 30 deg": {"rot_deg": 30.0},
     "time warp 0.2": {"time_warp": 0.2},
     "up to 12 channels per kernel": {"max_channels": 12},
+    # fourth round (2026-12-04): the Kinect joints' jitter smoothed before the transform
+    "Gaussian smoothing 0.067 s (1 frame at 15 fps)": {"smooth_s": 1.0 / 15.0},
 }
 SEL_FILE = RES / "recognition_selection.json"
 
