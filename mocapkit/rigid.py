@@ -44,6 +44,7 @@ from typing import Sequence
 import numpy as np
 
 from .errors import MocapFormatError, MocapValueError
+from .signal._arrays import nanmedian0
 from .windows import frame_blocks
 
 __all__ = ["kabsch", "yaw_kabsch", "apply_rigid", "distance_stats", "rigid_partners", "distance_noise",
@@ -218,8 +219,8 @@ def rigid_partners(P: np.ndarray, observed: np.ndarray, *, n_partners: int = 4,
     D = np.linalg.norm(Q[:, :, None, :] - Q[:, None, :, :], axis=-1)     # (R, J, J), NaN unseen
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)                  # all-NaN pairs
-        med = np.nanmedian(D, axis=0)
-        scale = 1.4826 * np.nanmedian(np.abs(D - med), axis=0)
+        med = nanmedian0(D)
+        scale = 1.4826 * nanmedian0(np.abs(D - med))
     seen = (np.isfinite(D).sum(axis=0) >= 3) & ~np.eye(J, dtype=bool)
     scale = np.where(seen & (scale <= float(max_scale_cm)), scale, np.inf)
     part = np.argsort(scale, axis=1, kind="stable")[:, :K]
@@ -229,7 +230,7 @@ def rigid_partners(P: np.ndarray, observed: np.ndarray, *, n_partners: int = 4,
 
 
 def distance_noise(P: np.ndarray, observed: np.ndarray, *, min_distance_cm: float = 3.0,
-                   max_scale_cm: float = 5.0, min_points: float = 0.5, n_ref: int = 1024) -> float:
+                   max_scale_cm: float = 5.0, min_points: float = 0.5, n_ref: int = 512) -> float:
     """Positional noise (cm, per coordinate) from how much rigid distances vary.
 
     Two points of one rigid segment keep their distance d; white noise of std sigma per
@@ -247,6 +248,10 @@ def distance_noise(P: np.ndarray, observed: np.ndarray, *, min_distance_cm: floa
     What it cannot see: noise that keeps the distances (a joint-angle jitter of a skeleton
     solver moves a bone's end across, not along, the bone), and on markers it also holds
     the skin's motion against the bone (an upper bound of the noise there).
+
+    ``n_ref`` evenly spaced frames are used (:func:`rigid_partners`; 512: with 0.1 cm noise
+    on CMU 135_02 0.095-0.098 cm in 30 ms, 1,024 frames 0.097-0.098 in 70 ms, 256 frames
+    0.091-0.096).
 
     P : (T, J, 3) cm; observed : (T, J) bool. Returns NaN when fewer than ``min_points`` x J
     points have a partner (scale <= ``max_scale_cm``, median distance >= ``min_distance_cm``).

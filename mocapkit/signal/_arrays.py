@@ -71,3 +71,25 @@ def require_finite(A: np.ndarray, what: str) -> None:
         raise MocapValueError(
             f"{what} needs complete data but the input has {n} missing (non-finite) values; "
             f"fill the gaps first (mocapkit.gaps.fill)")
+
+
+def nanmedian0(A: np.ndarray) -> np.ndarray:
+    """``np.nanmedian(A, axis=0)`` (NaN where a column has no finite value) by one sort:
+    NaN sort last, so the median of the n finite values of a column sits at rows
+    (n - 1) // 2 and n // 2. For short, wide arrays: numpy's own took 3x longer on the
+    (960, 31, 31) pairwise distances of :func:`mocapkit.rigid.rigid_partners` (72 vs
+    21 ms), but on long columns its partition wins (10,000 x 93 with NaN: 47 vs 124 ms).
+
+    >>> A = np.array([[1.0, np.nan], [3.0, 2.0], [2.0, np.nan], [np.nan, np.nan]])
+    >>> nanmedian0(A)
+    array([2., 2.])
+    """
+    A = np.asarray(A, dtype=np.float64)
+    if A.shape[0] == 0:
+        return np.full(A.shape[1:], np.nan)
+    S = np.sort(A, axis=0)
+    n = np.isfinite(A).sum(axis=0)
+    lo = np.take_along_axis(S, np.maximum((n - 1) // 2, 0)[None], axis=0)[0]
+    hi = np.take_along_axis(S, np.maximum(n // 2, 0)[None], axis=0)[0]
+    with np.errstate(invalid="ignore"):
+        return np.where(n > 0, 0.5 * (lo + hi), np.nan)
