@@ -77,6 +77,7 @@ CANDIDATES = {
     "up to 12 channels per kernel": {"max_channels": 12},
     # fourth round (2026-12-04): the Kinect joints' jitter smoothed before the transform
     "Gaussian smoothing 0.067 s (1 frame at 15 fps)": {"smooth_s": 1.0 / 15.0},
+    "+ second difference (acceleration) representation": {"diff": 2},
 }
 SEL_FILE = RES / "recognition_selection.json"
 

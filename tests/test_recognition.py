@@ -642,3 +642,21 @@ def test_rocket_bone_and_reach_views_fit_save_load_and_need_the_keypoints(rng, t
     a = rk.RocketClassifier(n_features=168, length=32, augment=1).fit_series(X, y, keypoints=m.keypoints_)
     b = rk.RocketClassifier(n_features=168, length=32, augment=1).fit_series(X, y, keypoints=m.keypoints_[:7])
     assert np.array_equal(a.decision_series(X), b.decision_series(X))
+
+
+def test_rocket_second_difference_keeps_the_first_seeds_and_round_trips(rng, tmp_path):
+    """diff=2 adds transforms of the second difference; the series' and first difference's
+    transforms keep the seeds (hence the features) of diff=1, and the model round-trips."""
+    X = rng.normal(size=(18, 6, 32)).cumsum(2) * 0.1
+    y = np.repeat(["a", "b", "c"], 6)
+    one = rk.RocketClassifier(n_features=168, views=("joints",), hydra=True, augment=0).fit_series(X, y)
+    two = rk.RocketClassifier(n_features=168, views=("joints",), hydra=True, augment=0, diff=2).fit_series(X, y)
+    assert len(two.rockets_) == 3 and len(two.hydras_) == 3
+    F1, F2 = one._features(X), two._features(X)
+    n1 = one.rockets_[0].n_features_out
+    np.testing.assert_array_equal(F1[:, :n1], F2[:, :n1])                # the series' transform
+    acc = rk._difference(rk._difference(X))
+    np.testing.assert_allclose(acc[:, :, 3:], np.diff(X, 2, axis=2)[:, :, 1:])   # second difference
+    back = load_model(two.save(tmp_path / "d2.npz"))
+    assert back.params()["diff"] == 2
+    assert np.array_equal(back.decision_series(X), two.decision_series(X))

@@ -641,7 +641,9 @@ class RocketClassifier:
         frames at 15 fps, median 39; HDM05 clips 0.5-3 s).
     n_features : (kernel, bias) pairs per representation (5,000); each gives
         ``len(pooling)`` features.
-    diff : add the transform of the first difference (velocity).
+    diff : differences transformed besides the series: 1 (default) the first difference
+        (velocity, MultiRocket's second representation), 2 also the second (acceleration),
+        0 none (``True`` / ``False`` of older model files read as 1 / 0).
     smooth_s : Gaussian smoothing sigma in seconds before resampling (0 = none).
     heading : heading normalisation of :func:`trajectories` (``'auto'``).
     pooling : MultiRocket's four poolings (default) or ``('ppv',)`` (MiniRocket).
@@ -664,7 +666,7 @@ class RocketClassifier:
     """
 
     def __init__(self, *, length: int = 64, n_features: int = 5_000, max_dilations: int = 32,
-                 pooling: Sequence[str] = POOLINGS, max_channels: int = 9, diff: bool = True,
+                 pooling: Sequence[str] = POOLINGS, max_channels: int = 9, diff: int = 1,
                  smooth_s: float = 0.0, heading: str = "auto", augment: int = 2,
                  time_warp: float = 0.1, rot_deg: float = 15.0, n_seeds: int = 1,
                  views: Sequence[str] = ("joints", "arms"), hydra: bool = True,
@@ -675,7 +677,7 @@ class RocketClassifier:
     def params(self) -> dict:
         return {"length": int(self.length), "n_features": int(self.n_features),
                 "max_dilations": int(self.max_dilations),
-                "pooling": list(self.pooling), "max_channels": int(self.max_channels), "diff": bool(self.diff),
+                "pooling": list(self.pooling), "max_channels": int(self.max_channels), "diff": int(self.diff),
                 "smooth_s": float(self.smooth_s), "heading": str(self.heading),
                 "augment": int(self.augment), "time_warp": float(self.time_warp), "rot_deg": float(self.rot_deg),
                 "n_seeds": int(self.n_seeds), "views": list(self.views), "hydra": bool(self.hydra),
@@ -761,10 +763,13 @@ class RocketClassifier:
         out = []
         for vi in range(len(self.views_)):
             for k in range(int(self.n_seeds)):
-                for d in ((False, True) if self.diff else (False,)):
-                    out.append((vi, k, d, "r", self.seed + 100 * vi + 2 * k + int(d)))
+                for d in range(int(self.diff) + 1):
+                    # seeds of the series and first difference as in files written before
+                    # the second difference existed; the second's offset keeps clear of them
+                    sd = self.seed + 100 * vi + 2 * k + (d if d < 2 else 30)
+                    out.append((vi, k, d, "r", sd))
                     if self.hydra:
-                        out.append((vi, k, d, "h", self.seed + 100 * vi + 2 * k + int(d) + 50))
+                        out.append((vi, k, d, "h", sd + 50))
         return out
 
     def _fit_transforms(self, X: np.ndarray) -> None:
@@ -773,7 +778,8 @@ class RocketClassifier:
         self.rockets_, self.hydras_ = [], []
         for vi, _, d, kind, seed in self._plan():
             V = self._view(X, self.views_[vi])
-            V = _difference(V) if d else V
+            for _ in range(d):
+                V = _difference(V)
             if kind == "r":
                 self.rockets_.append(MiniRocket(seed=seed, **kw).fit(V))
             else:
@@ -781,10 +787,13 @@ class RocketClassifier:
 
     def _features(self, X: np.ndarray) -> np.ndarray:
         views = [self._view(X, v) for v in self.views_]
-        diffs = [_difference(V) for V in views] if self.diff else []
+        reps = [[V] for V in views]                       # per view: series, 1st, 2nd difference
+        for r in reps:
+            for _ in range(int(self.diff)):
+                r.append(_difference(r[-1]))
         F, ir, ih = [], 0, 0
         for vi, _, d, kind, _ in self._plan():
-            V = diffs[vi] if d else views[vi]
+            V = reps[vi][d]
             if kind == "r":
                 F.append(self.rockets_[ir].transform(V))
                 ir += 1
