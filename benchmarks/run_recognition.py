@@ -78,6 +78,7 @@ CANDIDATES = {
     # fourth round (2026-12-04): the Kinect joints' jitter smoothed before the transform
     "Gaussian smoothing 0.067 s (1 frame at 15 fps)": {"smooth_s": 1.0 / 15.0},
     "+ second difference (acceleration) representation": {"diff": 2},
+    "length 48": {"length": 48},
 }
 SEL_FILE = RES / "recognition_selection.json"
 
