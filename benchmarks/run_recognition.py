@@ -79,6 +79,7 @@ CANDIDATES = {
     "Gaussian smoothing 0.067 s (1 frame at 15 fps)": {"smooth_s": 1.0 / 15.0},
     "+ second difference (acceleration) representation": {"diff": 2},
     "length 48": {"length": 48},
+    "length 32": {"length": 32},
 }
 SEL_FILE = RES / "recognition_selection.json"
 
