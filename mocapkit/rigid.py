@@ -238,20 +238,23 @@ def distance_noise(P: np.ndarray, observed: np.ndarray, *, min_distance_cm: floa
     (for d >> sigma), whatever the motion. So each point's most rigid partner
     (:func:`rigid_partners`: the smallest 1.4826 MAD of the distance; partners closer than
     ``min_distance_cm`` are left out, as the distance of near-coincident points is not
-    Gaussian) gives ``scale / sqrt(2)``, and the median over the points is returned.
+    Gaussian) gives ``scale / sqrt(2)``, and the median over the points is returned. The
+    partner is chosen on the even frames and its scale read on the odd ones, and the other
+    way round (the two averaged): the smallest of noisy scales read on the frames that chose
+    it is biased low (measured 2-12 % at 120 fps, up to 30 % on 240 frames at 30 fps).
     Unlike the time differences of :func:`mocapkit.signal.estimate_noise`, no motion leaks
-    in: on the noise-free clips of the ``auto`` protocol (CMU / HDM05 joint positions, 8 s,
-    30 and 120 fps, also with 10 % of 15 cm spikes) it reads 0 where ``diff4-mad`` reads
-    0.0006-0.09 cm; with white noise of 0.1 / 0.2 / 0.5 cm it reads 0.088-0.098 /
-    0.177-0.196 / 0.44-0.49 cm (the minimum over partners reads 2-12 % low).
+    in. On the ``auto`` protocol's clips (CMU / HDM05 joint positions, 8 s; samples of 15 cm
+    spikes on 10 % masked out as auto does) it reads 0 with no noise, where ``diff4-mad``
+    reads 0.019-0.134 cm at 30 fps and 0.0006-0.025 at 120; with white noise of 0.1 / 0.2 /
+    0.5 cm it reads 0.087-0.103 / 0.184-0.206 / 0.458-0.518 cm at 30 fps and 0.095-0.103 /
+    0.192-0.206 / 0.480-0.514 at 120.
 
     What it cannot see: noise that keeps the distances (a joint-angle jitter of a skeleton
     solver moves a bone's end across, not along, the bone), and on markers it also holds
     the skin's motion against the bone (an upper bound of the noise there).
 
-    ``n_ref`` evenly spaced frames are used (:func:`rigid_partners`; 512: with 0.1 cm noise
-    on CMU 135_02 0.095-0.098 cm in 30 ms, 1,024 frames 0.097-0.098 in 70 ms, 256 frames
-    0.091-0.096).
+    ``n_ref`` evenly spaced frames are used, half per half (:func:`rigid_partners`; 512: 22 ms
+    on 960 frames of CMU 135_02, where 0.1 / 0.5 cm noise reads 0.097-0.100 / 0.492-0.498).
 
     P : (T, J, 3) cm; observed : (T, J) bool. Returns NaN when fewer than ``min_points`` x J
     points have a partner (scale <= ``max_scale_cm``, median distance >= ``min_distance_cm``).
@@ -266,13 +269,31 @@ def distance_noise(P: np.ndarray, observed: np.ndarray, *, min_distance_cm: floa
     True
     """
     P = np.asarray(P, dtype=float)
+    obs = np.asarray(observed, dtype=bool)
     J = P.shape[1]
-    _, real, med, scale = rigid_partners(P, observed, n_partners=J - 1 if J > 1 else 0,
-                                         max_scale_cm=max_scale_cm, n_ref=n_ref)
-    ok = real & (med >= float(min_distance_cm))
-    s = np.where(ok, scale, np.inf).min(axis=1, initial=np.inf)
+    if J < 2 or P.shape[0] < 2:
+        return float("nan")
+
+    def scales(sl):             # (J, J) robust scale of every pair, inf where unusable
+        part, real, med, sc = rigid_partners(P[sl], obs[sl], n_partners=J - 1,
+                                             max_scale_cm=max_scale_cm, n_ref=n_ref // 2)
+        out = np.full((J, J), np.inf)
+        ok = real & (med >= float(min_distance_cm))
+        np.put_along_axis(out, part, np.where(ok, sc, np.inf), axis=1)
+        return out
+
+    # cross-fitted: the partner is chosen on one half of the frames and its scale read on
+    # the other (the minimum of noisy scales read on the same frames is biased low: 2-12 %
+    # at 120 fps, up to 30 % on 240 frames at 30 fps)
+    halves = [scales(slice(0, None, 2)), scales(slice(1, None, 2))]
+    s = []
+    for a, b in ((0, 1), (1, 0)):
+        best = np.argmin(halves[a], axis=1)
+        chosen = np.isfinite(halves[a][np.arange(J), best])
+        s.append(np.where(chosen, halves[b][np.arange(J), best], np.inf))
+    s = 0.5 * (s[0] + s[1])
     s = s[np.isfinite(s)]
-    if J == 0 or s.size < max(float(min_points) * J, 1):
+    if s.size < max(float(min_points) * J, 1):
         return float("nan")
     return float(np.median(s) / np.sqrt(2.0))
 

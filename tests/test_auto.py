@@ -414,3 +414,21 @@ def test_piece_cuts_move_off_gaps():
     assert cuts[1:] == [2000, 3000] and abs(cuts[0] - 1000) <= 125
     assert obs[cuts[0] - 50:cuts[0] + 50].all()
     assert cuts[0] == 900                         # the nearest such frame (1130 on the other side)
+
+
+def test_auto_kalman_candidate_is_a_fixed_linear_map(clip):
+    """The Kalman candidate's premise: with its process noise held, the smoother is linear
+    in the data (so the one-probe SURE judges it exactly), skips the samples not kept, and
+    smooths: on 1 cm noise its error is well under the noise."""
+    from mocapkit.denoise.auto import _kalman_cv
+
+    noisy = _noisy(clip, [("gaussian", {"sigma_cm": 1.0})], seed=4)
+    Y = noisy.matrix()
+    kept = np.random.default_rng(0).random(Y.shape) > 0.1
+    f = _kalman_cv(Y, kept, 1.0, noisy.fps)
+    Z = np.random.default_rng(1).normal(size=Y.shape)
+    np.testing.assert_allclose(f(2.0 * Y + 3.0 * Z), 2.0 * f(Y) + 3.0 * f(Z), atol=1e-8)
+    Y2 = Y.copy()
+    Y2[~kept] += 50.0                                    # samples not kept do not count
+    np.testing.assert_allclose(f(Y2), f(Y), atol=1e-9)
+    assert np.sqrt(np.mean((f(Y) - clip.matrix()) ** 2)) < 0.6

@@ -59,7 +59,7 @@ def test_distance_noise_reads_zero_on_joint_data_and_the_noise_on_noisy_data():
     for sigma in (0.1, 0.5):
         noisy = corrupt.combine(m, [("gaussian", {"sigma_cm": sigma})], seed=1)[0]
         est = distance_noise(noisy.positions, noisy.observed)
-        assert 0.85 * sigma < est < 1.02 * sigma                 # the minimum over partners reads low
+        assert 0.95 * sigma < est < 1.05 * sigma                 # cross-fitted: no low bias
     # spikes on 10 % of the samples (19 % of the pairs) raise the robust scale by ~20 %;
     # masked out (as auto passes only the samples it kept) they are gone
     noisy = corrupt.combine(m, [("gaussian", {"sigma_cm": 0.2})], seed=2)[0]

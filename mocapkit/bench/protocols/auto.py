@@ -48,6 +48,7 @@ from typing import Any, Iterator
 import numpy as np
 
 from ... import corrupt, gaps, io, metrics, signal
+from ...errors import MocapValueError
 from ...motion import Motion
 from ..core import Context, Row, protocol
 
@@ -176,7 +177,6 @@ def auto_protocol(ctx: Context) -> Iterator[Row]:
     log = ctx.options.get("log")
     name = ctx.options.get("clip_set", "protocol")
     if name not in CLIP_SETS:
-        from ...errors import MocapValueError
         raise MocapValueError(f"clip_set must be one of {', '.join(CLIP_SETS)}, got {name!r}")
     for i, (label, clip) in enumerate(load_clips(data, quick, max_s, CLIP_SETS[name])):
         for fps in ((30,) if quick else (30, 120)):
