@@ -21,7 +21,8 @@ The chain, decided from the clip's own diagnosis (:mod:`mocapkit.diagnose`):
    by more than the limit, and rejecting it cost up to 1.5 cm RMSE (protocol run of
    docs/results/auto.md: run@30 1.015 -> 2.542), so it is not the default.
 2. **Noise** -- five smoothers on the samples kept, and the one of lowest Monte-Carlo
-   SURE (Ramani et al. 2008; the noise level from GCV) is used: a GCV smoothing spline
+   SURE (Ramani et al. 2008; the noise level from the kept samples' fourth differences,
+   :func:`mocapkit.signal.estimate_noise`) is used: a GCV smoothing spline
    (Woltring 1986, smoothing chosen per coordinate), multichannel SSA with optimal
    singular-value shrinkage (Gavish & Donoho 2017; it uses the body's coordination), a
    constant-velocity Kalman/RTS smoother (Rauch, Tung & Striebel 1965; process noise by
@@ -51,7 +52,8 @@ pieces (``source['auto']['pieces']``: frames, chain, estimate) and merges them.
 The error estimate (cm RMS over all coordinates, ``source['auto']['estimated_rmse_cm']``)
 is the RMS over every fitted sample of an estimate per sample, by class:
 
-* *kept and smoothed*: the chosen smoother's SURE;
+* *kept and smoothed*: the variance term of the chosen smoother's risk, sigma sqrt(df / N)
+  with df its SURE divergence (:func:`_smooth`);
 * *kept as measured* (no smoothing): the noise, as the smallest of the per-channel GCV
   sigma, the package's robust noise level of the kept samples of the whole matrix
   (:func:`mocapkit.signal.estimate_noise`, fourth differences, pooled) and the spread of
@@ -114,6 +116,7 @@ import numpy as np
 from ..diagnose import SPIKE_RATE, diagnose, diagnosis_of, robust_fit, used_columns
 from ..gaps import gap_lengths
 from ..motion import Motion
+from ..signal import estimate_noise
 from ..solvers import lowrank as _lr
 from ..solvers.gcv_spline import _BISQUARE, cutoff_hz, gcv_smooth
 from ..windows import frame_blocks
@@ -260,7 +263,6 @@ class Auto(Denoiser):
             # distances is a third, which no motion leaks into (rigid.distance_noise:
             # 0 on noise-free joint data where diff4-mad reads up to 0.09 cm at 30 fps)
             from ..rigid import distance_noise
-            from ..signal import estimate_noise
             kept_m = used_columns(M, cols) & ~holes[:, cols]       # not the rejected spikes
             d4 = estimate_noise(used_columns(X, cols), kept_m, method="diff4-mad", pool="all", fallback=0.0)
             T = X.shape[0]
@@ -598,7 +600,14 @@ def _smooth(Y: np.ndarray, kept: np.ndarray, fit: np.ndarray, sigma: float,
             fps: float) -> tuple[np.ndarray, str, float]:
     """Best of GCV spline, MSSA, a constant-velocity Kalman/RTS smoother and two means on
     the complete matrix Y (holes filled), judged by Monte-Carlo SURE on the kept samples.
-    Returns (out, name, estimated RMSE).
+    Returns (out, name, estimated RMSE). ``sigma`` (the GCV noise level) is used only where
+    the fourth differences cannot be formed.
+
+    The noise level was the GCV sigma before 2026-12-05; the fourth differences' (measured
+    that day, same seeds, against it): mean RMSE gauss1 / mixed @30 -3.4 / -3.3 % on the
+    protocol's clips (run@30 gauss1 0.664 -> 0.595, hdm05-hop@30 0.712 -> 0.630) and -0.5 /
+    -2.8 % on the held-out clips; gauss3@30 and every 120 fps condition within +-0.3 %;
+    worst case +1.3 %.
 
     Measured on 5 CMU clips x 30/120 fps x Gaussian 1/3 cm (before the bench, see
     docs/results/auto.md for the full run): the mean of GCV and MSSA was best or tied in
@@ -619,6 +628,12 @@ def _smooth(Y: np.ndarray, kept: np.ndarray, fit: np.ndarray, sigma: float,
     use (same conditions, 60 cases): mean -0.05..-1.3 % per condition, per case 0.92-1.02 x.
     """
     window = max(2, min(int(round(0.13 * fps)), Y.shape[0] // 4))
+    # the smoothers' noise level: the package's estimator on the kept samples' fourth
+    # differences, not the GCV spline's sigma, which the spline's misfit of fast motion at
+    # low frame rates pulls low (run@30 and hdm05-hop@30 with 1 cm noise: GCV 0.69, diff4
+    # 0.99 / 0.985), and a low sigma makes MSSA keep and the Kalman filter follow noise
+    sig4 = float(estimate_noise(Y, kept, method="diff4-mad", pool="all"))
+    sigma = sig4 if np.isfinite(sig4) and sig4 > 0 else float(sigma)
 
     def f_gcv(Z):
         return gcv_smooth(Z, kept, group=3)[0]
@@ -642,7 +657,14 @@ def _smooth(Y: np.ndarray, kept: np.ndarray, fit: np.ndarray, sigma: float,
         div[f"{a}+{b}"] = 0.5 * (div[a] + div[b])
     risk = {k: sure_risk(Y, outs[k], sigma, div[k], mask=kept) for k in outs}
     best = min(risk, key=risk.get)
-    return outs[best], best, float(np.sqrt(max(risk[best], 0.0)))
+    # the estimate: the variance term sigma^2 df / N of the risk, df = the divergence (as
+    # the spline's own sigma sqrt(tr H / n)), not the SURE value: SURE's -sigma^2 cancels
+    # this clip's realised noise energy in the residual only as well as sigma matches it,
+    # and 1 % off in sigma at 3 cm moves the risk by 0.18 cm^2 (49_19@30: SURE 0.39
+    # against 0.63 true). On the kept samples of the 120 Gaussian / mixed cases of
+    # the protocol and held-out clips: within 1.5x of the true RMSE 119 of 120, SURE 113
+    N = max(int(np.count_nonzero(kept)), 1)
+    return outs[best], best, float(sigma * np.sqrt(max(div[best], 0.0) / N))
 
 
 def _kalman_cv(Y: np.ndarray, kept: np.ndarray, sigma: float, fps: float):
