@@ -113,6 +113,38 @@ def test_sure_is_unbiased_for_a_linear_smoother():
     assert sure(f, Y, 1.0, rng=0) == pytest.approx(true_mse, rel=0.15)
 
 
+def test_sure_weights_minimise_sure_over_the_simplex():
+    """The mix of three linear smoothers: its SURE is the grid minimum over the simplex
+    (never above a single smoother or a 50/50 mean), the weights are convex, and its true
+    error is no worse than the best single smoother's by more than SURE's spread."""
+    from mocapkit.solvers.mssa import sure_divergence, sure_risk, sure_weights
+
+    rng = np.random.default_rng(5)
+    truth = np.cumsum(np.cumsum(rng.normal(size=(600, 6)), axis=0), axis=0) * 0.05
+    Y = truth + rng.normal(0, 1.0, truth.shape)
+    mask = rng.random(Y.shape) > 0.1
+
+    def box(n):
+        k = np.ones(n) / n
+        return lambda Z: np.column_stack([np.convolve(Z[:, c], k, mode="same") for c in range(Z.shape[1])])
+
+    fs = [box(3), box(9), box(21)]
+    outs = [f(Y) for f in fs]
+    divs = [sure_divergence(f, Y, 1.0, mask=mask, fy=o, rng=0) for f, o in zip(fs, outs)]
+    w, risk = sure_weights(Y, outs, 1.0, divs, mask=mask)
+    assert np.all(w >= 0) and w.sum() == pytest.approx(1.0)
+    mix = sum(wk * o for wk, o in zip(w, outs))
+    assert risk == pytest.approx(sure_risk(Y, mix, 1.0, float(np.dot(w, divs)), mask=mask), rel=1e-9)
+    grid = [(a, b, 1 - a - b) for a in np.linspace(0, 1, 41) for b in np.linspace(0, 1, 41) if a + b <= 1 + 1e-12]
+    best_grid = min(sure_risk(Y, sum(g * o for g, o in zip(gw, outs)), 1.0, float(np.dot(gw, divs)), mask=mask)
+                    for gw in grid)
+    assert risk <= best_grid + 1e-9
+    singles = [np.sqrt(np.mean((o - truth) ** 2)) for o in outs]
+    assert np.sqrt(np.mean((mix - truth) ** 2)) <= 1.05 * min(singles)
+    with pytest.raises(MocapValueError):
+        sure_weights(Y, outs, 1.0, divs[:2])
+
+
 def test_mssa_long_clip_in_blocks_matches_one_block():
     rng = np.random.default_rng(4)
     t = np.linspace(0, 12, 1200)[:, None]

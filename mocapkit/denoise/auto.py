@@ -20,14 +20,14 @@ The chain, decided from the clip's own diagnosis (:mod:`mocapkit.diagnose`):
    of 20-35 frames of fast motion at 30 fps a measured end sample's extrapolation misses
    by more than the limit, and rejecting it cost up to 1.5 cm RMSE (protocol run of
    docs/results/auto.md: run@30 1.015 -> 2.542), so it is not the default.
-2. **Noise** -- five smoothers on the samples kept, and the one of lowest Monte-Carlo
-   SURE (Ramani et al. 2008; the noise level from the kept samples' fourth differences,
-   :func:`mocapkit.signal.estimate_noise`) is used: a GCV smoothing spline
+2. **Noise** -- three smoothers on the samples kept, mixed by the convex weights of lowest
+   Monte-Carlo SURE (Ramani et al. 2008, :func:`mocapkit.solvers.mssa.sure_weights`; the
+   noise level from the kept samples' fourth differences,
+   :func:`mocapkit.signal.estimate_noise`): a GCV smoothing spline
    (Woltring 1986, smoothing chosen per coordinate), multichannel SSA with optimal
-   singular-value shrinkage (Gavish & Donoho 2017; it uses the body's coordination), a
+   singular-value shrinkage (Gavish & Donoho 2017; it uses the body's coordination), and a
    constant-velocity Kalman/RTS smoother (Rauch, Tung & Striebel 1965; process noise by
-   robust maximum likelihood, then held: :func:`_kalman_cv`), and the means of the spline
-   and MSSA and of MSSA and the Kalman smoother. *Do no harm*: when the
+   robust maximum likelihood, then held: :func:`_kalman_cv`). *Do no harm*: when the
    estimated noise is below ``min_noise_cm`` and there are no spikes the measured samples
    are returned as they are (at that level smoothing cannot be told from removing motion
    detail: on noise-free CMU clips the GCV spline adds 0.002-0.08 cm).
@@ -101,7 +101,7 @@ by the hand and finger joints at those frames, so it did not see them either.
 >>> clip = io.read(datasets.bundled("16_15.amc"))
 >>> noisy, _ = corrupt.combine(clip, [("gaussian", {"sigma_cm": 2.0})], seed=0)
 >>> out = Auto().denoise(noisy)
->>> out.source["auto"]["chain"][0] in ("gcv-spline", "mssa", "kalman-cv", "gcv-spline+mssa", "mssa+kalman-cv")
+>>> out.source["auto"]["chain"][0].startswith("mssa 0.")     # the SURE mix, MSSA leading
 True
 >>> 0.2 < out.source["auto"]["estimated_rmse_cm"] < 2.0
 True
@@ -120,7 +120,7 @@ from ..signal import estimate_noise
 from ..solvers import lowrank as _lr
 from ..solvers.gcv_spline import _BISQUARE, cutoff_hz, gcv_smooth
 from ..windows import frame_blocks
-from ..solvers.mssa import mssa_denoise, sure_divergence, sure_risk
+from ..solvers.mssa import mssa_denoise, sure_divergence, sure_weights
 from .base import Denoiser, get, register
 from .constraints import Integral, Interval, Real
 from .fill_auto import DEFAULT_CANDIDATES
@@ -598,16 +598,26 @@ def _end_spikes_kept(X: np.ndarray, M: np.ndarray, cols: np.ndarray, fit: np.nda
 
 def _smooth(Y: np.ndarray, kept: np.ndarray, fit: np.ndarray, sigma: float,
             fps: float) -> tuple[np.ndarray, str, float]:
-    """Best of GCV spline, MSSA, a constant-velocity Kalman/RTS smoother and two means on
-    the complete matrix Y (holes filled), judged by Monte-Carlo SURE on the kept samples.
-    Returns (out, name, estimated RMSE). ``sigma`` (the GCV noise level) is used only where
-    the fourth differences cannot be formed.
+    """GCV spline, MSSA and a constant-velocity Kalman/RTS smoother on the complete matrix Y
+    (holes filled), mixed by the convex weights of lowest Monte-Carlo SURE on the kept
+    samples (:func:`mocapkit.solvers.mssa.sure_weights`). Returns (out, what was used,
+    estimated RMSE). ``sigma`` (the GCV noise level) is used only where the fourth
+    differences cannot be formed.
 
     The noise level was the GCV sigma before 2026-12-05; the fourth differences' (measured
     that day, same seeds, against it): mean RMSE gauss1 / mixed @30 -3.4 / -3.3 % on the
     protocol's clips (run@30 gauss1 0.664 -> 0.595, hdm05-hop@30 0.712 -> 0.630) and -0.5 /
     -2.8 % on the held-out clips; gauss3@30 and every 120 fps condition within +-0.3 %;
     worst case +1.3 %.
+
+    The weights replaced (2026-12-05) the pick of lowest SURE among the three and two fixed
+    50/50 means (gcv+mssa, mssa+kalman), and the spline is refitted on the kept samples
+    (its robust fit as the probe's reference had made SURE pick the spline alone on spiky
+    clips). Protocol (docs/results/auto.md, same seeds) mean RMSE gauss1 / gauss3 / mixed
+    @30 0.497 / 1.196 / 1.067 -> 0.494 / 1.184 / 1.007 cm, @120 0.291 / 0.686 / 0.538 ->
+    0.290 / 0.681 / 0.525; held-out clips mixed @30 / @120 0.918 / 0.500 -> 0.877 / 0.491.
+    Typical weights: MSSA 0.5-0.8, the Kalman smoother 0.2-0.4, the spline 0-0.2 (more
+    on slow clips).
 
     Measured on 5 CMU clips x 30/120 fps x Gaussian 1/3 cm (before the bench, see
     docs/results/auto.md for the full run): the mean of GCV and MSSA was best or tied in
@@ -647,16 +657,24 @@ def _smooth(Y: np.ndarray, kept: np.ndarray, fit: np.ndarray, sigma: float,
     if Y.shape[0] < 4 * window:
         return fit, "gcv-spline", float(sigma)
     f_kal = _kalman_cv(Y, kept, sigma, fps)
-    outs = {"gcv-spline": fit, "mssa": f_mssa(Y), "kalman-cv": f_kal(Y)}
-    # one probe for all: a mean's divergence is the mean of its members' (linear in f),
-    # so each smoother runs once more, not once per candidate (same numbers to round-off)
-    div = {k: sure_divergence(f, Y, sigma, mask=kept, fy=outs[k], rng=0)
-           for k, f in (("gcv-spline", f_gcv), ("mssa", f_mssa), ("kalman-cv", f_kal))}
-    for a, b in (("gcv-spline", "mssa"), ("mssa", "kalman-cv")):
-        outs[f"{a}+{b}"] = 0.5 * (outs[a] + outs[b])
-        div[f"{a}+{b}"] = 0.5 * (div[a] + div[b])
-    risk = {k: sure_risk(Y, outs[k], sigma, div[k], mask=kept) for k in outs}
-    best = min(risk, key=risk.get)
+    # the spline refitted on the kept samples, not the robust fit passed in: the probe's run
+    # is this refit, and a reference other than f(Y) puts (f(Y) - fit) / e, e = 0.01 sigma,
+    # into the divergence (on spiky clips it made SURE pick the spline alone: run@30 mixed
+    # 1.68 cm where the mix below gives 1.30)
+    fns = {"gcv-spline": f_gcv, "mssa": f_mssa, "kalman-cv": f_kal}
+    outs = {k: f(Y) for k, f in fns.items()}
+    # one probe for all: the divergence is linear in f, so a mix's is the mix of theirs
+    div = {k: sure_divergence(f, Y, sigma, mask=kept, fy=outs[k], rng=0) for k, f in fns.items()}
+    names = list(outs)
+    w, _ = sure_weights(Y, [outs[k] for k in names], sigma, [div[k] for k in names], mask=kept)
+    out = outs[names[0]] * w[0]
+    for k, wk in zip(names[1:], w[1:]):
+        if wk > 0:
+            out += wk * outs[k]
+    order = np.argsort(-w)
+    picked = " + ".join(f"{names[i]} {w[i]:.2f}" for i in order if w[i] >= 0.005)
+    if w.max() > 0.995:
+        picked = names[int(order[0])]
     # the estimate: the variance term sigma^2 df / N of the risk, df = the divergence (as
     # the spline's own sigma sqrt(tr H / n)), not the SURE value: SURE's -sigma^2 cancels
     # this clip's realised noise energy in the residual only as well as sigma matches it,
@@ -664,7 +682,8 @@ def _smooth(Y: np.ndarray, kept: np.ndarray, fit: np.ndarray, sigma: float,
     # against 0.63 true). On the kept samples of the 120 Gaussian / mixed cases of
     # the protocol and held-out clips: within 1.5x of the true RMSE 119 of 120, SURE 113
     N = max(int(np.count_nonzero(kept)), 1)
-    return outs[best], best, float(sigma * np.sqrt(max(div[best], 0.0) / N))
+    df = float(np.dot(w, [div[k] for k in names]))
+    return out, picked, float(sigma * np.sqrt(max(df, 0.0) / N))
 
 
 def _kalman_cv(Y: np.ndarray, kept: np.ndarray, sigma: float, fps: float):
@@ -692,7 +711,7 @@ def _kalman_cv(Y: np.ndarray, kept: np.ndarray, sigma: float, fps: float):
 
 
 def _how(smooth: bool, holes: bool, long: bool) -> str:
-    parts = ["Monte-Carlo SURE of the smoother" if smooth else "noise estimate (samples kept as measured)"]
+    parts = ["noise x sqrt(the smoother's degrees of freedom per sample, by Monte-Carlo SURE)" if smooth else "noise estimate (samples kept as measured)"]
     if holes:
         parts.append("spline on trusted stretches hidden next to each hole")
     if long:
