@@ -73,6 +73,12 @@ def render(doc: dict) -> str:
     fails = summ.get("all", {}).get("failed_runs")
     out.append(f"- failed runs: {int(fails['value']) if fails else 0}"
                + ("".join(f"\n  - {x}" for x in fails["extra"]["runs"]) if fails else ""))
+    for c, d in summ.items():
+        if "cases_left_missing" in d:
+            r = d["cases_left_missing"]
+            out.append(f"- {c}: auto left {r['extra']['samples']} point samples of long gaps missing (no fill "
+                       f"validated under 5 cm) in {int(r['value'])} of {r['n']} cases "
+                       f"({', '.join(r['extra']['cases'])}): scored on what it wrote, outside the ratios above")
     est = summ.get("corrupted", {}).get("estimate_within_1.5x")
     if est:
         out.append(f"- estimated error within a factor 1.5 of the true error: {est['value']:.0f} % "
@@ -89,7 +95,8 @@ def render(doc: dict) -> str:
         out.append(f"| {cond} | " + " | ".join(_v(sum(d[m]) / len(d[m])) if d.get(m) else "" for m in show) + " |")
     out += ["", "## Every case (RMSE cm; auto's estimate and chain beside it)", "",
             "An empty cell: the method left samples missing (fill-auto leaves a gap no fill "
-            "validated under 5 cm), so it is not scored or counted as `best` there.", "",
+            "validated under 5 cm), so it is not scored or counted as `best` there; auto, which "
+            "does the same since 2026-12-05, is scored on the samples it wrote, marked `*`.", "",
             "| clip | condition | " + " | ".join(METHODS) + " | auto est. | auto chain | best is |",
             "|---|---|" + "---:|" * len(METHODS) + "---:|---|---|"]
     case = defaultdict(dict)
@@ -98,7 +105,10 @@ def render(doc: dict) -> str:
             case[(r["clip"], r["condition"])][r["method"]] = r
     for (clip, cond), d in case.items():
         a = d.get("auto", {}).get("extra", {})
-        out.append(f"| {clip} | {cond} | " + " | ".join(_v(d.get(m, {}).get("value")) for m in METHODS)
+        cells = [_v(d.get(m, {}).get("value")) for m in METHODS]
+        if a.get("left"):
+            cells[0] += "*"
+        out.append(f"| {clip} | {cond} | " + " | ".join(cells)
                    + f" | {_v(a.get('estimate'))} | {' -> '.join(a.get('chain') or [])} | "
                    f"{d.get('best', {}).get('extra', {}).get('method', '')} |")
     return "\n".join(out) + "\n"

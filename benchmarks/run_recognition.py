@@ -80,6 +80,10 @@ CANDIDATES = {
     "+ second difference (acceleration) representation": {"diff": 2},
     "length 48": {"length": 48},
     "length 32": {"length": 32},
+    # fifth round (2026-12-05): the augmentation's strength below the default (MSR-Action3D
+    # subjects face the camera; a turn of 15 deg may already be more than the data show)
+    "rotation augmentation 7.5 deg": {"rot_deg": 7.5},
+    "augmentation 3 copies": {"augment": 3},
 }
 SEL_FILE = RES / "recognition_selection.json"
 

@@ -268,6 +268,25 @@ def test_auto_fills_long_gaps_with_fill_auto(clip):
     assert metrics.rmse(clip, out, ~noisy.observed) < 2.0
 
 
+def test_auto_leaves_long_gaps_no_fill_validates_missing(clip, tmp_path, capsys):
+    """A long gap whose best fill validates above max_fill_error_cm stays missing (no spline
+    values in its place), is reported, and the estimate covers only what was written."""
+    noisy = _noisy(clip, [("block_gaps", {"n_markers": 1, "length": 40, "n_blocks": 4})], seed=6)
+    gap = ~noisy.observed
+    strict = get("auto", max_fill_error_cm=1e-6).denoise(noisy)       # nothing validates that well
+    assert not strict.observed[gap].any() and np.isnan(strict.positions[gap]).all()
+    assert strict.observed[~gap].all()
+    a = strict.source["auto"]
+    assert a["left_missing"] == int(gap.sum()) and a["max_fill_error_cm"] == 1e-6
+    assert np.isfinite(a["estimated_rmse_cm"]) and a["estimated_rmse_cm"] < 0.1   # the kept samples
+    loose = get("auto", max_fill_error_cm=None).denoise(noisy)
+    assert loose.observed.all() and loose.source["auto"]["left_missing"] == 0
+    src, dst = tmp_path / "gaps.trc", tmp_path / "out.trc"
+    io.write(noisy, src)
+    assert main(["denoise", str(src), str(dst), "--method", "auto", "--param", "max_fill_error_cm=1e-6"]) == 0
+    assert "samples of long gaps left missing (no fill validated under 1e-06 cm" in capsys.readouterr().out
+
+
 @pytest.mark.shared_data
 def test_auto_on_a_real_marker_file_keeps_measured_samples(shared_data):
     m = io.read(shared_data / "markers" / "c3d_org" / "Eb015pr.c3d")
