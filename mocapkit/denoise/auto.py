@@ -282,7 +282,8 @@ class Auto(Denoiser):
         chain = ["spike removal"] if spiky else []
         if smooth:
             out[:, cols], picked, est["kept"][cols] = _smooth(
-                out[:, cols], ~holes[:, cols], fit[:, cols], diag.noise_cm, motion.fps)
+                out[:, cols], ~holes[:, cols], fit[:, cols], diag.noise_cm, motion.fps,
+                s=None if spiky else info.s)
             chain.append(picked)
         long = self._long_gaps(motion)
         if (holes & ~long).any() and not smooth:
@@ -609,12 +610,15 @@ def _end_spikes_kept(X: np.ndarray, M: np.ndarray, cols: np.ndarray, fit: np.nda
 
 
 def _smooth(Y: np.ndarray, kept: np.ndarray, fit: np.ndarray, sigma: float,
-            fps: float) -> tuple[np.ndarray, str, float]:
+            fps: float, s: np.ndarray | None = None) -> tuple[np.ndarray, str, float]:
     """GCV spline, MSSA and a constant-velocity Kalman/RTS smoother on the complete matrix Y
     (holes filled), mixed by the convex weights of lowest Monte-Carlo SURE on the kept
     samples (:func:`mocapkit.solvers.mssa.sure_weights`). Returns (out, what was used,
     estimated RMSE). ``sigma`` (the GCV noise level) is used only where the fourth
-    differences cannot be formed.
+    differences cannot be formed. ``s`` (per column): ``fit`` is the plain GCV fit of the
+    kept samples with this smoothing (the path without spikes) and is used as it is; None:
+    the spline is fitted here. Either way its probe run holds that smoothing (a fixed
+    linear map, as the other two hold their ranks and process noise).
 
     The noise level was the GCV sigma before 2026-12-05; the fourth differences' (measured
     that day, same seeds, against it): mean RMSE gauss1 / mixed @30 -3.4 / -3.3 % on the
@@ -657,8 +661,14 @@ def _smooth(Y: np.ndarray, kept: np.ndarray, fit: np.ndarray, sigma: float,
     sig4 = float(estimate_noise(Y, kept, method="diff4-mad", pool="all"))
     sigma = sig4 if np.isfinite(sig4) and sig4 > 0 else float(sigma)
 
+    held = [] if s is None else [s]          # the smoothing, chosen on Y, then held
+
     def f_gcv(Z):
-        return gcv_smooth(Z, kept, group=3)[0]
+        if held:
+            return gcv_smooth(Z, kept, s=held[0], group=3, validate=False)[0]
+        f, inf = gcv_smooth(Z, kept, group=3, validate=False)
+        held.append(inf.s)
+        return f
 
     ranks: list[int] = []                  # filled by the first run: the probe's run then
                                            # takes the same ranks, i.e. the same map
@@ -674,7 +684,7 @@ def _smooth(Y: np.ndarray, kept: np.ndarray, fit: np.ndarray, sigma: float,
     # into the divergence (on spiky clips it made SURE pick the spline alone: run@30 mixed
     # 1.68 cm where the mix below gives 1.30)
     fns = {"gcv-spline": f_gcv, "mssa": f_mssa, "kalman-cv": f_kal}
-    outs = {k: f(Y) for k, f in fns.items()}
+    outs = {k: (fit if k == "gcv-spline" and s is not None else f(Y)) for k, f in fns.items()}
     # one probe for all: the divergence is linear in f, so a mix's is the mix of theirs
     div = {k: sure_divergence(f, Y, sigma, mask=kept, fy=outs[k], rng=0) for k, f in fns.items()}
     names = list(outs)
