@@ -26,7 +26,10 @@ there), ``trnn`` at their defaults (``svt`` was never the best in a first run an
 left out to keep the run short). ``best`` = the lowest-RMSE candidate per case.
 The protocol runs with every gap filled (FILL_ALL) so every method is scored on every
 sample; a method that still leaves samples missing (``fill-auto`` leaves a gap no fill
-validated under 5 cm) gets a NaN RMSE there and is not a ``best`` candidate in that case.
+validated under 5 cm) gets a NaN RMSE there and is not a ``best`` candidate in that case;
+auto, which since 2026-12-05 leaves such gaps missing too, is scored on the samples it
+wrote (its estimate covers the same samples) and those cases are kept out of the ratios
+and counted apart (``cases_left_missing``).
 A method that raises is a ``failed`` row (and counted in the summary).
 
 *Scores*: RMSE (cm, all coordinates) per case; auto's estimated RMSE
