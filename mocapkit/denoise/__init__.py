@@ -33,7 +33,7 @@ from .base import Denoiser, available, get, register  # noqa: F401
 DEFAULT_METHOD = "auto"
 DEFAULT_PARAMS: dict = {}
 """Method (and settings) used when none is named for skeleton data: ``auto`` (diagnose,
-remove spikes, smooth by the best of GCV spline / MSSA / Kalman by SURE, fill long gaps by
+remove spikes, smooth by GCV spline / MSSA / Kalman mixed by SURE weights, fill long gaps by
 fill-auto), measured better than the previous default ``kalman-cv`` with ``gate=5`` in the
 ``auto`` protocol (docs/results/auto.md). Marker captures get ``fill-auto``
 (:func:`default_for`)."""

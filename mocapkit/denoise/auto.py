@@ -177,7 +177,7 @@ class Auto(Denoiser):
     """
 
     name = "auto"
-    description = ("diagnose the clip, remove spikes, smooth (best of GCV spline / MSSA / Kalman by SURE), "
+    description = ("diagnose the clip, remove spikes, smooth (GCV spline / MSSA / Kalman mixed by SURE weights), "
                    "fill long gaps by fill-auto; prints what it chose and an error estimate (cm)")
     needs_training = False
     keeps_observed = False

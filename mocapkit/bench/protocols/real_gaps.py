@@ -100,7 +100,7 @@ GROSS_CM = 20.0
 OUTSIDE_CM = 100.0
 PEERS = ("linear", "cubic", "kineticstoolkit")
 MOCAPKIT_METHODS = ("kalman-cv", "svt", "trnn", "tsmc", "dynammo",
-                    "fill-rigid", "fill-pattern", "fill-pca", "fill-auto")
+                    "fill-rigid", "fill-pattern", "fill-pca", "fill-auto", "auto")
 PREFERRED_SOURCES = ("kineticstoolkit/kinematics_basket_sprint.c3d",
                      "kineticstoolkit/kinematics_tennis_serve_nan.c3d",
                      "c3d_org/Eb015pr.c3d",
