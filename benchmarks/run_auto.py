@@ -76,7 +76,7 @@ def render(doc: dict) -> str:
     for c, d in summ.items():
         if "cases_left_missing" in d:
             r = d["cases_left_missing"]
-            out.append(f"- {c}: auto left {r['extra']['samples']} point samples of long gaps missing (no fill "
+            out.append(f"- {c}: auto did not fill {r['extra']['samples']} missing point samples (no fill "
                        f"validated under 5 cm) in {int(r['value'])} of {r['n']} cases "
                        f"({', '.join(r['extra']['cases'])}): scored on what it wrote, outside the ratios above")
     est = summ.get("corrupted", {}).get("estimate_within_1.5x")

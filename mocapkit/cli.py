@@ -353,10 +353,10 @@ def _print_auto(src: dict | None) -> None:
     lim = src.get("max_fill_error_cm")
     print(f"auto: {chain} ({', '.join(facts)}); estimated error "
           + (f"{est:.2f} cm RMSE ({src.get('how', '')})" if est is not None else "not available")
-          + (f"; {left} samples of long gaps left missing (no fill validated under {lim:g} cm"
+          + (f"; {left} missing samples not filled (no fill validated under {lim:g} cm"
              f"{' or no evidence' if lim is not None else ''}; --param max_fill_error_cm=... to "
              f"accept more)" if left and lim is not None else
-             f"; {left} samples of long gaps left missing (no fill had evidence)" if left else ""))
+             f"; {left} missing samples not filled (no fill had evidence)" if left else ""))
 
 
 def cmd_train(a: argparse.Namespace) -> int:

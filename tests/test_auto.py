@@ -270,8 +270,10 @@ def test_auto_fills_long_gaps_with_fill_auto(clip):
 
 def test_auto_leaves_long_gaps_no_fill_validates_missing(clip, tmp_path, capsys):
     """A long gap whose best fill validates above max_fill_error_cm stays missing (no spline
-    values in its place), is reported, and the estimate covers only what was written."""
-    noisy = _noisy(clip, [("block_gaps", {"n_markers": 1, "length": 40, "n_blocks": 4})], seed=6)
+    values in its place), so does a short hole whose spline fill does, it is reported, and
+    the estimate covers only what was written."""
+    noisy = _noisy(clip, [("block_gaps", {"n_markers": 1, "length": 40, "n_blocks": 4}),
+                          ("missing", {"ratio": 0.01})], seed=6)
     gap = ~noisy.observed
     strict = get("auto", max_fill_error_cm=1e-6).denoise(noisy)       # nothing validates that well
     assert not strict.observed[gap].any() and np.isnan(strict.positions[gap]).all()
@@ -284,7 +286,7 @@ def test_auto_leaves_long_gaps_no_fill_validates_missing(clip, tmp_path, capsys)
     src, dst = tmp_path / "gaps.trc", tmp_path / "out.trc"
     io.write(noisy, src)
     assert main(["denoise", str(src), str(dst), "--method", "auto", "--param", "max_fill_error_cm=1e-6"]) == 0
-    assert "samples of long gaps left missing (no fill validated under 1e-06 cm" in capsys.readouterr().out
+    assert "missing samples not filled (no fill validated under 1e-06 cm" in capsys.readouterr().out
 
 
 @pytest.mark.shared_data

@@ -35,7 +35,7 @@ The chain, decided from the clip's own diagnosis (:mod:`mocapkit.diagnose`):
    (on the noise-free path, per point, by the position relative to its rigid partners
    where that validates better: ``_partner_fill``);
    longer gaps by ``fill-auto`` (per-gap self-validated choice of linear / spline /
-   pattern / rigid-body / PCA / trnn fill) run on the cleaned samples. A long gap whose
+   pattern / rigid-body / PCA fill) run on the cleaned samples. A long gap whose
    best fill validates above ``max_fill_error_cm`` (5 cm, fill-auto's own default) is left
    missing and reported, as are frames no fill has evidence for: no spline values are
    written in its place. Until 2026-12-05 every long gap was filled whatever its validated
@@ -131,11 +131,16 @@ from .fill_auto import DEFAULT_CANDIDATES
 
 __all__ = ["Auto", "FILL_CANDIDATES"]
 
-#: fills auto's fill-auto chooses from for long gaps: fill-auto's own, plus trnn (low-rank
-#: completion: on ten 60-frame gaps of 16_15 at 120 fps trnn alone gave 0.30 cm where auto
-#: without it gave 0.54; per-gap validation does not always pick right -- see the
-#: gaps10x60 rows of docs/results/auto.md, e.g. balance@30 0.76 vs fill-auto's 0.39)
-FILL_CANDIDATES = DEFAULT_CANDIDATES + ("trnn",)
+#: fills auto's fill-auto chooses from for long gaps: fill-auto's own. ``trnn`` (low-rank
+#: completion) was one more until 2026-12-05: on ten 60-frame gaps of 16_15 at 120 fps it
+#: gave 0.30 cm where auto without it gave 0.54, but the per-gap validation picked it where
+#: it then failed -- on a real occlusion mask (real_gaps: CMU 135_04 under Eb015pr's mask) one
+#: gap it took wrote 62 samples more than 20 cm off (9.3 cm RMSE where fill-auto's own
+#: candidates give 0.93), and on the auto protocol balance@30 gaps10x60 0.764 against 0.390
+#: cm, hdm05-kick@120 0.990 against 0.272. Without it, on the protocol and held-out clips'
+#: 32 gaps10x60 cases: 24 the same, 4 better, 3 worse (at most 0.127 -> 0.157 cm), and 5
+#: cases leave 33-120 more samples unfilled.
+FILL_CANDIDATES = DEFAULT_CANDIDATES
 
 #: the longest run of frames (a point's) that the rigid partners' distances may reject as
 #: spikes in :func:`_second_look`; a longer disputed run is motion the partners do not share
@@ -170,9 +175,9 @@ class Auto(Denoiser):
         holes by the spline. Default 0.1 s.
     edge_test : reject spikes on the end frames on a spiky noise-free clip (second look;
         off by default, see the module docstring).
-    max_fill_error_cm : ``fill-auto``'s ``max_error_cm`` for long gaps, cm: a gap whose best
-        fill validates above it is left missing (None: fill every gap with its
-        best-validated fill, however far off).
+    max_fill_error_cm : cm; a long gap whose best fill validates above it (fill-auto's
+        ``max_error_cm``), or a short hole whose spline / partner fill does, is left
+        missing (None: fill every gap with its best-validated fill, however far off).
     readmit : passes of the second look's re-admission of rejected samples (0: none).
     """
 
@@ -303,11 +308,15 @@ class Auto(Denoiser):
                 h = est["hole"][..., cols]
                 est["hole"][..., cols] = np.where(np.isfinite(err), err, h)
                 chain.append("partner-relative fill")
+        # (missing samples only: a rejected spike is a measured sample, and no method may
+        # drop one -- its fill stays, charged its validated error)
+        if self.max_fill_error_cm is not None and (~M & ~long).any():
+            out = _leave_unvalidated(out, ~M & ~long, est["hole"], float(self.max_fill_error_cm))
         e_long = None
         if long.any():
             out, e_long = self._fill_long(motion, out, long)
             chain.append("fill-auto")
-        estimate = _combine(est, holes, long, e_long, usable)
+        estimate = _combine(est, holes, long, e_long, usable, out)
         src = {
             "chain": chain, "diagnosis": diag.as_dict(),
             "gcv_cutoff_hz": float(np.median(cutoff_hz(info.s, 2, motion.fps))),
@@ -772,10 +781,26 @@ def _piece_cuts(observed: np.ndarray, piece: int, ov: int) -> list[int]:
     return cuts
 
 
+def _leave_unvalidated(out: np.ndarray, short: np.ndarray, hole, limit: float) -> np.ndarray:
+    """``out`` with the short holes whose hole-by-hole validated error (``hole``: (C,) or
+    (T, C), cm per coordinate) exceeds ``limit`` set to NaN, the whole point at once -- the
+    same rule as fill-auto's for long gaps. On real occlusion masks laid over clean captures
+    (docs/results/real_gaps.md), holes of up to 0.1 s in a 120 fps kick were written 20 cm
+    and more off (7.4 % of a case's fills) where fill-auto left them."""
+    T, C = out.shape
+    for sl in frame_blocks(T):
+        bad = short[sl] & (np.broadcast_to(_rows(hole, sl), short[sl].shape) > limit)
+        if bad.any():
+            bad = np.repeat(bad.reshape(bad.shape[0], -1, 3).any(axis=2), 3, axis=1)
+            out[sl][bad] = np.nan
+    return out
+
+
 def _combine(est: dict, holes: np.ndarray, long: np.ndarray, e_long: np.ndarray | None,
-             usable: np.ndarray) -> float | None:
-    """Sample-weighted RMS of the per-class estimates over the samples written (cm): the
-    long-gap samples fill-auto left (no ``e_long``) are missing in the output, not counted."""
+             usable: np.ndarray, out: np.ndarray | None = None) -> float | None:
+    """Sample-weighted RMS of the per-class estimates over the samples written (cm): what
+    is left missing (NaN in ``out``: long gaps fill-auto left, holes no fill validated) is
+    not counted."""
     cols = np.repeat(usable, 3)
     T = holes.shape[0]
     total, count = 0.0, 0
@@ -785,7 +810,10 @@ def _combine(est: dict, holes: np.ndarray, long: np.ndarray, e_long: np.ndarray 
         hole2 = np.broadcast_to(_rows(est["hole"], sl) ** 2, h.shape)
         e_l2 = np.where(np.isfinite(e_l), e_l ** 2, np.nan)   # not filled: left missing, not charged
         kept2 = _rows(est["kept"], sl) ** 2 + _rows(est.get("kept_extra", 0.0), sl)
-        sq = np.where(~h, kept2, np.where(h & ~lg, hole2, e_l2))[:, cols]
+        sq = np.where(~h, kept2, np.where(h & ~lg, hole2, e_l2))
+        if out is not None:
+            sq = np.where(np.isnan(out[sl]), np.nan, sq)
+        sq = sq[:, cols]
         fin = np.isfinite(sq)
         total += float(sq[fin].sum())
         count += int(fin.sum())
@@ -796,7 +824,7 @@ def _combine(est: dict, holes: np.ndarray, long: np.ndarray, e_long: np.ndarray 
 
 def _left_missing(out: np.ndarray, usable: np.ndarray) -> int:
     """Point samples (frames x points) of the points that have data, left missing (NaN) in
-    the (T, 3J) result: long gaps no fill validated under ``max_fill_error_cm``."""
+    the (T, 3J) result: gaps and holes no fill validated under ``max_fill_error_cm``."""
     return int(np.count_nonzero(np.isnan(out[:, ::3][:, usable])))
 
 
