@@ -419,6 +419,11 @@ def _second_look(X: np.ndarray, M: np.ndarray, cols: np.ndarray, fit: np.ndarray
     confirmed = obs & (agree >= 2) & (disagree == 0)
     back = rej[:, ::3] & confirmed & pinned
     out = ~rej[:, ::3] & obs & (disagree >= 2) & (agree == 0)
+    # Measured and not kept (2026-12-05): also rejecting where the disputing partners
+    # outnumber agreeing ones that do not pin the sample (a 15 cm spike kept two of four
+    # skin-marker distances by chance): tennis serve 2 players + 2 % spikes 0.123 -> 0.114
+    # cm, but protocol spikes jump@120 0.031 -> 0.060, martial-arts@30 0.199 -> 0.242,
+    # duck@30 0.091 -> 0.113 (kick@30 0.380 -> 0.296; held-out 2 better, none worse)
     # a spike is a glitch of a frame or a few; partners disputing a longer run of frames is
     # the motion of a point they are not rigid with -- skin markers across a shoulder or a
     # wrist: in a 50 fps tennis serve (kineticstoolkit, 2 % spikes added) 27 and 23 frames
