@@ -35,8 +35,8 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from mocapkit import corrupt, io, metrics  # noqa: E402
+from mocapkit.bench.protocols.auto import _method  # noqa: E402
 from mocapkit.datasets import shared_data_dir  # noqa: E402
-from mocapkit.denoise import get  # noqa: E402
 
 OUT = ROOT / "docs" / "results" / "auto_markers.md"
 FILES = ("c3d_org/Eb015pr.c3d", "hdm05/HDM_dg_06-03_03_120.c3d", "pyomeca/markers_analogs.c3d",
@@ -46,14 +46,6 @@ CONDITIONS = {"gauss0.3": [("gaussian", {"sigma_cm": 0.3})],
               "gauss1": [("gaussian", {"sigma_cm": 1.0})],
               "spikes": [("outliers", {"ratio": 0.02, "magnitude_cm": 15.0})]}
 METHODS = ("auto", "kalman-cv-gate5", "gcv-spline", "mssa")
-
-
-def _method(name: str, spiky: bool):
-    if name == "kalman-cv-gate5":
-        return get("kalman-cv", gate=5.0)
-    if name == "gcv-spline":
-        return get("gcv-spline", robust=spiky)
-    return get(name)
 
 
 def run(data: Path, max_s: float) -> list[dict]:
@@ -73,7 +65,8 @@ def run(data: Path, max_s: float) -> list[dict]:
                 try:
                     with warnings.catch_warnings():
                         warnings.simplefilter("ignore")
-                        out = _method(name, cond == "spikes").denoise(noisy)
+                        robust = name == "gcv-spline" and cond == "spikes"
+                        out = _method(name, {"robust": True} if robust else {}).denoise(noisy)
                 except Exception as e:                     # a row, and the run goes on
                     rows.append({"file": rel, "condition": cond, "method": name, "error": f"{type(e).__name__}: {e}"})
                     continue

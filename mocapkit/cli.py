@@ -349,14 +349,15 @@ def _print_auto(src: dict | None) -> None:
         facts.append(f"spikes {100 * d['spike_rate']:.1f} %")
         if d.get("n_gaps"):
             facts.append(f"{d['n_gaps']} gaps")
-    left = src.get("left_missing") or 0
-    lim = src.get("max_fill_error_cm")
-    print(f"auto: {chain} ({', '.join(facts)}); estimated error "
-          + (f"{est:.2f} cm RMSE ({src.get('how', '')})" if est is not None else "not available")
-          + (f"; {left} missing samples not filled (no fill validated under {lim:g} cm"
-             f"{' or no evidence' if lim is not None else ''}; --param max_fill_error_cm=... to "
-             f"accept more)" if left and lim is not None else
-             f"; {left} missing samples not filled (no fill had evidence)" if left else ""))
+    line = f"auto: {chain} ({', '.join(facts)}); estimated error " + (
+        f"{est:.2f} cm RMSE ({src.get('how', '')})" if est is not None else "not available")
+    left, lim = src.get("left_missing") or 0, src.get("max_fill_error_cm")
+    if left and lim is not None:
+        line += (f"; {left} missing samples not filled (no fill validated under {lim:g} cm or no "
+                 f"evidence; --param max_fill_error_cm=... to accept more)")
+    elif left:
+        line += f"; {left} missing samples not filled (no fill had evidence)"
+    print(line)
 
 
 def cmd_train(a: argparse.Namespace) -> int:

@@ -310,8 +310,9 @@ class Auto(Denoiser):
                 chain.append("partner-relative fill")
         # (missing samples only: a rejected spike is a measured sample, and no method may
         # drop one -- its fill stays, charged its validated error)
-        if self.max_fill_error_cm is not None and (~M & ~long).any():
-            out = _leave_unvalidated(out, ~M & ~long, est["hole"], float(self.max_fill_error_cm))
+        short_missing = ~M & ~long
+        if self.max_fill_error_cm is not None and short_missing.any():
+            out = _leave_unvalidated(out, short_missing, est["hole"], float(self.max_fill_error_cm))
         e_long = None
         if long.any():
             out, e_long = self._fill_long(motion, out, long)
@@ -418,13 +419,13 @@ def _second_look(X: np.ndarray, M: np.ndarray, cols: np.ndarray, fit: np.ndarray
     # re-admitted the partners must also pin the sample (three independent directions)
     confirmed = obs & (agree >= 2) & (disagree == 0)
     back = rej[:, ::3] & confirmed & pinned
-    out = ~rej[:, ::3] & obs & (disagree >= 2) & (agree == 0)
     # Measured and not kept (2026-12-05): also rejecting where the disputing partners
     # outnumber agreeing ones that do not pin the sample (a 15 cm spike kept two of four
     # skin-marker distances by chance): tennis serve 2 players + 2 % spikes 0.123 -> 0.114
     # cm, but protocol spikes jump@120 0.031 -> 0.060, martial-arts@30 0.199 -> 0.242,
     # duck@30 0.091 -> 0.113 (kick@30 0.380 -> 0.296; held-out 2 better, none worse)
-    # a spike is a glitch of a frame or a few; partners disputing a longer run of frames is
+    out = ~rej[:, ::3] & obs & (disagree >= 2) & (agree == 0)
+    # A spike is a glitch of a frame or a few; partners disputing a longer run of frames is
     # the motion of a point they are not rigid with -- skin markers across a shoulder or a
     # wrist: in a 50 fps tennis serve (kineticstoolkit, 2 % spikes added) 27 and 23 frames
     # of a clean upper-arm marker were rejected here and then filled up to 43 cm off
@@ -789,9 +790,10 @@ def _piece_cuts(observed: np.ndarray, piece: int, ov: int) -> list[int]:
 def _leave_unvalidated(out: np.ndarray, short: np.ndarray, hole, limit: float) -> np.ndarray:
     """``out`` with the short holes whose hole-by-hole validated error (``hole``: (C,) or
     (T, C), cm per coordinate) exceeds ``limit`` set to NaN, the whole point at once -- the
-    same rule as fill-auto's for long gaps. On real occlusion masks laid over clean captures
-    (docs/results/real_gaps.md), holes of up to 0.1 s in a 120 fps kick were written 20 cm
-    and more off (7.4 % of a case's fills) where fill-auto left them."""
+    same rule as fill-auto's for long gaps, so that no fill auto writes was validated worse
+    than that. On the auto protocol, the held-out clips and real_gaps (2026-12-05) no short
+    hole validated above 5 cm, so nothing there changed; the gross fills of real_gaps'
+    CMU 135_04 / Eb015pr case came from a long gap (see :data:`FILL_CANDIDATES`)."""
     T, C = out.shape
     for sl in frame_blocks(T):
         bad = short[sl] & (np.broadcast_to(_rows(hole, sl), short[sl].shape) > limit)
@@ -802,7 +804,7 @@ def _leave_unvalidated(out: np.ndarray, short: np.ndarray, hole, limit: float) -
 
 
 def _combine(est: dict, holes: np.ndarray, long: np.ndarray, e_long: np.ndarray | None,
-             usable: np.ndarray, out: np.ndarray | None = None) -> float | None:
+             usable: np.ndarray, out: np.ndarray) -> float | None:
     """Sample-weighted RMS of the per-class estimates over the samples written (cm): what
     is left missing (NaN in ``out``: long gaps fill-auto left, holes no fill validated) is
     not counted."""
@@ -813,12 +815,10 @@ def _combine(est: dict, holes: np.ndarray, long: np.ndarray, e_long: np.ndarray 
         h, lg = holes[sl], long[sl]
         e_l = e_long[sl] if e_long is not None else np.full(h.shape, np.nan)
         hole2 = np.broadcast_to(_rows(est["hole"], sl) ** 2, h.shape)
-        e_l2 = np.where(np.isfinite(e_l), e_l ** 2, np.nan)   # not filled: left missing, not charged
+        e_l2 = np.where(np.isfinite(e_l), e_l ** 2, np.nan)
         kept2 = _rows(est["kept"], sl) ** 2 + _rows(est.get("kept_extra", 0.0), sl)
         sq = np.where(~h, kept2, np.where(h & ~lg, hole2, e_l2))
-        if out is not None:
-            sq = np.where(np.isnan(out[sl]), np.nan, sq)
-        sq = sq[:, cols]
+        sq = np.where(np.isnan(out[sl]), np.nan, sq)[:, cols]   # left missing: not charged
         fin = np.isfinite(sq)
         total += float(sq[fin].sum())
         count += int(fin.sum())

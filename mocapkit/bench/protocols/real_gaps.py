@@ -36,8 +36,8 @@ trailing gaps held at the nearest observed value), ``cubic`` (scipy ``CubicSplin
 through the observed frames of each marker, edges held), ``kineticstoolkit``
 (``TimeSeries.fill_missing_samples(0)``, its defaults: linear, edges extrapolated;
 skipped with a note when kineticstoolkit is not installed); mocapkit methods by
-registry name (``kalman-cv``, ``svt``, ``trnn``, ``tsmc``, ``dynammo`` and whichever of
-``fill-rigid``, ``fill-pattern``, ``fill-pca``, ``fill-auto`` are registered) with their
+registry name (``kalman-cv``, ``svt``, ``trnn``, ``tsmc``, ``dynammo``, ``auto`` and
+whichever of ``fill-rigid``, ``fill-pattern``, ``fill-pca``, ``fill-auto`` are registered) with their
 default settings, and ``default`` = ``denoise.default_for(motion)`` where it exists, else
 ``denoise.default()`` (when that is a registered method with the same settings that
 already ran on the case, its result is reused rather than computed twice). Each is called
