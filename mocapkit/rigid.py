@@ -18,6 +18,9 @@ wheelchair frame) keep their mutual distances. That gives two tools:
   :func:`parse_clusters` reads an explicit list (marker names, or a JSON file with that list).
 * :func:`rigid_fill` -- the rigid-body gap fill built on both (Vicon Nexus "rigid body fill",
   QTM "relational / kinematic fill", MoCap Toolbox ``mcfixrigidbody``).
+* :func:`fixed_bones` / :func:`hold_lengths` -- the bones whose length a skeleton file
+  format fixes (ASF/AMC, BVH: positions are forward kinematics of rotations), and the
+  smallest move of the points that gives every such bone its length back.
 
 Units: positions in cm, (T, J, 3); masks (T, J) bool.
 
@@ -48,7 +51,8 @@ from .signal._arrays import nanmedian0
 from .windows import frame_blocks
 
 __all__ = ["kabsch", "yaw_kabsch", "apply_rigid", "distance_stats", "rigid_partners", "distance_noise",
-           "distance_consistency", "find_clusters", "parse_clusters", "rigid_fill", "cluster_template", "REFERENCES"]
+           "distance_consistency", "find_clusters", "parse_clusters", "rigid_fill", "cluster_template",
+           "fixed_bones", "hold_lengths", "REFERENCES"]
 
 #: reference shapes :func:`rigid_fill` knows (see its docstring)
 REFERENCES = ("ends", "average")
@@ -227,6 +231,82 @@ def rigid_partners(P: np.ndarray, observed: np.ndarray, *, n_partners: int = 4,
     sc = np.take_along_axis(scale, part, axis=1)
     real = np.isfinite(sc)
     return part, real, np.take_along_axis(med, part, axis=1), np.where(real, sc, np.nan)
+
+
+def fixed_bones(motion) -> tuple[np.ndarray, np.ndarray]:
+    """The bones whose length the motion's file format fixes.
+
+    In ASF/AMC and BVH the positions are forward kinematics of rotations, so a bone keeps
+    its skeleton length in every frame (and a cleaned motion written back to those
+    formats gets it back through the writer's IK whatever the positions say). ASF/AMC
+    (``source['asf']``): every bone (the reader refuses a length dof). BVH
+    (``source['bvh']``): every joint whose node has no position channel. Any other source
+    (C3D, TRC, Kinect -- whose skeleton is the median of the data --, a Motion built in
+    code): none.
+
+    Returns (pairs (B, 2) int -- child joint, parent joint; lengths (B,) cm), B = 0 when
+    none.
+
+    >>> import numpy as np
+    >>> from mocapkit.motion import Motion
+    >>> from mocapkit.skeleton import Skeleton
+    >>> sk = Skeleton(("root", "knee"), np.array([-1, 0]), np.array([[0.0, 0, 0], [0, -40, 0]]))
+    >>> fixed_bones(Motion(np.zeros((5, 2, 3)), sk, 30.0))[0].shape     # built in code: none
+    (0, 2)
+    """
+    src = getattr(motion, "source", None) or {}
+    sk = motion.skeleton
+    bones = np.array(sk.bones(), dtype=np.int64).reshape(-1, 2)
+    lengths = np.linalg.norm(sk.offsets[bones[:, 0]], axis=1) if len(bones) else np.zeros(0)
+    if isinstance(src.get("asf"), dict):
+        keep = np.ones(len(bones), bool)
+    elif isinstance(src.get("bvh"), dict):
+        meta = src["bvh"]
+        nodes, joint_nodes = meta.get("nodes", ()), tuple(meta.get("joint_nodes", ()))
+        if len(joint_nodes) != sk.n_joints:
+            keep = np.zeros(len(bones), bool)
+        else:
+            keep = np.array([not any("position" in c.lower() for c in (nodes[joint_nodes[c]].get("channels") or ()))
+                             for c in bones[:, 0]], bool)
+    else:
+        keep = np.zeros(len(bones), bool)
+    keep &= lengths > 0
+    return bones[keep], lengths[keep]
+
+
+def hold_lengths(P: np.ndarray, pairs: np.ndarray, lengths: np.ndarray, *, sweeps: int = 10) -> np.ndarray:
+    """Points moved so that each pair is ``lengths`` apart, both ends by the same amount
+    along the pair's line (the distance-constraint projection of position-based dynamics,
+    Müller, Heidelberger, Hennix & Ratcliff 2007, J. Vis. Commun. Image R. 18(2):109, with
+    equal weights), in ``sweeps`` Gauss-Seidel passes over the pairs, vectorised over
+    frames.
+
+    Why: smoothing a bone's two ends channel by channel shortens a rotating bone (the
+    chord of its arc) and leaves the noise along it; a skeleton format fixes the length.
+    Measured on the ``auto`` protocol's clips (CMU / HDM05, 3 cm noise, after auto's
+    smoothing): RMSE -10..-16 %, against -15..-20 % for the full least-squares IK of the
+    AMC writer at 5-20 times the cost.
+
+    P : (T, J, 3) cm, NaN where missing (a pair with a missing end is left as it is);
+    pairs (B, 2) int; lengths (B,) cm. Returns a new (T, J, 3) array.
+
+    >>> import numpy as np
+    >>> P = np.array([[[0.0, 0, 0], [3.0, 0, 0]]])
+    >>> hold_lengths(P, np.array([[1, 0]]), np.array([2.0]))[0].tolist()
+    [[0.5, 0.0, 0.0], [2.5, 0.0, 0.0]]
+    """
+    Q = np.array(P, dtype=float, copy=True)
+    pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+    L = np.asarray(lengths, dtype=float).reshape(-1)
+    for _ in range(int(sweeps)):
+        for (a, b), l in zip(pairs, L):
+            d = Q[:, a] - Q[:, b]
+            n = np.sqrt(np.einsum("ij,ij->i", d, d))[:, None]
+            c = np.where(np.isfinite(n) & (n > 1e-9), 0.5 * (n - l) / np.maximum(n, 1e-9), 0.0) * d
+            c[~np.isfinite(c)] = 0.0
+            Q[:, a] -= c
+            Q[:, b] += c
+    return Q
 
 
 def distance_noise(P: np.ndarray, observed: np.ndarray, *, min_distance_cm: float = 3.0,
