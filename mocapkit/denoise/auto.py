@@ -44,6 +44,10 @@ The chain, decided from the clip's own diagnosis (:mod:`mocapkit.diagnose`):
    the validation put far off -- kineticstoolkit's basket sprint: 27,864 samples validated
    over 5 cm and 13,965 over 20 cm (estimate 33.9 cm RMSE), ezc3d's BTS.c3d 3,594 / 2,604
    -- and the spline values it kept where fill-auto refused were charged nothing.
+4. **Bones** -- after smoothing, the bones the file format fixes (ASF/AMC, BVH:
+   :func:`mocapkit.rigid.fixed_bones`) get their length back (:func:`_hold_bones`); the
+   estimate drops by the mean squared move. Smoothing shortens a rotating bone; the
+   writers' IK would restore the length on output anyway.
 
 **Long clips** (over 1.5 x :data:`PIECE_FRAMES` = 12,288 frames) are cleaned in pieces of
 ~8,192 frames, each with 2 s of its neighbours' frames each side, cross-faded over the
@@ -107,6 +111,8 @@ by the hand and finger joints at those frames, so it did not see them either.
 >>> out = Auto().denoise(noisy)
 >>> out.source["auto"]["chain"][0].startswith("mssa 0.")     # the SURE mix, MSSA leading
 True
+>>> out.source["auto"]["chain"][-1]                          # AMC: the bones keep their length
+'bone lengths held'
 >>> 0.2 < out.source["auto"]["estimated_rmse_cm"] < 2.0
 True
 """
