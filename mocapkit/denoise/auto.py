@@ -790,6 +790,19 @@ def _hold_bones(motion: Motion, out: np.ndarray, usable: np.ndarray) -> tuple[np
     every dof, hinge knees and elbows included) gains a few points more but costs 0.5-1 ms
     per frame, about as much as the rest of auto. Only on the smoothing path: measured
     samples of a noise-free clip are exact already.
+
+    Measured and not kept yet (2026-12-05, same seeds): on the noise-free path, moving only
+    the fills (``hold_lengths(..., movable=fills)``, measured samples fixed) after every
+    fill. Mean RMSE fell a lot -- missing30 @30 0.238 -> 0.169 cm (protocol), 0.164 ->
+    0.132 (held-out); gaps10x60 @30 0.268 -> 0.157 / 0.416 -> 0.265; spikes @30 -13 / -17 %
+    -- but 8 of 96 noise-free cases got worse, all at 120 fps and all ruled by a few CMU
+    thumb samples that step 5 cm inside a hole (a chord fill pushed onto the bone's sphere
+    lands farther from the step's end, and drags a good wrist fill along): protocol auto /
+    best missing30@120 1.00 -> 1.14, spikes@120 0.97 -> 1.25. And the fills' estimates,
+    not reduced by the move (subtracting it as on the smoothing path read 3-5x low), came
+    out high: within 1.5x 86 -> 76 % of the protocol's cases. It wants a per-fill estimate
+    update and a guard for fills far off the bone's sphere (a guard at 20 % of the length
+    kept only a third of the gain).
     """
     from ..rigid import fixed_bones, hold_lengths
 
