@@ -68,3 +68,7 @@ def test_auto_gives_noisy_skeleton_data_its_bone_lengths_back(amc):
     assert 0.67 < src["estimated_rmse_cm"] / err < 1.5
     # a clean clip is kept as it is: nothing smoothed, nothing moved
     assert np.array_equal(get("auto").denoise(amc).positions, amc.positions)
+    # positions rescaled without their skeleton (metres): the skeleton no longer describes
+    # them, so no bone is held to its (cm) length
+    scaled = get("auto").denoise(noisy.with_positions(noisy.positions * 0.01))
+    assert "bone lengths held" not in scaled.source["auto"]["chain"]

@@ -810,6 +810,13 @@ def _hold_bones(motion: Motion, out: np.ndarray, usable: np.ndarray) -> tuple[np
     if not len(bones):
         return out, None
     T = out.shape[0]
+    # the skeleton must describe these positions: not so when they were rescaled (metres,
+    # millimetres) without it -- then the typical bone is far off its declared length
+    P = out.reshape(T, -1, 3)
+    with np.errstate(invalid="ignore"):
+        ratio = np.nanmedian(np.linalg.norm(P[:, bones[:, 0]] - P[:, bones[:, 1]], axis=-1), axis=0) / lengths
+    if not np.isfinite(ratio).any() or not 0.8 <= float(np.nanmedian(ratio)) <= 1.25:
+        return out, None
     held = hold_lengths(out.reshape(T, -1, 3), bones, lengths).reshape(T, -1)
     cols = np.repeat(usable, 3)
     d = (held - out)[:, cols]
