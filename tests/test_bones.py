@@ -50,8 +50,8 @@ def test_fixed_bones_per_format(amc, tmp_path):
     np.testing.assert_allclose(_lengths(bvh.positions, pb), np.broadcast_to(Lb, (bvh.n_frames, len(Lb))),
                                atol=1e-4)
     # a marker format (here the same positions through TRC) fixes none
-    p = io.write(amc, tmp_path / "m.trc") or tmp_path / "m.trc"
-    assert len(fixed_bones(io.read(p))[0]) == 0
+    io.write(amc, tmp_path / "m.trc")
+    assert len(fixed_bones(io.read(tmp_path / "m.trc"))[0]) == 0
 
 
 def test_auto_gives_noisy_skeleton_data_its_bone_lengths_back(amc):

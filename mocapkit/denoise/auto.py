@@ -333,7 +333,7 @@ class Auto(Denoiser):
             # the move is (nearly) orthogonal to the error left: the smoothed pose lies off
             # the skeleton's pose set, the truth on it, so |e_before|^2 ~ |e_after|^2 +
             # |move|^2 (Pythagoras; measured on the protocol's 60 Gaussian / mixed cases:
-            # estimate / true RMSE 0.77-1.19 after the subtraction, 1.07-1.42 without it)
+            # estimate / true RMSE 0.83-1.18 after the subtraction, 1.05-1.38 without it)
             estimate = float(np.sqrt(max(estimate ** 2 - moved2, 0.25 * estimate ** 2)))
         src = {
             "chain": chain, "diagnosis": diag.as_dict(),
@@ -786,23 +786,28 @@ def _hold_bones(motion: Motion, out: np.ndarray, usable: np.ndarray) -> tuple[np
     ASF/AMC and BVH fix every bone's length (their writers' IK gives it back on output
     anyway, so the positions auto returns and its estimate now describe what is written).
     Measured on the ``auto`` protocol (CMU / HDM05 AMC, 2026-12-05, same seeds): RMSE
-    -10..-17 % per Gaussian / mixed case; the AMC writer's full IK (Levenberg-Marquardt on
+    -9..-24 % per Gaussian / mixed case (60 cases); the AMC writer's full IK (Levenberg-Marquardt on
     every dof, hinge knees and elbows included) gains a few points more but costs 0.5-1 ms
     per frame, about as much as the rest of auto. Only on the smoothing path: measured
     samples of a noise-free clip are exact already.
 
-    Measured and not kept yet (2026-12-05, same seeds): on the noise-free path, moving only
-    the fills (``hold_lengths(..., movable=fills)``, measured samples fixed) after every
-    fill. Mean RMSE fell a lot -- missing30 @30 0.238 -> 0.169 cm (protocol), 0.164 ->
-    0.132 (held-out); gaps10x60 @30 0.268 -> 0.157 / 0.416 -> 0.265; spikes @30 -13 / -17 %
-    -- but 8 of 96 noise-free cases got worse, all at 120 fps and all ruled by a few CMU
-    thumb samples that step 5 cm inside a hole (a chord fill pushed onto the bone's sphere
-    lands farther from the step's end, and drags a good wrist fill along): protocol auto /
-    best missing30@120 1.00 -> 1.14, spikes@120 0.97 -> 1.25. And the fills' estimates,
-    not reduced by the move (subtracting it as on the smoothing path read 3-5x low), came
-    out high: within 1.5x 86 -> 76 % of the protocol's cases. It wants a per-fill estimate
-    update and a guard for fills far off the bone's sphere (a guard at 20 % of the length
-    kept only a third of the gain).
+    Measured and not kept yet (2026-12-05, same seeds): on the noise-free path, after the
+    long-gap fill, moving only the fills (:func:`hold_lengths` with the measured samples
+    held fixed, PBD's zero inverse mass; not in the code). Mean RMSE fell a lot -- missing30 @30
+    0.238 -> 0.169 cm (protocol), 0.164 -> 0.132 (held-out); gaps10x60 @30 0.268 -> 0.157
+    / 0.416 -> 0.265; spikes @30 -13 / -17 % -- but 9 of 111 noise-free cases got worse,
+    8 of them at 120 fps (up to 1.28x) where a few CMU thumb samples that step 5 cm inside
+    a hole rule the error (a chord fill pushed onto the bone's sphere lands farther from
+    the step's end, and a poor thumb fill drags a good wrist fill along: 0.01 -> 1.16 cm),
+    one at 30 fps (1.01x): protocol auto / best missing30@120 1.00 -> 1.14, spikes@120
+    0.97 -> 1.25. The fills' estimates, not reduced by the move, came out high: within
+    1.5x 86 -> 76 % of the protocol's cases. A first trial placed before the long-gap
+    fill: with equal weights, or weights by each fill's estimated variance, it lost run@30
+    missing30 (0.38 -> 0.87 cm); leaving fills more than 20 % off the bone's length alone
+    avoided that (0.345) but kept less of the gain (protocol missing30@30 mean 0.238 ->
+    0.220); subtracting the move from the estimate read 3-5x low. Those variants were not
+    tried at the later place. It wants a per-fill estimate update and a way to stop a poor
+    fill moving a good one.
     """
     from ..rigid import fixed_bones, hold_lengths
 
@@ -817,7 +822,7 @@ def _hold_bones(motion: Motion, out: np.ndarray, usable: np.ndarray) -> tuple[np
         ratio = np.nanmedian(np.linalg.norm(P[:, bones[:, 0]] - P[:, bones[:, 1]], axis=-1), axis=0) / lengths
     if not np.isfinite(ratio).any() or not 0.8 <= float(np.nanmedian(ratio)) <= 1.25:
         return out, None
-    held = hold_lengths(out.reshape(T, -1, 3), bones, lengths).reshape(T, -1)
+    held = hold_lengths(P, bones, lengths).reshape(T, -1)
     cols = np.repeat(usable, 3)
     d = (held - out)[:, cols]
     fin = np.isfinite(d)
