@@ -791,23 +791,36 @@ def _hold_bones(motion: Motion, out: np.ndarray, usable: np.ndarray) -> tuple[np
     per frame, about as much as the rest of auto. Only on the smoothing path: measured
     samples of a noise-free clip are exact already.
 
-    Measured and not kept yet (2026-12-05, same seeds): on the noise-free path, after the
-    long-gap fill, moving only the fills (:func:`hold_lengths` with the measured samples
-    held fixed, PBD's zero inverse mass; not in the code). Mean RMSE fell a lot -- missing30 @30
-    0.238 -> 0.169 cm (protocol), 0.164 -> 0.132 (held-out); gaps10x60 @30 0.268 -> 0.157
-    / 0.416 -> 0.265; spikes @30 -13 / -17 % -- but 9 of 111 noise-free cases got worse,
-    8 of them at 120 fps (up to 1.28x) where a few CMU thumb samples that step 5 cm inside
-    a hole rule the error (a chord fill pushed onto the bone's sphere lands farther from
-    the step's end, and a poor thumb fill drags a good wrist fill along: 0.01 -> 1.16 cm),
-    one at 30 fps (1.01x): protocol auto / best missing30@120 1.00 -> 1.14, spikes@120
-    0.97 -> 1.25. The fills' estimates, not reduced by the move, came out high: within
-    1.5x 86 -> 76 % of the protocol's cases. A first trial placed before the long-gap
-    fill: with equal weights, or weights by each fill's estimated variance, it lost run@30
-    missing30 (0.38 -> 0.87 cm); leaving fills more than 20 % off the bone's length alone
-    avoided that (0.345) but kept less of the gain (protocol missing30@30 mean 0.238 ->
-    0.220); subtracting the move from the estimate read 3-5x low. Those variants were not
-    tried at the later place. It wants a per-fill estimate update and a way to stop a poor
-    fill moving a good one.
+    Measured and not kept (2026-12-05, same seeds): on the noise-free path, after the
+    long-gap fill, moving only the fills (the measured samples held fixed, PBD's zero
+    inverse mass). With equal weights 9 of 111 noise-free cases got worse, up to 1.28x: a
+    chord fill of a CMU thumb that steps 5 cm inside its hole, pushed onto the bone's
+    sphere, lands farther from the step's end, and a poor fill drags a good one (a wrist
+    0.01 -> 1.16 cm; a rejected shank filled 34 cm off pulled a good foot fill 8 -> 31 cm
+    in 135_04@30 spikes). Second version (not in the code): of two fills only the child
+    moves, and a bone is left alone where its length is off by more than 5 x the fills'
+    estimated 3-D error (a kept spike, a step, a fill the validation did not see; the
+    gain by that ratio, summed over the 112 cases, turned negative above ~10). Mean RMSE
+    protocol / held-out, cm: missing30@30 0.238 -> 0.186 / 0.164 -> 0.141, @120 0.041 ->
+    0.038 / 0.038 -> 0.035; gaps10x60@30 0.268 -> 0.176 / 0.416 -> 0.362, @120 0.201 ->
+    0.186 / 0.144 -> 0.103; spikes@30 0.204 -> 0.197 / 0.120 -> 0.110; 6 of 112 cases
+    worse by over 1 %, at most 1.10x (run@120 gaps10x60: an ankle filled 15 cm off,
+    projected between the knee's and the foot's spheres); worst missing30 auto / oracle
+    0.89 -> 0.85 and 0.94 -> 0.93 (protocol @30 / @120), 0.88 -> 0.82 and 0.98 -> 0.96
+    (held-out): the 0.8 target stays out of reach. It was not kept for the estimate:
+    within 1.5x of the true error in 78 of these 112 cases before, 69 with each moved
+    fill's estimate scaled by sqrt(1 - k/3) (k bones moved it: one direction of three
+    removed per bone), 63 unscaled, 63-64 with the move subtracted sample by sample, 66-68
+    with it subtracted class by class (floor 0.25-0.5 of the estimate); on long gaps alone
+    (movable = long-gap fills) 15 of 32 against 17. The fills the projection moves most
+    are the ones whose validated estimate is small (the validation does not know which
+    fill is bad): on dance@30 gaps10x60 the long-gap samples' true MSE fell 1.77 -> 0.76
+    cm^2 with a mean squared move of 0.89 against an estimate of 1.84 -- right in sum,
+    but subtracted sample by sample (clipped at 0) it removed 4 %. It wants the
+    projection inside the self-validation (fill-auto's hidden stretches and the spline's
+    hidden holes projected too), so the estimate measures what is written. Bone-holding
+    only matters for AMC/BVH, whose real files have no gaps: their holes are rejected
+    spikes.
     """
     from ..rigid import fixed_bones, hold_lengths
 
