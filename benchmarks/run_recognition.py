@@ -84,7 +84,19 @@ CANDIDATES = {
     # subjects face the camera; a turn of 15 deg may already be more than the data show)
     "rotation augmentation 7.5 deg": {"rot_deg": 7.5},
     "augmentation 3 copies": {"augment": 3},
+    # sixth round (2026-12-05): body-invariant views aimed at the remaining confusions (arm
+    # height and reach: high vs horizontal arm wave, hand catch vs side-boxing / high throw,
+    # pick up & throw vs bend), each added to the default's two views
+    "+ joint-distance view (16 key pairs, body sizes)": {"views": ["joints", "arms", "dist"]},
+    "+ joint-angle view (elbow, shoulder, arm, hip, knee, trunk bend)": {"views": ["joints", "arms", "angles"]},
+    "+ arm-height view (hand / elbow height, horizontal reach per arm length)":
+        {"views": ["joints", "arms", "height"]},
+    "probabilities averaged with the skeleton classifier's (weight 0.3)": {"skeleton_weight": 0.3},
 }
+# candidate keys that are no RocketClassifier parameter: ``skeleton_weight`` w averages the
+# default's softmax probabilities (1 - w) with the skeleton classifier's (w), a late fusion of
+# two different feature families (HOD + pose statistics vs random convolutions)
+ENSEMBLE_KEYS = ("skeleton_weight",)
 SEL_FILE = RES / "recognition_selection.json"
 
 
@@ -106,6 +118,7 @@ def inner_folds(y: np.ndarray, g: np.ndarray) -> list[tuple[str, str, np.ndarray
 def select(ctx, names: list[str], seeds=(0, 1)) -> None:
     """Inner validation of CANDIDATES on the training clips only (module doc)."""
     from mocapkit.bench.protocols import retrieval as R
+    from mocapkit.recognition.classifier import SkeletonClassifier
     from mocapkit.recognition.rocket import RocketClassifier, trajectories
 
     D = R._recog_data(ctx, "msr")
@@ -127,9 +140,18 @@ def select(ctx, names: list[str], seeds=(0, 1)) -> None:
             right = {"cross-subject": 0, "half": 0}
             n = {"cross-subject": 0, "half": 0}
             alphas = []
+            kw = {k: v for k, v in CANDIDATES[name].items() if k not in ENSEMBLE_KEYS}
+            w_skel = float(CANDIDATES[name].get("skeleton_weight", 0.0))
             for kind, _, a, b in folds:
-                m = RocketClassifier(seed=seed, **CANDIDATES[name]).fit_series(XL[a], y[a], keypoints=D["keypoints"])
-                right[kind] += int((m.predict_series(XL[b]) == y[b]).sum())
+                m = RocketClassifier(seed=seed, **kw).fit_series(XL[a], y[a], keypoints=D["keypoints"])
+                if w_skel > 0:                           # probabilities averaged with the skeleton classifier's
+                    sk = SkeletonClassifier().fit_features(D["feat"][a], y[a])
+                    assert np.array_equal(sk.classes_, m.classes_)
+                    P = (1 - w_skel) * m.predict_proba_series(XL[b]) + w_skel * sk.predict_proba_features(D["feat"][b])
+                    pred = m.classes_[np.argmax(P, axis=1)]
+                else:
+                    pred = m.predict_series(XL[b])
+                right[kind] += int((pred == y[b]).sum())
                 n[kind] += len(b)
                 alphas.append(m.alpha_)
             out.append({"candidate": name, "params": CANDIDATES[name], "seed": seed,

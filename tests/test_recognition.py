@@ -660,3 +660,54 @@ def test_rocket_second_difference_keeps_the_first_seeds_and_round_trips(rng, tmp
     back = load_model(two.save(tmp_path / "d2.npz"))
     assert back.params()["diff"] == 2
     assert np.array_equal(back.decision_series(X), two.decision_series(X))
+
+
+def _turn_about_vertical(X: np.ndarray, deg: float) -> np.ndarray:
+    """X (n, 3J, L) joint-major x, y, z with every joint turned about the y axis."""
+    a = np.deg2rad(deg)
+    R = np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])
+    n, C, L = X.shape
+    return np.einsum("ij,njl->nil", R, X.reshape(n, C // 3, 3, L).transpose(0, 2, 1, 3).reshape(n, 3, -1)
+                     ).reshape(n, 3, C // 3, L).transpose(0, 2, 1, 3).reshape(n, C, L)
+
+
+def test_dist_angles_height_views_hand_computed_and_invariant(rng):
+    """The distance, angle and height views: shapes, one channel each by hand, and no change
+    under a turn about the vertical (all three) or a bigger body (the angles)."""
+    X = rng.normal(size=(2, 45, 12))                # 15 joints, joint-major x, y, z; joint 0 = root
+    kp = np.array([3, 4, 5, 6, 8, 9, 10, 0, 2, 12, 13, 14, 11, 7, 1])   # rk.SERIES_KEYPOINTS order
+    J = X.reshape(2, 15, 3, 12)
+    D, A, H = rk.dist_view(X, kp), rk.angles_view(X, kp), rk.height_view(X, kp)
+    assert D.shape == (2, 16, 12) and A.shape == (2, 11, 12) and H.shape == (2, 10, 12)
+    assert np.allclose(D[:, 0], np.linalg.norm(J[:, 6] - J[:, 10], axis=1))          # wrist - wrist
+    assert np.allclose(D[:, 4], np.linalg.norm(J[:, 10], axis=1))                     # r wrist - hip centre (origin)
+    u, f = J[:, 5] - J[:, 4], J[:, 6] - J[:, 5]                                       # left upper arm, forearm
+    cos = (u * f).sum(1) / np.linalg.norm(u, axis=1) / np.linalg.norm(f, axis=1)
+    assert np.allclose(A[:, 0], np.arccos(cos))                                       # left elbow flexion
+    assert np.allclose(A[:, 10], np.arccos(J[:, 2, 1] / np.linalg.norm(J[:, 2], axis=1)))  # trunk bend
+    assert (A >= 0).all() and (A <= np.pi + 1e-12).all()
+    arm = np.median(np.linalg.norm(u, axis=1) + np.linalg.norm(f, axis=1), axis=1)[:, None]
+    assert np.allclose(H[:, 0], (J[:, 6, 1] - J[:, 3, 1]) / arm)                     # left hand above the head
+    turned = _turn_about_vertical(X, 37.0)
+    assert not np.allclose(turned, X)
+    for view in (rk.dist_view, rk.angles_view, rk.height_view):
+        assert np.allclose(view(turned, kp), view(X, kp))
+    moved = J.copy()
+    moved[:, 1:] *= 1.8                             # a bigger body: same angles, distances x 1.8
+    assert np.allclose(rk.angles_view(moved.reshape(2, 45, 12), kp), A)
+    assert np.allclose(rk.dist_view(moved.reshape(2, 45, 12), kp), 1.8 * D)
+
+
+def test_rocket_dist_view_fits_and_round_trips(rng, tmp_path):
+    X = rng.normal(size=(12, 45, 32)).cumsum(2) * 0.1
+    y = np.repeat(["a", "b"], 6)
+    kp = np.array([3, 4, 5, 6, 8, 9, 10, 0, 2, 12, 13, 14, 11, 7, 1])
+    m = rk.RocketClassifier(n_features=168, views=("joints", "dist", "angles", "height"), hydra=True,
+                            augment=1).fit_series(X, y, keypoints=kp)
+    assert m.views_ == ["joints", "dist", "angles", "height"]
+    assert [r.n_channels_ for r in m.rockets_] == [45, 45, 16, 16, 11, 11, 10, 10]
+    back = load_model(m.save(tmp_path / "v.npz"))
+    assert back.views_ == m.views_ and np.array_equal(back.decision_series(X), m.decision_series(X))
+    few = rk.RocketClassifier(n_features=168, views=("joints", "dist"), hydra=False,
+                              augment=0).fit_series(X, y, keypoints=kp[:7])
+    assert few.views_ == ["joints"]                 # the distance view needs all 15 keypoints

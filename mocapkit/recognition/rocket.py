@@ -31,7 +31,10 @@ apart), for skeletons whose keypoints :func:`series_keypoints` finds (Kinect 20 
 HDM05; left out otherwise). Each view gets its own transforms; features are concatenated.
 Offered, not in the default (inner validation did not pay, ``docs/results/recognition.md``):
 ``'bones'`` = :func:`bone_view`, the unit directions of the 14 keypoint bones (42 channels),
-and ``'reach'`` = :func:`reach_view`, head, elbows and wrists about the hip centre (15).
+``'reach'`` = :func:`reach_view`, head, elbows and wrists about the hip centre (15),
+``'dist'`` = :func:`dist_view`, distances of 16 key joint pairs, ``'angles'`` =
+:func:`angles_view`, 11 joint angles, and ``'height'`` = :func:`height_view`, hand and
+elbow heights and horizontal reach per arm length (10).
 
 Transform (:class:`MiniRocket`)
 -------------------------------
@@ -102,7 +105,8 @@ from ..motion import Motion
 from .model_file import (check_joint_set, joint_set_of, load_model, read_head, register_format,
                          write_model)
 
-__all__ = ["trajectories", "MiniRocket", "Hydra", "arm_view", "bone_view", "reach_view", "series_keypoints", "RocketClassifier", "fit_dilations", "golden_quantiles",
+__all__ = ["trajectories", "MiniRocket", "Hydra", "arm_view", "bone_view", "reach_view", "dist_view",
+           "angles_view", "height_view", "series_keypoints", "RocketClassifier", "fit_dilations", "golden_quantiles",
            "augment_series", "ridge_group_loo", "KERNEL_INDICES", "MODEL_FORMAT"]
 
 KERNEL_LENGTH = 9
@@ -457,11 +461,21 @@ BONES = (("root", "neck"), ("neck", "head"),
          ("neck", "rshoulder"), ("rshoulder", "relbow"), ("relbow", "rwrist"),
          ("root", "lhip"), ("lhip", "lknee"), ("lknee", "lankle"),
          ("root", "rhip"), ("rhip", "rknee"), ("rknee", "rankle"))
-VIEWS = ("joints", "arms", "bones", "reach")
+VIEWS = ("joints", "arms", "bones", "reach", "dist", "angles", "height")
 # keypoints a view needs (it is left out when the model has fewer)
 VIEW_KEYPOINTS = {"joints": 0, "arms": len(ARM_KEYPOINTS), "bones": len(SERIES_KEYPOINTS),
-                  "reach": len(ARM_KEYPOINTS)}
+                  "reach": len(ARM_KEYPOINTS), "dist": len(SERIES_KEYPOINTS),
+                  "angles": len(SERIES_KEYPOINTS), "height": len(SERIES_KEYPOINTS)}
 REACH_KEYPOINTS = ("head", "lelbow", "lwrist", "relbow", "rwrist")
+# joint pairs of :func:`dist_view` ("ankles" = their midpoint): the hands' distances to each
+# other, the head, the hip centre, the feet and the other shoulder (arm height and reach,
+# hand catch / side-boxing / throws), the elbows' to the head, and the feet's to each other
+# and the hips (kicks, jogging, bend: the head comes down towards the feet)
+DIST_PAIRS = (("lwrist", "rwrist"), ("lwrist", "head"), ("rwrist", "head"),
+              ("lwrist", "root"), ("rwrist", "root"), ("lwrist", "lankle"), ("rwrist", "rankle"),
+              ("lwrist", "rshoulder"), ("rwrist", "lshoulder"), ("lelbow", "head"), ("relbow", "head"),
+              ("lelbow", "relbow"), ("head", "ankles"), ("lankle", "rankle"), ("lankle", "root"),
+              ("rankle", "root"))
 
 
 def series_keypoints(skeleton) -> np.ndarray | None:
@@ -534,6 +548,98 @@ def bone_view(X: np.ndarray, keypoints: np.ndarray) -> np.ndarray:
         B = J(b) - J(a)
         parts.append(B / np.maximum(np.linalg.norm(B, axis=1, keepdims=True), 1e-6))
     return np.concatenate(parts, axis=1)
+
+
+def _named_joints(X: np.ndarray, keypoints: np.ndarray):
+    """``J(name)`` -> (n, 3, L) position of a :data:`SERIES_KEYPOINTS` joint in X (n, 3J, L),
+    the root as the origin (its own channels hold its path, the others are root-relative);
+    ``'ankles'`` = the midpoint of the ankles."""
+    kp = dict(zip(SERIES_KEYPOINTS, (int(k) for k in keypoints)))
+    zero = np.zeros((len(X), 3, X.shape[2]))
+
+    def J(k: str) -> np.ndarray:
+        if k == "ankles":
+            return 0.5 * (J("lankle") + J("rankle"))
+        return zero if kp[k] == kp["root"] else X[:, 3 * kp[k]:3 * kp[k] + 3]
+    return J
+
+
+def dist_view(X: np.ndarray, keypoints: np.ndarray) -> np.ndarray:
+    """Distances (n, 16, L) between the key joint pairs of :data:`DIST_PAIRS`, frame by frame,
+    of joint series X (n, 3J, L) (in body sizes: :func:`trajectories` already divided the
+    positions by the clip's body size).
+
+    Distances do not change under any rotation of the body (so neither under the heading
+    left by the sensor nor under the augmentation's turn) nor its position, and, relative
+    to the body size, little between subjects: the classic pairwise-joint-distance feature
+    of skeleton action recognition (e.g. Wang, Liu, Wu & Yuan, "Mining actionlet ensemble
+    for action recognition with depth cameras", CVPR 2012, Sec. 3.1), here on 16 pairs that
+    tell hand height and reach apart (wrist - head, wrist - hip centre, wrist - foot),
+    which the error list of ``docs/results/recognition.md`` points at. ``keypoints``: the
+    15 indices of :data:`SERIES_KEYPOINTS` (:func:`series_keypoints`).
+    """
+    J = _named_joints(X, keypoints)
+    return np.stack([np.linalg.norm(J(a) - J(b), axis=1) for a, b in DIST_PAIRS], axis=1)
+
+
+def _angle(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Angle in radians (n, L) between vector series a, b (n, 3, L); arctan2 of |a x b| and
+    a . b, which is accurate at 0 and pi where arccos of the cosine is not."""
+    return np.arctan2(np.linalg.norm(np.cross(a, b, axis=1), axis=1), np.einsum("nkl,nkl->nl", a, b))
+
+
+def angles_view(X: np.ndarray, keypoints: np.ndarray) -> np.ndarray:
+    """Joint angles (n, 11, L) in radians of joint series X (n, 3J, L): per side (left,
+    right) elbow flexion (upper arm to forearm, 0 = straight), shoulder elevation (upper
+    arm to the torso's up direction, hip centre -> neck: 0 = arm straight up, pi = hanging),
+    whole-arm elevation (shoulder -> wrist to the torso's up direction), hip flexion (thigh
+    to the torso's down direction) and knee flexion (thigh to shank), then the trunk bend
+    (hip centre -> neck to the vertical +y of :func:`trajectories`).
+
+    Angles are free of the body's position, heading and size, and of the subject's limb
+    lengths: they say how high an arm is raised relative to the trunk (high vs horizontal
+    arm wave, hand catch vs high throw) and how far the trunk bends (bend vs pick up &
+    throw) whatever the subject's build. ``keypoints``: the 15 indices of
+    :data:`SERIES_KEYPOINTS` (:func:`series_keypoints`).
+    """
+    J = _named_joints(X, keypoints)
+    up = J("neck") - J("root")
+    out = []
+    for s in "lr":
+        S, E, W = J(s + "shoulder"), J(s + "elbow"), J(s + "wrist")
+        H, K, A = J(s + "hip"), J(s + "knee"), J(s + "ankle")
+        out += [_angle(E - S, W - E), _angle(E - S, up), _angle(W - S, up),
+                _angle(K - H, -up), _angle(K - H, A - K)]
+    vertical = np.zeros_like(up)
+    vertical[:, 1] = 1.0
+    out.append(_angle(up, vertical))
+    return np.stack(out, axis=1)
+
+
+def height_view(X: np.ndarray, keypoints: np.ndarray) -> np.ndarray:
+    """Arm height and horizontal reach (n, 10, L) of joint series X (n, 3J, L), per side
+    (left, right): the vertical (y) offsets wrist - head, wrist - shoulder and elbow -
+    shoulder, and the horizontal (x, z) distances wrist - shoulder and wrist - hip centre,
+    all divided by that arm's length in the clip (as :func:`arm_view`).
+
+    The height of the hand relative to the head and the shoulder is what separates the
+    remaining confusions (high vs horizontal arm wave, hand catch vs side-boxing / high
+    throw, pick up & throw vs bend); here it is given kernels of its own instead of being
+    one of the 18 mixed arm-view channels, and the horizontal reach is taken as a distance,
+    which does not change under a turn about the vertical. ``keypoints``: the 15 indices of
+    :data:`SERIES_KEYPOINTS` (:func:`series_keypoints`).
+    """
+    J = _named_joints(X, keypoints)
+    head, root = J("head"), J("root")
+    out = []
+    for s in "lr":
+        S, E, W = J(s + "shoulder"), J(s + "elbow"), J(s + "wrist")
+        arm = np.median(np.linalg.norm(E - S, axis=1) + np.linalg.norm(W - E, axis=1), axis=1)
+        arm = np.maximum(arm, 1e-6)[:, None]
+        horiz = lambda v: np.hypot(v[:, 0], v[:, 2])                     # noqa: E731
+        out += [(W - head)[:, 1] / arm, (W - S)[:, 1] / arm, (E - S)[:, 1] / arm,
+                horiz(W - S) / arm, horiz(W - root) / arm]
+    return np.stack(out, axis=1)
 
 
 # ------------------------------------------------------------------------ augmentation
@@ -656,8 +762,11 @@ class RocketClassifier:
         3J joint trajectories of :func:`trajectories`), ``'arms'`` (:func:`arm_view`:
         hand paths about the shoulders and the head, per arm length), ``'bones'``
         (:func:`bone_view`: unit directions of the 14 keypoint bones) and ``'reach'``
-        (:func:`reach_view`: head, elbows and wrists about the hip centre); all but
-        ``'joints'`` need the skeleton's keypoints (:func:`series_keypoints`) and are left
+        (:func:`reach_view`: head, elbows and wrists about the hip centre), ``'dist'``
+        (:func:`dist_view`: distances of 16 key joint pairs), ``'angles'``
+        (:func:`angles_view`: elbow, shoulder, arm, hip and knee angles and the trunk bend)
+        and ``'height'`` (:func:`height_view`: hand and elbow height, horizontal reach, per
+        arm length); all but ``'joints'`` need the skeleton's keypoints (:func:`series_keypoints`) and are left
         out without them.
     hydra : add :class:`Hydra` counts of every view and its first difference (HYDRA +
         MultiRocket, Dempster et al. 2023 Sec. 5).
@@ -754,7 +863,8 @@ class RocketClassifier:
         return [v for v in self.views if len(self.keypoints_) >= VIEW_KEYPOINTS[v]]
 
     def _view(self, X: np.ndarray, view: str) -> np.ndarray:
-        fn = {"joints": lambda X, _: X, "arms": arm_view, "bones": bone_view, "reach": reach_view}[view]
+        fn = {"joints": lambda X, _: X, "arms": arm_view, "bones": bone_view, "reach": reach_view,
+              "dist": dist_view, "angles": angles_view, "height": height_view}[view]
         return fn(X, self.keypoints_)
 
     def _plan(self) -> list[tuple[int, int, bool, str, int]]:
