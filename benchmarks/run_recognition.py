@@ -92,6 +92,8 @@ CANDIDATES = {
     "+ arm-height view (hand / elbow height, horizontal reach per arm length)":
         {"views": ["joints", "arms", "height"]},
     "probabilities averaged with the skeleton classifier's (weight 0.3)": {"skeleton_weight": 0.3},
+    # the distance view instead of the joint coordinates (camera frame, subject-dependent)
+    "arm + joint-distance views (no joints view)": {"views": ["arms", "dist"]},
 }
 # candidate keys that are no RocketClassifier parameter: ``skeleton_weight`` w averages the
 # default's softmax probabilities (1 - w) with the skeleton classifier's (w), a late fusion of
