@@ -711,3 +711,27 @@ def test_rocket_dist_view_fits_and_round_trips(rng, tmp_path):
     few = rk.RocketClassifier(n_features=168, views=("joints", "dist"), hydra=False,
                               augment=0).fit_series(X, y, keypoints=kp[:7])
     assert few.views_ == ["joints"]                 # the distance view needs all 15 keypoints
+
+
+def test_augment_series_raises_the_arms_rigidly_about_the_shoulders(rng):
+    """arm_deg turns elbow, wrist and hand about the shoulder (lengths kept, the rest of the
+    body unmoved); arm_deg = 0 gives the copies of the augmentation without it."""
+    sk = kinect_skeleton()
+    rest = sk.rest_positions()
+    P = np.repeat(rest[None], 20, 0) + rng.normal(0, 0.5, (20, 20, 3))
+    X = rk.trajectories(Motion(P, sk, 15.0), 32)[None].repeat(3, 0)
+    kp = rk.series_keypoints(sk)
+    Xa, _ = rk.augment_series(X, 2, np.random.default_rng(1), rot_deg=0.0, time_warp=0.0, arm_deg=20.0,
+                              keypoints=kp)
+    J, K = X[:1].reshape(1, 20, 3, 32), Xa.reshape(6, 20, 3, 32)
+    moved = np.flatnonzero(np.abs(K - J).max(axis=(0, 2, 3)) > 1e-9)
+    names = ["HipCenter"] + [n for n in sk.names if n != "HipCenter"]
+    assert sorted(names[j] for j in moved) == sorted(["ElbowLeft", "WristLeft", "HandLeft", "ElbowRight",
+                                                      "WristRight", "HandRight"])
+    for s, e, w in (kp[1:4], kp[4:7]):
+        for a, b in ((s, e), (e, w)):
+            np.testing.assert_allclose(np.linalg.norm(K[:, b] - K[:, a], axis=1),
+                                       np.linalg.norm(J[:, b] - J[:, a], axis=1).repeat(6, 0), atol=1e-12)
+    plain, _ = rk.augment_series(X, 2, np.random.default_rng(1))
+    same, _ = rk.augment_series(X, 2, np.random.default_rng(1), arm_deg=0.0, keypoints=kp)
+    assert np.array_equal(plain, same)

@@ -643,8 +643,46 @@ def height_view(X: np.ndarray, keypoints: np.ndarray) -> np.ndarray:
 
 
 # ------------------------------------------------------------------------ augmentation
+def _raise_arms(Xa: np.ndarray, keypoints: np.ndarray, deg: float, rng: np.random.Generator) -> np.ndarray:
+    """Joint series Xa (m, 3J, L) (:func:`trajectories` layout, y up) with each arm turned
+    about its shoulder by an angle uniform in +-``deg`` degrees per series and side, in the
+    vertical plane of the shoulder -> wrist vector (positive = raised): the elbow, the wrist
+    and the joints beyond the wrist (hand / fingers: other joints whose median distance to
+    the wrist is under half the forearm) move rigidly, the rest of the body stays. The angle
+    is scaled frame by frame by the sine of the arm's angle to the vertical, so that an arm
+    pointing straight up or down (where the plane is not defined) is left as it is.
+    ``keypoints``: the :data:`ARM_KEYPOINTS` indices first (:func:`series_keypoints`)."""
+    m, C, L = Xa.shape
+    J3 = Xa.reshape(m, C // 3, 3, L).copy()
+    kp = np.asarray(keypoints, np.int64)
+    others = np.setdiff1d(np.arange(1, C // 3), kp)              # joint 0 holds the root's path
+    theta = np.deg2rad(rng.uniform(-deg, deg, (m, 2)))
+    up = np.array([0.0, 1.0, 0.0])[None, :, None]
+    for side, (s, e, w) in enumerate((kp[1:4], kp[4:7])):
+        S, E, W = J3[:, s], J3[:, e], J3[:, w]                    # (m, 3, L)
+        v = W - S
+        c = np.cross(v, up, axis=1)
+        nc = np.linalg.norm(c, axis=1, keepdims=True)             # |v| sin(angle to vertical)
+        axis = c / np.maximum(nc, 1e-9)
+        ang = theta[:, side, None, None] * nc / np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-9)
+        cos, sin = np.cos(ang), np.sin(ang)
+
+        def turn(P: np.ndarray) -> np.ndarray:                   # Rodrigues about S; P (m, k, 3, L)
+            a, cs, sn = axis[:, None], cos[:, None], sin[:, None]
+            r = P - S[:, None]
+            return S[:, None] + r * cs + np.cross(a, r, axis=2) * sn + a * (a * r).sum(2, keepdims=True) * (1 - cs)
+        if len(others):
+            O = J3[:, others]                                     # (m, k, 3, L)
+            forearm = np.median(np.linalg.norm(W - E, axis=1), axis=1)
+            hand = np.median(np.linalg.norm(O - W[:, None], axis=2), axis=2) < 0.5 * forearm[:, None]
+            J3[:, others] = np.where(hand[:, :, None, None], turn(O), O)
+        J3[:, [e, w]] = turn(J3[:, [e, w]])
+    return J3.reshape(m, C, L)
+
+
 def augment_series(X: np.ndarray, copies: int, rng: np.random.Generator, *, time_warp: float = 0.1,
-                   rot_deg: float = 15.0) -> tuple[np.ndarray, np.ndarray]:
+                   rot_deg: float = 15.0, arm_deg: float = 0.0,
+                   keypoints: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """``copies`` randomly perturbed versions of each series of X (n, C, L): ``(Xa, owner)``
     with Xa (n * copies, C, L) and owner (n * copies,) the index of the source series.
 
@@ -654,7 +692,13 @@ def augment_series(X: np.ndarray, copies: int, rng: np.random.Generator, *, time
       (speed jitter), linear interpolation;
     * rotation: when C = 3 J (joint-major x, y, z with y up, as :func:`trajectories`
       gives), all joints and the root path are turned about the vertical axis by an angle
-      uniform in +-``rot_deg`` degrees (left out for other channel layouts, or rot_deg = 0).
+      uniform in +-``rot_deg`` degrees (left out for other channel layouts, or rot_deg = 0);
+    * arm height (``arm_deg > 0`` and the :data:`ARM_KEYPOINTS` given as ``keypoints``):
+      each arm raised or lowered about its shoulder by up to +-``arm_deg`` degrees
+      (:func:`_raise_arms`): subjects reach to different heights in the same action (in
+      MSR-Action3D test subject 2's throwing hand stays below the head), which the turn
+      about the vertical does not vary. Its random draws come after the others', so
+      ``arm_deg = 0`` gives the copies of the models trained without it.
 
     Left/right mirroring was measured and is not offered: the MSR-Action3D actions are
     one-handed and their side is part of the class (inner validation -4 points).
@@ -683,6 +727,8 @@ def augment_series(X: np.ndarray, copies: int, rng: np.random.Generator, *, time
         J3[:, :, 0] = np.cos(ang) * x + np.sin(ang) * z
         J3[:, :, 2] = -np.sin(ang) * x + np.cos(ang) * z
         Xa = J3.reshape(m, C, L)
+    if arm_deg > 0 and C % 3 == 0 and keypoints is not None and len(keypoints) >= len(ARM_KEYPOINTS):
+        Xa = _raise_arms(Xa, keypoints, float(arm_deg), rng)
     return Xa, owner
 
 
@@ -755,7 +801,9 @@ class RocketClassifier:
     pooling : MultiRocket's four poolings (default) or ``('ppv',)`` (MiniRocket).
     max_channels : largest channel subset per (dilation, kernel) (9, reference code).
     augment : randomly perturbed copies of every training clip (:func:`augment_series`;
-        0 = none); ``time_warp`` and ``rot_deg`` their time-warp and rotation ranges.
+        0 = none); ``time_warp`` and ``rot_deg`` their time-warp and rotation ranges,
+        ``arm_deg`` the range of the arms' raising about the shoulders (0 = none; needs the
+        keypoints).
     n_seeds : transforms with seeds ``seed, seed + 2, ...`` whose features are concatenated
         (1 = one transform per representation).
     views : inputs, each with its own transforms, features concatenated: ``'joints'`` (the
@@ -777,7 +825,7 @@ class RocketClassifier:
     def __init__(self, *, length: int = 64, n_features: int = 5_000, max_dilations: int = 32,
                  pooling: Sequence[str] = POOLINGS, max_channels: int = 9, diff: int = 1,
                  smooth_s: float = 0.0, heading: str = "auto", augment: int = 2,
-                 time_warp: float = 0.1, rot_deg: float = 15.0, n_seeds: int = 1,
+                 time_warp: float = 0.1, rot_deg: float = 15.0, arm_deg: float = 0.0, n_seeds: int = 1,
                  views: Sequence[str] = ("joints", "arms"), hydra: bool = True,
                  alphas: Sequence[float] = tuple(np.logspace(-3, 5, 17)), seed: int = 0):
         store_params(self, locals(), tuples=("pooling", "views"))
@@ -789,6 +837,7 @@ class RocketClassifier:
                 "pooling": list(self.pooling), "max_channels": int(self.max_channels), "diff": int(self.diff),
                 "smooth_s": float(self.smooth_s), "heading": str(self.heading),
                 "augment": int(self.augment), "time_warp": float(self.time_warp), "rot_deg": float(self.rot_deg),
+                "arm_deg": float(self.arm_deg),
                 "n_seeds": int(self.n_seeds), "views": list(self.views), "hydra": bool(self.hydra),
                 "alphas": list(self.alphas), "seed": int(self.seed)}
 
@@ -831,7 +880,8 @@ class RocketClassifier:
         self._fit_transforms(X)                          # biases from the original clips only
         rng = np.random.default_rng([int(self.seed), 7])
         Xa, owner = augment_series(X, int(self.augment), rng, time_warp=float(self.time_warp),
-                                   rot_deg=float(self.rot_deg))
+                                   rot_deg=float(self.rot_deg), arm_deg=float(self.arm_deg),
+                                   keypoints=self.keypoints_)
         F = self._features(np.concatenate([X, Xa]) if len(Xa) else X)
         groups = np.concatenate([np.arange(len(X)), owner])
         ya = y[groups]
