@@ -94,6 +94,11 @@ CANDIDATES = {
     "probabilities averaged with the skeleton classifier's (weight 0.3)": {"skeleton_weight": 0.3},
     # the distance view instead of the joint coordinates (camera frame, subject-dependent)
     "arm + joint-distance views (no joints view)": {"views": ["arms", "dist"]},
+    # augmentation of the arm height (subjects reach to different heights in one action)
+    "arm raising augmentation 15 deg": {"arm_deg": 15.0},
+    "arm raising augmentation 30 deg": {"arm_deg": 30.0},
+    # more copies to sample the larger perturbation space (4 copies alone: +0.7 / -1.0)
+    "arm raising augmentation 30 deg, 4 copies": {"arm_deg": 30.0, "augment": 4},
 }
 # candidate keys that are no RocketClassifier parameter: ``skeleton_weight`` w averages the
 # default's softmax probabilities (1 - w) with the skeleton classifier's (w), a late fusion of
