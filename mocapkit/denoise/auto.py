@@ -627,7 +627,10 @@ def _partner_fill(X: np.ndarray, kept: np.ndarray, fit: np.ndarray, s: np.ndarra
 #: Measured on the auto protocol's and held-out missing30 / spikes cases (2026-12-05):
 #: 10 + 5 passes at 1.7 keep the mean RMSE of 20 + 20 plain passes within 2 % at 40 % of
 #: the time (auto / gcv-spline on missing30 @120 12.3x with 20 + 20); a window of 4 or 8
-#: frames gained 1-4 points more on the holes at 3-15x the time at 120 fps
+#: frames gained 1-4 points more on the holes at 3-15x the time at 120 fps; 4 frames at 30
+#: fps only (the same cost per second as 2 at 120): protocol missing30 @30 worst auto /
+#: oracle 0.84 -> 0.74, held-out 0.86 -> 0.83, mean RMSE -3 / -1 %, but estimates within
+#: 1.5x 3 fewer of 80 missing30 / spikes cases -- not kept
 LOWRANK_WINDOW = 2
 LOWRANK_PASSES = 10
 LOWRANK_FINAL_PASSES = 5
