@@ -99,6 +99,10 @@ CANDIDATES = {
     "arm raising augmentation 30 deg": {"arm_deg": 30.0},
     # more copies to sample the larger perturbation space (4 copies alone: +0.7 / -1.0)
     "arm raising augmentation 30 deg, 4 copies": {"arm_deg": 30.0, "augment": 4},
+    # pairs of the near misses (length 48 +0.0 / +0.7, 4 copies +0.7 / -1.0, rotation 7.5
+    # deg +0.4 / -0.7 points cs / half at seed 0)
+    "length 48, augmentation 4 copies": {"length": 48, "augment": 4},
+    "length 48, rotation augmentation 7.5 deg": {"length": 48, "rot_deg": 7.5},
 }
 # candidate keys that are no RocketClassifier parameter: ``skeleton_weight`` w averages the
 # default's softmax probabilities (1 - w) with the skeleton classifier's (w), a late fusion of
