@@ -521,6 +521,21 @@ def _second_look(X: np.ndarray, M: np.ndarray, cols: np.ndarray, fit: np.ndarray
     return fit, replace(info2, rejected=rej, outliers=rej.sum(axis=0)), confirmed
 
 
+def _judged(ref: np.ndarray, hide: np.ndarray, a: np.ndarray, b: np.ndarray
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Two fills judged on hidden samples: their squared 3-D distances (T, J) to ``ref``
+    (T, C), and the hidden points that count for choosing between them (T, J).
+
+    A hidden sample neither fill predicts within the spike limit (4.685 cm, the limit's
+    1 cm floor) is most likely a spike the tests kept: it says nothing about which fill is
+    better and would swamp both sums (measured: one kept spike made a point's
+    relative-fill estimate 29 cm), so it does not count."""
+    T, C = ref.shape
+    da = ((a - ref) ** 2).reshape(T, C // 3, 3).sum(axis=2)
+    db = ((b - ref) ** 2).reshape(T, C // 3, 3).sum(axis=2)
+    return da, db, hide[:, ::3] & (np.minimum(da, db) <= _BISQUARE ** 2)
+
+
 def _partner_fill(X: np.ndarray, kept: np.ndarray, fit: np.ndarray, s: np.ndarray,
                   fill: np.ndarray, frac: float = 0.1, seed: int = 0
                   ) -> tuple[np.ndarray, np.ndarray | None]:
@@ -585,16 +600,11 @@ def _partner_fill(X: np.ndarray, kept: np.ndarray, fit: np.ndarray, s: np.ndarra
         return np.where(n > 0, acc / np.maximum(n, 1.0), base)
 
     pr = relative(W, pa)
-    da = ((pa - Y0) ** 2).reshape(T, J, 3).sum(axis=2)           # (T, J) squared distances
-    dr = ((pr - Y0) ** 2).reshape(T, J, 3).sum(axis=2)
-    # A hidden sample neither fill predicts within the spike limit (4.685 cm, the limit's
-    # 1 cm floor) is most likely a spike the tests kept: it says nothing about which fill
-    # is better and would swamp both sums (measured: one kept spike made a point's
-    # relative-fill estimate 29 cm). The choice leaves such samples out; the estimate below
-    # keeps them (at 30 fps a fast hand's fill can miss by that much: leaving them out
-    # there made estimates too low).
+    da, dr, hj = _judged(Y0, hide, pa, pr)
+    # the estimate below keeps the samples the choice leaves out (at 30 fps a fast hand's
+    # fill can miss by more than the spike limit: leaving them out there made estimates
+    # too low)
     hp = hide[:, ::3]                                              # (T, J) hidden points
-    hj = hp & (np.minimum(da, dr) <= _BISQUARE ** 2)
     ea = (da * hj).sum(axis=0)
     er = (dr * hj).sum(axis=0)
     dm = ((0.5 * (pa + pr) - Y0) ** 2).reshape(T, J, 3).sum(axis=2)  # the mean of the two
@@ -625,9 +635,10 @@ def _partner_fill(X: np.ndarray, kept: np.ndarray, fit: np.ndarray, s: np.ndarra
 #: :func:`_impute`: embedding window (frames), passes of the validation run and of the
 #: final run (which starts from the validation run's result) and over-relaxation factor.
 #: Measured on the auto protocol's and held-out missing30 / spikes cases (2026-12-05):
-#: 10 + 5 passes at 1.7 keep the mean RMSE of 20 + 20 plain passes within 2 % at 40 % of
-#: the time (auto / gcv-spline on missing30 @120 12.3x with 20 + 20); a window of 4 or 8
-#: frames gained 1-4 points more on the holes at 3-15x the time at 120 fps; 4 frames at 30
+#: 10 + 5 passes at 1.7 keep the mean RMSE of 20 + 20 plain passes within 2.2 % with 15
+#: passes instead of 40 (auto / gcv-spline on missing30 @120 12.3x with 20 + 20, 9.4x
+#: with these); on the holes at 120 fps (20 plain passes) a window of 4 frames gained 3
+#: points at 5.7x the imputation's time, 8 frames none at 24x; 4 frames at 30
 #: fps only (the same cost per second as 2 at 120): protocol missing30 @30 worst auto /
 #: oracle 0.84 -> 0.74, held-out 0.86 -> 0.83, mean RMSE -3 / -1 %, but estimates within
 #: 1.5x 3 fewer of 80 missing30 / spikes cases -- not kept
@@ -684,19 +695,20 @@ def _lowrank_fill(X: np.ndarray, kept: np.ndarray, out: np.ndarray, val, sigma: 
     missing30 @30 0.238 -> 0.217, @120 0.041 -> 0.036, spikes 0.204 -> 0.199 and 0.029 ->
     0.027; held-out clips missing30 0.164 -> 0.139 and 0.038 -> 0.031, spikes 0.120 ->
     0.112 and 0.025 -> 0.022; ten CMU clips in neither set, used for no choice (05_01,
-    05_05, 07_05, 131_01/04/09/14, 135_03/06/11) missing30 0.220 -> 0.195 and 0.050 ->
-    0.041, spikes 0.222 -> 0.212 and 0.070 -> 0.067. Per case at most 1.015x (run@30
-    spikes). Estimates within 1.5x of the truth, all conditions: protocol 98 -> 99 of 114,
-    held-out 100 -> 97 of 117; the third set's missing30 + spikes 27 -> 26 of 40 -- where
-    a few thumb steps or fast rejected samples rule the error, the validated ratio (on
+    05_05, 07_05, 131_01/04/09/14, 135_03/06/11; docs/results/auto_lowrank.md) missing30
+    0.220 -> 0.187 and 0.050 -> 0.042, spikes 0.222 -> 0.214 and 0.070 -> 0.068. Per case
+    at most 1.015x (run@30 spikes; 1.014x on the third set). Estimates within 1.5x of the
+    truth, all conditions: protocol 98 -> 99 of 114, held-out 100 -> 97 of 117; the third
+    set's missing30 + spikes 27 -> 24 of 40 -- where a few thumb steps or fast rejected
+    samples rule the error, the validated ratio (on
     ordinary samples) lowers the estimate more than the error falls, and where the gain is
     large it reads it low (the validation hides 10 % more samples than the clip lacks).
     The real marker files of docs/results/auto_markers.md (spiky rows: the noise-free
     path) moved by at most 0.0007 cm. sigma as 0.25 / 0.5 / 1 / 2 times the estimate: the
     holes' RMSE 0.84 / 0.83 / 0.90 / 1.12 of before (mean over the two sets' missing30
     cases, 20 plain passes, windows of 4-16 frames; 2x made 120 fps fills worse, up to
-    1.5x). Cost: on 8 s clips at 120 fps 0.03-0.05 s (auto / gcv-spline on missing30 @120
-    7.3 -> 9.4x); 10,000 frames with 30 % of the samples missing 2.7 -> 3.1 s.
+    1.5x). Cost: docs/results/auto_lowrank.md (``benchmarks/auto_lowrank.py``); auto /
+    gcv-spline on missing30 @120 7.3 -> 9.4x.
 
     X, kept, out (T, C) cm (X NaN where missing). Returns (values (T, C), scale (J,) or
     None when no point takes it -- 1 where a point keeps its fill).
@@ -704,14 +716,9 @@ def _lowrank_fill(X: np.ndarray, kept: np.ndarray, out: np.ndarray, val, sigma: 
     hide, pred = val
     if not sigma > 0 or X.shape[0] < 2 * LOWRANK_WINDOW + 2:
         return out, None
-    T, C = X.shape
-    J = C // 3
     Rv = _impute(np.where(hide, pred, out), kept & ~hide, X, sigma)
-    dc = ((pred - X) ** 2).reshape(T, J, 3).sum(axis=2)
-    dr = ((Rv - X) ** 2).reshape(T, J, 3).sum(axis=2)
-    hp = hide[:, ::3]
-    hj = hp & (np.minimum(dc, dr) <= _BISQUARE ** 2)
-    ec, er = np.where(hj, dc, 0.0).sum(axis=0), np.where(hj, dr, 0.0).sum(axis=0)   # X: NaN where missing
+    dc, dr, hj = _judged(np.where(kept, X, out), hide, pred, Rv)
+    ec, er = (dc * hj).sum(axis=0), (dr * hj).sum(axis=0)
     use = er < ec
     if not use.any():
         return out, None
