@@ -6,7 +6,9 @@ Writes docs/results/auto_lowrank.json + .md. One BLAS thread.
 ``auto`` refines the short holes of a noise-free clip by iterative low-rank imputation
 (:func:`mocapkit.denoise.auto._lowrank_fill`). Here it runs with the refinement (the
 default) and without it (``LOWRANK_PASSES = 0``: the validation run does nothing, so no
-point takes it) on:
+point takes it) on -- both with the validated bone step that follows it in ASF/AMC files
+(:func:`mocapkit.denoise.auto._bone_fill`, since 2026-12-05; without the refinement it
+starts from the spline and partner fills) -- on:
 
 * ten CMU clips that neither the ``auto`` protocol nor its held-out set uses, and that
   took part in no choice of the refinement (05_01, 05_05, 07_05, 131_01 / 04 / 09 / 14,

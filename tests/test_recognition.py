@@ -735,3 +735,35 @@ def test_augment_series_raises_the_arms_rigidly_about_the_shoulders(rng):
     plain, _ = rk.augment_series(X, 2, np.random.default_rng(1))
     same, _ = rk.augment_series(X, 2, np.random.default_rng(1), arm_deg=0.0, keypoints=kp)
     assert np.array_equal(plain, same)
+
+
+def test_sample_times_trim_idle_ends_and_follow_the_motion_clock():
+    """``trim`` cuts the still frames at both ends by the cumulative motion; the motion
+    clock puts the samples where the motion is; the defaults are the time clock."""
+    T = 20
+    P = np.zeros((T, 2, 3))
+    P[5:15, 0, 0] = np.arange(1, 11)              # still, moving 1 per frame, then still
+    P[15:, 0, 0] = 10.0
+    np.testing.assert_allclose(rk._sample_times(P, 8, 0.0, 0.0), np.linspace(0, T - 1, 8))
+    t = rk._sample_times(P, 6, 0.1, 0.0)          # 10 % of the motion cut at each end
+    np.testing.assert_allclose(t[[0, -1]], [5.0, 13.0], atol=1e-6)
+    np.testing.assert_allclose(np.diff(t), 1.6, atol=1e-6)
+    t = rk._sample_times(P, 11, 0.0, 1.0)         # progress clock: one sample per unit
+    np.testing.assert_allclose(t[1:-1], np.arange(5, 14), atol=1e-6)
+    assert np.all(np.diff(rk._sample_times(P, 16, 0.05, 0.5)) > 0)
+    still = np.zeros((T, 2, 3))                    # no motion: the time clock
+    np.testing.assert_allclose(rk._sample_times(still, 5, 0.1, 1.0), np.linspace(0, T - 1, 5))
+    with pytest.raises(MocapValueError, match="trim"):
+        rk._sample_times(P, 8, 0.5, 0.0)
+
+
+def test_rocket_trim_and_motion_clock_round_trip(rng, tmp_path):
+    ms, labels = _toy_motions(rng, n_per=3)
+    m = rk.RocketClassifier(length=16, n_features=336, augment=0, trim=0.05, motion_time=0.5,
+                            views=["joints"]).fit(ms, labels)
+    assert m.series(ms[0]).shape == rk.trajectories(ms[0], 16).shape
+    assert not np.allclose(m.series(ms[0]), rk.trajectories(ms[0], 16))
+    back = rk.RocketClassifier.load(m.save(tmp_path / "m.npz"))
+    assert (back.trim, back.motion_time) == (0.05, 0.5)
+    np.testing.assert_allclose(back.predict_proba_series(np.stack([m.series(x) for x in ms])),
+                               m.predict_proba_series(np.stack([m.series(x) for x in ms])))

@@ -153,13 +153,23 @@ def resolve_heading(motion: Motion, heading: str = "auto") -> str:
 
 
 def trajectories(motion: Motion, length: int = 64, *, smooth_s: float = 0.0,
-                 heading: str = "auto") -> np.ndarray:
+                 heading: str = "auto", trim: float = 0.0, motion_time: float = 0.0) -> np.ndarray:
     """Body-centred, size-normalised joint trajectories (3J, length) of ``motion`` (module doc).
 
     ``heading``: ``'start'`` / ``'mean'`` / ``'none'`` as in
     :func:`~mocapkit.retrieval.features.prepare`, or ``'auto'`` (:func:`resolve_heading`).
+    ``trim`` (0 <= trim < 0.5): the fraction of the clip's motion (the summed joint speeds,
+    body sizes per frame) cut off at each end before resampling -- idle frames before and
+    after the action, which the subjects hold for different times. ``motion_time`` (0-1):
+    the resampling clock, 0 = time, 1 = the motion's progress (the cumulative summed joint
+    speed), between = their mix: pauses shrink and fast strokes get more samples.
     Units: body sizes (about 0.9 x standing height). Raises MocapValueError for a motion
     with no observed joint.
+
+    >>> from mocapkit import datasets, io
+    >>> m = io.read(datasets.bundled("16_15.amc")).slice(0, 60)
+    >>> trajectories(m, 32).shape, trajectories(m, 32, trim=0.05, motion_time=0.5).shape
+    ((93, 32), (93, 32))
     """
     from ..retrieval.features import prepare
 
@@ -177,10 +187,35 @@ def trajectories(motion: Motion, length: int = 64, *, smooth_s: float = 0.0,
     X = P.reshape(T, -1)
     if T == 1:
         return np.repeat(X.T, length, axis=1)
-    t = np.linspace(0.0, T - 1.0, length)
+    t = _sample_times(P, length, float(trim), float(motion_time))
     lo = np.minimum(np.floor(t).astype(int), T - 2)
     w = (t - lo)[:, None]
     return (X[lo] * (1.0 - w) + X[lo + 1] * w).T
+
+
+def _sample_times(P: np.ndarray, length: int, trim: float, motion_time: float) -> np.ndarray:
+    """Fractional frame indices (length,) at which :func:`trajectories` samples positions
+    P (T, J, 3): evenly in time over the whole clip by default; with ``trim`` the span
+    between the frames where the cumulative motion passes ``trim`` and ``1 - trim`` of its
+    total; with ``motion_time`` evenly in the mixed clock (1 - m) t / (T - 1) + m c(t), c the
+    cumulative motion over its total."""
+    T = P.shape[0]
+    if not (0.0 <= trim < 0.5 and 0.0 <= motion_time <= 1.0):
+        raise MocapValueError(f"trim must be in [0, 0.5) and motion_time in [0, 1], got {trim}, {motion_time}")
+    frames = np.arange(T, dtype=float)
+    if trim == 0.0 and motion_time == 0.0:
+        return np.linspace(0.0, T - 1.0, length)
+    speed = np.linalg.norm(np.diff(P, axis=0), axis=2).sum(axis=1)
+    cum = np.concatenate([[0.0], np.cumsum(np.nan_to_num(speed))])
+    if not cum[-1] > 1e-12:                               # no motion at all: the time clock
+        return np.linspace(0.0, T - 1.0, length)
+    # strictly increasing (np.interp needs it): a tiny share of time breaks the ties of
+    # frames without motion
+    c = (cum / cum[-1]) * (1.0 - 1e-9) + 1e-9 * frames / (T - 1)
+    a, b = np.interp([trim, 1.0 - trim], c, frames)
+    u = (1.0 - motion_time) * frames / (T - 1) + motion_time * c   # the resampling clock
+    ua, ub = np.interp([a, b], frames, u)
+    return np.interp(np.linspace(ua, ub, length), u, frames)
 
 
 # --------------------------------------------------------------------------- transform
@@ -827,7 +862,8 @@ class RocketClassifier:
                  smooth_s: float = 0.0, heading: str = "auto", augment: int = 2,
                  time_warp: float = 0.1, rot_deg: float = 15.0, arm_deg: float = 0.0, n_seeds: int = 1,
                  views: Sequence[str] = ("joints", "arms"), hydra: bool = True,
-                 alphas: Sequence[float] = tuple(np.logspace(-3, 5, 17)), seed: int = 0):
+                 alphas: Sequence[float] = tuple(np.logspace(-3, 5, 17)), seed: int = 0,
+                 trim: float = 0.0, motion_time: float = 0.0):
         store_params(self, locals(), tuples=("pooling", "views"))
         self.alphas = tuple(float(a) for a in alphas)
 
@@ -839,12 +875,14 @@ class RocketClassifier:
                 "augment": int(self.augment), "time_warp": float(self.time_warp), "rot_deg": float(self.rot_deg),
                 "arm_deg": float(self.arm_deg),
                 "n_seeds": int(self.n_seeds), "views": list(self.views), "hydra": bool(self.hydra),
-                "alphas": list(self.alphas), "seed": int(self.seed)}
+                "alphas": list(self.alphas), "seed": int(self.seed),
+                "trim": float(self.trim), "motion_time": float(self.motion_time)}
 
     # -- input ---------------------------------------------------------------------
     def series(self, motion: Motion) -> np.ndarray:
         """(3J, length) input of one motion (:func:`trajectories` with this model's settings)."""
-        return trajectories(motion, self.length, smooth_s=self.smooth_s, heading=self.heading)
+        return trajectories(motion, self.length, smooth_s=self.smooth_s, heading=self.heading,
+                            trim=self.trim, motion_time=self.motion_time)
 
     def check_joints(self, motion: Motion) -> None:
         """Raise MocapValueError when ``motion``'s joints are not the training joint set."""
