@@ -113,6 +113,10 @@ CANDIDATES = {
     "trim 3 %, motion clock 0.5": {"trim": 0.03, "motion_time": 0.5},
     "motion clock 0.25": {"motion_time": 0.25},
     "motion clock 1 (progress only)": {"motion_time": 1.0},
+    # the views' weights in the read-out (a view's standardised features times w: its
+    # coefficients cost 1 / w^2 as much in the near minimum-norm ridge)
+    "arm view weight 2": {"view_weights": [1.0, 2.0]},
+    "arm view weight 0.5": {"view_weights": [1.0, 0.5]},
 }
 # candidate keys that are no RocketClassifier parameter: ``skeleton_weight`` w averages the
 # default's softmax probabilities (1 - w) with the skeleton classifier's (w), a late fusion of

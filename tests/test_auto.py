@@ -569,3 +569,22 @@ def test_hold_fills_moves_only_movable_ends_and_leaves_far_off_bones():
     np.testing.assert_allclose(Q[1], [[0, 2, 0], [0, 12, 0]], atol=1e-12)   # parent moved
     np.testing.assert_array_equal(Q[2], P[2])                               # neither may
     np.testing.assert_array_equal(Q[3], P[3])                               # guarded
+
+
+def test_truth_glitches_flag_a_one_frame_step_and_not_smooth_motion(clip):
+    """The protocol's glitch mask: a smooth clip at 120 fps has (almost) none; a joint
+    that steps 6 cm for one frame is flagged there and beside it, and the share of an
+    output's error on it is what it should be."""
+    from mocapkit.bench.protocols.auto import glitch_share, truth_glitches
+
+    smooth = clip.resample(120.0)
+    assert truth_glitches(smooth).mean() < 0.01
+    P = smooth.positions.copy()
+    P[100, 5] += [6.0, 0.0, 0.0]                          # a one-frame jump of joint 5
+    g = truth_glitches(smooth.with_positions(P))
+    assert g[99:102, 5].all() and not g[:, 5][np.r_[0:98, 103:len(P)]].any()
+    truth = smooth.with_positions(P)
+    out_P = P.copy()                                      # exact but for two samples:
+    out_P[100, 5] = smooth.positions[100, 5]              # the fill misses the jump
+    out_P[10, 7] += [0.0, 6.0, 0.0]                       # and errs as much on a smooth sample
+    assert abs(glitch_share(truth, smooth.with_positions(out_P)) - 0.5) < 1e-9

@@ -863,8 +863,8 @@ class RocketClassifier:
                  time_warp: float = 0.1, rot_deg: float = 15.0, arm_deg: float = 0.0, n_seeds: int = 1,
                  views: Sequence[str] = ("joints", "arms"), hydra: bool = True,
                  alphas: Sequence[float] = tuple(np.logspace(-3, 5, 17)), seed: int = 0,
-                 trim: float = 0.0, motion_time: float = 0.0):
-        store_params(self, locals(), tuples=("pooling", "views"))
+                 trim: float = 0.0, motion_time: float = 0.0, view_weights: Sequence[float] = ()):
+        store_params(self, locals(), tuples=("pooling", "views", "view_weights"))
         self.alphas = tuple(float(a) for a in alphas)
 
     def params(self) -> dict:
@@ -876,7 +876,8 @@ class RocketClassifier:
                 "arm_deg": float(self.arm_deg),
                 "n_seeds": int(self.n_seeds), "views": list(self.views), "hydra": bool(self.hydra),
                 "alphas": list(self.alphas), "seed": int(self.seed),
-                "trim": float(self.trim), "motion_time": float(self.motion_time)}
+                "trim": float(self.trim), "motion_time": float(self.motion_time),
+                "view_weights": [float(w) for w in self.view_weights]}
 
     # -- input ---------------------------------------------------------------------
     def series(self, motion: Motion) -> np.ndarray:
@@ -926,6 +927,15 @@ class RocketClassifier:
         self.mean_ = F.mean(0)
         sd = F.std(0)
         self.scale_ = np.where(sd > 1e-12, sd, 1.0)
+        if len(self.view_weights):
+            # a view's standardised features times w: in the (near) minimum-norm ridge
+            # read-out, its coefficients cost 1 / w^2 as much
+            if len(self.view_weights) != len(self.views):
+                raise MocapValueError(f"view_weights needs one weight per view ({len(self.views)}), "
+                                      f"got {len(self.view_weights)}")
+            w = dict(zip(self.views, (float(v) for v in self.view_weights)))
+            self.scale_ /= np.concatenate([np.full(t.n_features_out, w[self.views_[vi]])
+                                           for (vi, *_), t in zip(self._plan(), self._transforms())])
         F -= self.mean_
         F /= self.scale_
         self.classes_ = np.unique(y)
@@ -982,6 +992,11 @@ class RocketClassifier:
                 self.rockets_.append(MiniRocket(seed=seed, **kw).fit(V))
             else:
                 self.hydras_.append(Hydra(seed=seed).fit(V))
+
+    def _transforms(self) -> list:
+        """The fitted transforms in feature order (:meth:`_plan`)."""
+        it = {"r": iter(self.rockets_), "h": iter(self.hydras_)}
+        return [next(it[kind]) for *_, kind, _ in self._plan()]
 
     def _features(self, X: np.ndarray) -> np.ndarray:
         views = [self._view(X, v) for v in self.views_]
