@@ -583,7 +583,10 @@ def main() -> None:
           "1 = progress only: pauses shrink, fast strokes get more samples). Cutting idle frames lowered both "
           "inner scores (8 % more than 3 %: the start and end postures carry class information), and the "
           "motion clock gained at most one inner cross-subject clip (0.5: +0.4 / +0.0). None reached the rule; "
-          "the default is unchanged.", "",
+          "the default is unchanged. Eighth round: the arm view's weight in the read-out "
+          "(`view_weights`: its standardised features times w, so that its coefficients cost 1 / w^2 as "
+          "much in the near minimum-norm ridge): 2 and 0.5 both lowered both inner scores (weight 1, the "
+          "default, is the best of the three).", "",
           "### Views, HYDRA, seeds, test-time augmentation (`benchmarks/run_recognition_explore.py`)", "",
           "Components: `base0` / `base1` = the previous default (joint trajectories, MultiRocket + augmentation "
           "+ ridge; transform seeds 0 / 1000); `arms` = the same on the arm view (elbow and wrist relative to "

@@ -767,3 +767,19 @@ def test_rocket_trim_and_motion_clock_round_trip(rng, tmp_path):
     assert (back.trim, back.motion_time) == (0.05, 0.5)
     np.testing.assert_allclose(back.predict_proba_series(np.stack([m.series(x) for x in ms])),
                                m.predict_proba_series(np.stack([m.series(x) for x in ms])))
+
+
+def test_rocket_view_weights_scale_a_views_features_and_round_trip(rng, tmp_path):
+    """``view_weights``: a view's standardised features times its weight (the scale of
+    its columns divided by it), kept in the file; one weight per view or a clear error."""
+    ms, labels = _toy_motions(rng, n_per=3)
+    kw = dict(length=16, n_features=336, augment=0, views=["joints"])
+    m0 = rk.RocketClassifier(**kw).fit(ms, labels)
+    m = rk.RocketClassifier(view_weights=[2.0], **kw).fit(ms, labels)
+    np.testing.assert_allclose(m.scale_ * 2.0, m0.scale_)
+    X = np.stack([m.series(x) for x in ms])
+    back = rk.RocketClassifier.load(m.save(tmp_path / "w.npz"))
+    assert back.view_weights == (2.0,)
+    np.testing.assert_allclose(back.decision_series(X), m.decision_series(X))
+    with pytest.raises(MocapValueError, match="one weight per view"):
+        rk.RocketClassifier(view_weights=[1.0, 2.0], **kw).fit(ms, labels)
