@@ -79,6 +79,12 @@ def render(doc: dict) -> str:
             out.append(f"- {c}: auto did not fill {r['extra']['samples']} missing point samples (no fill "
                        f"validated under 5 cm) in {int(r['value'])} of {r['n']} cases "
                        f"({', '.join(r['extra']['cases'])}): scored on what it wrote, outside the ratios above")
+    for c, d in summ.items():
+        if "ratio_oracle_worst_no_glitch" in d:
+            r = d["ratio_oracle_worst_no_glitch"]
+            out.append(f"- {c}: worst auto / oracle {r['value']:.2f} with the ground truth's glitches "
+                       f"(`truth_glitches`, below) left out of both scores, against "
+                       f"{d['ratio_oracle_worst']['value']:.2f} with them")
     est = summ.get("corrupted", {}).get("estimate_within_1.5x")
     if est:
         out.append(f"- estimated error within a factor 1.5 of the true error: {est['value']:.0f} % "

@@ -190,7 +190,7 @@ def process_one(in_path: str, out_path: str, method: str, params: dict[str, Any]
             if params:
                 den.set_params(**params)
         elif method == DEFAULT:
-            den = denoise.default_for(m)          # fill-auto for marker captures, kalman-cv otherwise
+            den = denoise.default_for(m)          # auto (for marker captures too)
             if den.name == denoise.DEFAULT_METHOD:
                 den.set_params(**denoise.DEFAULT_PARAMS)
         else:

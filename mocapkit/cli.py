@@ -304,7 +304,7 @@ def cmd_denoise(a: argparse.Namespace) -> int:
 
     m = _read(a.input, a.skeleton)
     if a.method is None and a.model is None:
-        # the default depends on the data: fill-auto for marker captures, kalman-cv otherwise
+        # the default (denoise.default_for): auto, with its own settings for the data
         method = denoise.default_for(m)
         params = _params_for(method.name, a.param)
         if method.name == denoise.DEFAULT_METHOD:
@@ -325,7 +325,7 @@ def cmd_denoise(a: argparse.Namespace) -> int:
         if not m.observed.all():
             print(gaps.summary_line(out.source.get("gap_report")))
         _print_auto(out.source.get("auto"))
-        auto = out.source.get("fill_auto") if "auto" not in out.source else None
+        auto = out.source.get("fill_auto") or (out.source.get("auto") or {}).get("fill_auto")
         if auto and auto.get("estimated_rmse_cm") is not None:
             chose = ", ".join(f"{k} {v}" for k, v in sorted(auto["chosen"].items(), key=lambda kv: -kv[1]))
             print(f"fill-auto: {auto['gaps']} gaps, best validated fill per gap: {chose or 'none'}; "
@@ -429,11 +429,12 @@ def cmd_methods(a: argparse.Namespace) -> int:
         # "model": a shipped general model is used unless --model is given
         flag = ("model" if name in have else "train") if cls.needs_training else "     "
         settings = ", ".join(f"{k}={v}" for k, v in denoise.DEFAULT_PARAMS.items())
-        default = (f" (default for skeleton data{', ' + settings if settings else ''})"
+        default = (f" (the default{', ' + settings if settings else ''})"
                    if name == denoise.DEFAULT_METHOD else "")
         print(f"{name:<22} {flag}  {cls.description}{default}")
     print("\ntrain: needs `mocapkit train` first; model: a shipped general model is used unless "
-          "--model is given (mocapkit.shipped). Marker files (C3D/TRC) default to fill-auto.")
+          "--model is given (mocapkit.shipped). The default serves marker files (C3D/TRC) too: on a "
+          "clean capture it keeps the measured samples and fills gaps of 3+ frames by fill-auto.")
     return 0
 
 
@@ -525,7 +526,7 @@ def cmd_batch(a: argparse.Namespace) -> int:
         params = method_params(method.name, params, type(method)) if params else params
         name = a.method or method.name
     elif a.method is None and not params:
-        name = DEFAULT                          # per file: fill-auto for markers, kalman-cv otherwise
+        name = DEFAULT                          # per file: denoise.default_for
     else:
         name = a.method or denoise.DEFAULT_METHOD
         if a.method is None:

@@ -44,14 +44,20 @@ def default(**params):
     return get(DEFAULT_METHOD, **{**DEFAULT_PARAMS, **params})
 
 
-def default_for(motion):
-    """The method mocapkit uses when none is named, chosen for ``motion``: ``fill-auto`` for
-    marker captures (C3D/TRC, or any motion whose joints have no hierarchy) -- fill the
-    gaps, leave the measured samples as they are -- and :func:`default` (``auto``) for
-    skeleton data."""
-    markers = motion.source.get("format") in ("c3d", "trc") or bool(
+def is_marker_capture(motion) -> bool:
+    """A marker capture: read from C3D/TRC, or points with no joint hierarchy."""
+    return motion.source.get("format") in ("c3d", "trc") or bool(
         np.all(np.asarray(motion.skeleton.parents) < 0) and motion.n_joints > 1)
-    return get("fill-auto") if markers else default()
+
+
+def default_for(motion):
+    """The method mocapkit uses when none is named, chosen for ``motion``: :func:`default`
+    (``auto``) for every kind of data. Until 2026-12-05 marker captures
+    (:func:`is_marker_capture`) defaulted to ``fill-auto``, which fills the gaps and leaves
+    the measured samples as they are -- noise and spikes included; ``auto`` now hands a
+    clean marker capture's gaps of 3 frames and more to fill-auto (:class:`~mocapkit.denoise.auto.Auto`),
+    and cleans a noisy or spiky one."""
+    return default()
 
 
 _FAMILIES = ("filters", "fill", "kalman", "lowrank", "bases", "sparse", "wavelet", "psc", "completion", "neural", "fill_auto",

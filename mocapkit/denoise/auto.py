@@ -39,7 +39,10 @@ The chain, decided from the clip's own diagnosis (:mod:`mocapkit.diagnose`):
    ASF/AMC and BVH files, where that validates better again, moved onto the bone lengths
    the format fixes, ``_bone_fill``: -4..-10 % more);
    longer gaps by ``fill-auto`` (per-gap self-validated choice of linear / spline /
-   pattern / rigid-body / PCA fill) run on the cleaned samples. A long gap whose
+   pattern / rigid-body / PCA fill) run on the cleaned samples -- in a marker capture kept
+   as measured, every gap longer than ``MARKER_SHORT_FRAMES`` (2) frames: there auto is
+   the default too (since 2026-12-05; fill-auto was), and its fills of real occlusions
+   are fill-auto's but for 1-2 frame gaps (docs/results/real_gaps.md). A long gap whose
    best fill validates above ``max_fill_error_cm`` (5 cm, fill-auto's own default) is left
    missing and reported, as are frames no fill has evidence for: no spline values are
    written in its place. Until 2026-12-05 every long gap was filled whatever its validated
@@ -217,7 +220,9 @@ class Auto(Denoiser):
             if motion.n_frames > 1.5 * PIECE_FRAMES:
                 return self._denoise_pieces(motion)
             out, src, _ = self._denoise(motion)
-            return motion.with_matrix(out, handover=True).with_source(auto=src)
+            codes = src.pop("fill_codes", None)
+            res = motion.with_matrix(out, handover=True).with_source(auto=src)
+            return res if codes is None else res.with_source(fill_codes=codes)
 
     def _denoise_pieces(self, motion: Motion) -> Motion:
         """Piece by piece (:data:`PIECE_FRAMES`), cross-faded over the overlaps; the report
@@ -306,7 +311,7 @@ class Auto(Denoiser):
                 out[:, cols], ~holes[:, cols], fit[:, cols], diag.noise_cm, motion.fps,
                 s=None if spiky else info.s)
             chain.append(picked)
-        long = self._long_gaps(motion)
+        long = self._long_gaps(motion, smooth)
         if (holes & ~long).any() and not smooth:
             chain.append("spline fill")
             short = holes[:, cols] & ~long[:, cols]
@@ -346,9 +351,9 @@ class Auto(Denoiser):
         short_missing = ~M & ~long
         if self.max_fill_error_cm is not None and short_missing.any():
             out = _leave_unvalidated(out, short_missing, est["hole"], float(self.max_fill_error_cm))
-        e_long = None
+        e_long, fa = None, None
         if long.any():
-            out, e_long = self._fill_long(motion, out, long)
+            out, e_long, fa = self._fill_long(motion, out, long)
             chain.append("fill-auto")
         moved2 = None
         if smooth:
@@ -370,15 +375,24 @@ class Auto(Denoiser):
             "how": _how(smooth, bool(holes.any()), e_long is not None),
             "left_missing": _left_missing(out, usable),
             "max_fill_error_cm": self.max_fill_error_cm,
+            "fill_codes": _fill_codes(~M & ~long, fa, out),
         }
+        if fa is not None:
+            src["fill_auto"] = {k: v for k, v in fa.items() if k != "codes"}
         rej = info.rejected[:, ::3].sum(axis=1) if spiky else np.zeros(motion.n_frames, int)
         return out, src, rej
 
-    def _long_gaps(self, motion: Motion) -> np.ndarray:
-        """(T, 3J) True on samples of gaps longer than ``long_gap_s``."""
+    def _long_gaps(self, motion: Motion, smooth: bool) -> np.ndarray:
+        """(T, 3J) True on samples of gaps longer than ``long_gap_s`` -- or, in a marker
+        capture whose samples are kept as measured, longer than ``MARKER_SHORT_FRAMES``."""
+        from . import is_marker_capture
+
         length, _ = gap_lengths(motion.observed)
         never = ~motion.observed.any(axis=0)
-        long = (length > float(self.long_gap_s) * motion.fps) & ~never[None, :]
+        limit = float(self.long_gap_s) * motion.fps
+        if not smooth and is_marker_capture(motion):
+            limit = min(limit, MARKER_SHORT_FRAMES)
+        long = (length > limit) & ~never[None, :]
         return np.repeat(long, 3, axis=1)
 
     @staticmethod
@@ -394,11 +408,13 @@ class Auto(Denoiser):
             hole[:, cols] = np.where(info.hole_map > 0, info.hole_map, hole[:, cols])
         return {"kept": kept, "hole": hole}
 
-    def _fill_long(self, motion: Motion, out: np.ndarray, long: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Long gaps by fill-auto; returns the new matrix and the per-sample error estimate
+    def _fill_long(self, motion: Motion, out: np.ndarray, long: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray, dict]:
+        """Long gaps by fill-auto; returns the new matrix, the per-sample error estimate
         (T, 3J): for every frame fill-auto filled, the validated error of the candidate that
         filled it (``error_map``); NaN where it filled nothing (those samples are left
-        missing: NaN in the matrix too)."""
+        missing: NaN in the matrix too) -- and fill-auto's report (its ``source['fill_auto']``
+        without the error map, and ``source['fill_codes']`` as ``codes``)."""
         filler = get("fill-auto", candidates=FILL_CANDIDATES, max_error_cm=self.max_fill_error_cm)
         work = motion.with_matrix(np.where(long, np.nan, out), observed=~long[:, ::3])
         filled = filler.denoise(work)
@@ -409,9 +425,11 @@ class Auto(Denoiser):
         # what fill-auto did not fill (validated above max_fill_error_cm, or no evidence)
         # stays missing: the spline's values there are the kind of fill it refused
         out[long & ~take] = np.nan
-        emap = filled.source.get("fill_auto", {}).get("error_map")
+        rep = dict(filled.source.get("fill_auto", {}))
+        emap = rep.pop("error_map", None)
         e = np.full(long.shape, np.nan) if emap is None else np.repeat(emap, 3, axis=1)
-        return out, np.where(take, e, np.nan)
+        rep["codes"] = filled.source.get("fill_codes")
+        return out, np.where(take, e, np.nan), rep
 
 
 def _second_look(X: np.ndarray, M: np.ndarray, cols: np.ndarray, fit: np.ndarray, info,
@@ -642,6 +660,13 @@ def _partner_fill(X: np.ndarray, kept: np.ndarray, fit: np.ndarray, s: np.ndarra
     pick = np.where(np.repeat(half, 3)[None, :], 0.5 * (pa + pr), pr)
     return vals, err, (hide, np.where(np.repeat(use, 3)[None, :], pick, pa))
 
+
+#: in a marker capture (:func:`mocapkit.denoise.is_marker_capture`) kept as measured, gaps
+#: longer than this (frames) go to fill-auto: real occlusions of skin markers are filled best
+#: per gap, by the rigid cluster, pattern or body-frame PCA fill its validation picks
+#: (docs/results/real_gaps.md); a gap of 1-2 frames by the spline chain, which is as good
+#: there and avoids fill-auto's per-gap cost on thousands of them
+MARKER_SHORT_FRAMES = 2
 
 #: :func:`_impute`: embedding window (frames), passes of the validation run and of the
 #: final run (which starts from the validation run's result) and over-relaxation factor.
@@ -1107,6 +1132,27 @@ def _hold_bones(motion: Motion, out: np.ndarray, usable: np.ndarray) -> tuple[np
     d = (held - out)[:, cols]
     fin = np.isfinite(d)
     return held, float(np.mean(d[fin] ** 2)) if fin.any() else None
+
+
+#: the gap report's name for auto's own fills of short gaps (spline, partner-relative,
+#: low-rank and bone steps)
+SHORT_FILL = "auto short-gap fill"
+
+
+def _fill_codes(short: np.ndarray, fa: dict | None, out: np.ndarray) -> dict | None:
+    """``source['fill_codes']`` (which fill wrote each missing sample, for the gap report,
+    :func:`mocapkit.gaps.apply_policy`): fill-auto's candidates on the long gaps it filled,
+    :data:`SHORT_FILL` on the short gaps; None when nothing was missing. ``short`` (T, 3J)."""
+    T = out.shape[0]
+    wrote = np.isfinite(out).reshape(T, -1, 3).all(axis=2)
+    sh = short[:, ::3] & wrote
+    fac = None if fa is None else fa.get("codes")
+    if not sh.any() and fac is None:
+        return None
+    names = list(fac["names"]) if fac is not None else []
+    codes = np.array(fac["codes"], dtype=np.int8) if fac is not None else np.full(sh.shape, -1, np.int8)
+    codes[sh] = len(names)
+    return {"names": names + [SHORT_FILL], "codes": codes}
 
 
 def _how(smooth: bool, holes: bool, long: bool) -> str:
