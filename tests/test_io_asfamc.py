@@ -242,6 +242,18 @@ def test_amc_write_read_identical(walk, tmp_path):
     assert np.array_equal(part.positions, walk.positions[10:20])
 
 
+def test_amc_keeps_its_frame_rate_through_a_header_comment(walk, tmp_path):
+    """AMC stores no frame rate: the writer adds '# fps N', the reader takes it (120 Hz
+    without it, or what ``fps=`` says)."""
+    half = walk.slice(0, 40).resample(30.0)
+    out = io.write(half, tmp_path / "w30.amc")
+    assert "# fps 30" in out.read_text().splitlines()[:4]
+    assert io.read(out).fps == 30.0
+    assert amc_io.read(out, fps=60.0).fps == 60.0
+    assert io.read(out.with_name("w30.amc")).n_frames == half.n_frames
+    assert walk.fps == 120.0                              # CMU files: no comment, 120 Hz
+
+
 def test_asf_writer_round_trip(walk, tmp_path):
     p = asf_io.write_asf(walk.source["asf"], tmp_path / "w.asf")
     again = asf_io.read_asf(p)
@@ -636,3 +648,14 @@ def test_bvh_and_amc_give_the_same_joints(walk):
     keyed = d[::4]
     assert keyed.max() < 0.002                     # cm, measured 5.8e-4
     assert np.median(d) < 0.2 and d[4:].mean() < 0.2   # interpolated frames, measured 0.12 cm mean
+
+
+def test_amc_writer_refuses_missing_samples(walk, tmp_path):
+    """AMC stores joint angles: a missing sample cannot be marked, and an IK that skips it
+    drags the joints below (observed ones tens of cm off): one clear error instead."""
+    P = walk.positions.copy()
+    obs = np.ones(P.shape[:2], bool)
+    obs[5:8, 10] = False
+    with pytest.raises(MocapValueError, match="cannot write AMC: the motion has 3 missing"):
+        io.write(walk.with_positions(P, obs), tmp_path / "gappy.amc")
+    assert not (tmp_path / "gappy.amc").exists()

@@ -856,6 +856,21 @@ def _length_mismatch(comp: _Compiled, X: np.ndarray, f: float) -> np.ndarray:
     return np.max(np.where(np.isfinite(d), d, 0.0), axis=1)
 
 
+def require_complete(motion, fmt: str) -> None:
+    """Raise MocapValueError when ``motion`` has missing samples: a skeleton format (BVH,
+    AMC) stores joint angles, so it has no way to mark a missing one, and an inverse
+    kinematics that skips a missing joint target leaves its bone at the start rotation and
+    drags every joint below it (measured: 10 % missing at 30 fps put observed joints up to
+    62 cm off)."""
+    if not motion.observed.all():
+        n_miss = int((~motion.observed).sum())
+        raise MocapValueError(
+            f"cannot write {fmt}: the motion has {n_miss} missing joint entries "
+            f"({100 * motion.missing_fraction:.1f}%); {fmt} has no way to mark them - fill the gaps "
+            f"first (e.g. mocapkit.denoise.get('spline').denoise(motion)) or write C3D / TRC, "
+            f"which keep them missing")
+
+
 def inverse_kinematics(comp: _Compiled, target_cm: np.ndarray, f: float, angle_rad: bool,
                        start: np.ndarray | None = None, *, refine: int = 12,
                        refine_above_cm: float = 0.001, refine_cap_cm: float = 0.5,

@@ -46,7 +46,7 @@ from ..motion import Motion
 from ._atomic import atomic_write
 from ._text import read_text as _read_text
 from .asf import _asf_text, _num, _same_skeleton, cm_per_unit, find_skeleton, read_asf
-from ._kinematics import _Compiled, forward_kinematics, inverse_kinematics
+from ._kinematics import _Compiled, forward_kinematics, inverse_kinematics, require_complete
 
 __all__ = ["read", "read_asf_motion", "write"]
 
@@ -57,6 +57,9 @@ _UNCHANGED_TOL_CM = 1e-7
 # AMC parsing
 # ======================================================================================
 _HEADER_RE = re.compile(r"(?:[ \t]*(?:[#:][^\n]*)?(?:\r?\n|\r))*")
+
+
+_FPS_RE = re.compile(r"#\s*fps\s+([0-9]+(?:\.[0-9]*)?)\s*$", re.IGNORECASE)
 
 
 def _amc_header(text: str):
@@ -86,6 +89,10 @@ def _parse_amc(path, text: str, comp: _Compiled, asf_path) -> tuple[np.ndarray, 
         angle_rad = comp.angle_rad
     meta = {"header": [h.rstrip() for h in head_lines if h.strip()], "fully_specified": fully,
             "angle": "rad" if angle_rad else "deg"}
+    for h in head_lines:                       # "# fps 30": mocapkit's writer (read's doc)
+        m = _FPS_RE.match(h.strip())
+        if m and 0 < float(m.group(1)) < 1e6:
+            meta["fps"] = float(m.group(1))
     body = text[start:]
     dofs = None
     try:
@@ -232,7 +239,7 @@ def _units_info(asf: dict, f: float, override) -> dict:
 
 
 def read(path: str | os.PathLike, *, skeleton: str | os.PathLike | None = None,
-         units: float | str | None = None, fps: float = 120.0) -> Motion:
+         units: float | str | None = None, fps: float | None = None) -> Motion:
     """Read an AMC motion (with its ASF skeleton) into a Motion in cm.
 
     Parameters
@@ -240,7 +247,9 @@ def read(path: str | os.PathLike, *, skeleton: str | os.PathLike | None = None,
     path : the ``.amc`` file.
     skeleton : the ``.asf`` file; default: found by :func:`find_skeleton`.
     units : cm per file length unit (default ``2.54 / ASF length``, 5.644444 for CMU/HDM05).
-    fps : frame rate; AMC files do not store one (CMU and HDM05 record at 120 Hz).
+    fps : frame rate. The AMC format stores none: default the ``# fps N`` header comment
+        mocapkit's writer adds (so that a resampled clip comes back at its own rate), else
+        120 Hz (CMU and HDM05 record at 120 Hz).
 
     Returns
     -------
@@ -262,6 +271,8 @@ def read(path: str | os.PathLike, *, skeleton: str | os.PathLike | None = None,
     if text.lstrip().startswith(":version") or ":bonedata" in text[:4096]:
         raise MocapFormatError(path, "this is an ASF skeleton, not an AMC motion", 1)
     dofs, angle_rad, meta = _parse_amc(path, text, comp, asf_path)
+    if fps is None:
+        fps = meta.get("fps") or 120.0
     P, sk = _finite_pose(path, asf_path, comp, dofs, angle_rad, f)
     src = {"path": str(path), "format": "amc", "skeleton_path": str(asf_path),
            "units": _units_info(asf, f, units), "asf": asf, "amc": meta,
@@ -306,7 +317,8 @@ def read_asf_motion(path: str | os.PathLike, *, units: float | str | None = None
 # ======================================================================================
 # writer
 # ======================================================================================
-def _amc_text(comp: _Compiled, dofs: np.ndarray, meta: dict, angle_rad: bool, asf_name: str) -> str:
+def _amc_text(comp: _Compiled, dofs: np.ndarray, meta: dict, angle_rad: bool, asf_name: str,
+              fps: float = 120.0) -> str:
     T = dofs.shape[0]
     first = int(meta.get("first_frame", 1))
     order = [b for b in meta.get("bone_order", []) if b in comp.dof_cols and comp.dof_cols[b]]
@@ -319,7 +331,7 @@ def _amc_text(comp: _Compiled, dofs: np.ndarray, meta: dict, angle_rad: bool, as
         cols += comp.dof_cols[b]
         fmt.append(b + "".join(" {!r}" for _ in comp.dof_cols[b]))
     line_fmt = "\n".join(fmt) + "\n"
-    head = [f"#!OML:ASF {asf_name}", "# written by mocapkit",
+    head = [f"#!OML:ASF {asf_name}", "# written by mocapkit", f"# fps {float(fps):g}",
             ":FULLY-SPECIFIED", ":RADIANS" if angle_rad else ":DEGREES"]
     V = dofs[:, cols] + 0.0                                  # -0.0 -> 0.0 kept as is by repr
     rows = V.tolist()
@@ -343,7 +355,8 @@ def write(motion: Motion, path: str | os.PathLike, *, write_asf: bool | str | os
 
     Raises
     ------
-    MocapValueError when the motion has no ASF description or its joints do not match it.
+    MocapValueError when the motion has no ASF description, its joints do not match it, or
+    it has missing samples (:func:`~mocapkit.io._kinematics.require_complete`).
     """
     p = Path(path)
     src = motion.source
@@ -351,6 +364,7 @@ def write(motion: Motion, path: str | os.PathLike, *, write_asf: bool | str | os
     if not isinstance(asf, dict) or "bones" not in asf:
         raise MocapValueError("AMC output needs a motion read from an ASF/AMC file (its skeleton "
                               "description is in source['asf']); write this motion as BVH or C3D instead")
+    require_complete(motion, "AMC")
     comp = _Compiled(asf)
     if tuple(motion.skeleton.names) != comp.names:
         raise MocapValueError(f"motion joints do not match its ASF skeleton ({motion.n_joints} joints vs "
@@ -391,7 +405,7 @@ def write(motion: Motion, path: str | os.PathLike, *, write_asf: bool | str | os
     elif write_asf is True:
         asf_out = p.with_suffix(".asf")
     text = _amc_text(comp, dofs, meta, angle_rad, asf_out.name if asf_out else
-                     Path(src.get("skeleton_path", "skeleton.asf")).name)
+                     Path(src.get("skeleton_path", "skeleton.asf")).name, motion.fps)
     if asf_out is not None:
         write_asf_file = _asf_text(asf)
         atomic_write(asf_out, lambda fh: fh.write(write_asf_file))

@@ -96,6 +96,7 @@ from ..errors import MocapFormatError, MocapValueError
 from ..motion import Motion
 from ..skeleton import Skeleton
 from ._atomic import atomic_write
+from ._kinematics import require_complete
 from ._text import float_rows, parse_float, parse_int, read_bytes
 from .units import LENGTH_UNITS, UNIT_LABELS, unit_name
 
@@ -1149,12 +1150,7 @@ def write(motion: Motion, path: str | os.PathLike, *, hierarchy: str = "auto",
     """
     if hierarchy not in ("auto", "source", "skeleton"):
         raise MocapValueError(f"hierarchy must be 'auto', 'source' or 'skeleton', got {hierarchy!r}")
-    if not motion.observed.all():
-        n_miss = int((~motion.observed).sum())
-        raise MocapValueError(
-            f"cannot write BVH: the motion has {n_miss} missing joint entries "
-            f"({100 * motion.missing_fraction:.1f}%); BVH has no way to mark them - fill the gaps "
-            f"first (e.g. mocapkit.denoise.get('spline').denoise(motion))")
+    require_complete(motion, "BVH")
     src = motion.source
     meta = src.get("bvh")
     if isinstance(units, str) and units.lower() == "auto":
