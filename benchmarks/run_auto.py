@@ -79,7 +79,6 @@ def render(doc: dict) -> str:
             out.append(f"- {c}: auto did not fill {r['extra']['samples']} missing point samples (no fill "
                        f"validated under 5 cm) in {int(r['value'])} of {r['n']} cases "
                        f"({', '.join(r['extra']['cases'])}): scored on what it wrote, outside the ratios above")
-    for c, d in summ.items():
         if "ratio_oracle_worst_no_glitch" in d:
             r = d["ratio_oracle_worst_no_glitch"]
             out.append(f"- {c}: worst auto / oracle {r['value']:.2f} with the ground truth's glitches "

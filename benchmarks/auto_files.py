@@ -1,0 +1,176 @@
+"""``mocapkit denoise`` with no options, end to end through files (issue #19, "checked by").
+
+Usage: ``python benchmarks/auto_files.py [--data DIR] [--render-only]``.
+Writes docs/results/auto_files.json + .md. One BLAS thread.
+
+The ``auto`` protocol (run_auto.py) corrupts positions in memory. A user's -- or a
+checker's -- path goes through files: ``mocapkit corrupt`` writes the corrupted clip, and
+``mocapkit denoise IN OUT`` (no options: the default method for the file) cleans it. The
+file format changes what the corruption is:
+
+* **AMC** (the CMU clips' own format) stores joint angles: the writer's inverse kinematics
+  fits the whole skeleton to each corrupted frame, so a 15 cm spike on one joint moves the
+  joints around it too (10 % spiked samples: ~43 % of the samples off by more than 1 cm
+  in the file), and Gaussian noise is projected onto the skeleton's poses. AMC cannot hold
+  a missing sample, so only the noise conditions go this way.
+* **C3D** keeps the positions as they are (and the missing samples missing); read back,
+  the clip is a marker capture (no joint hierarchy).
+
+Clips: the protocol module's ``HELDOUT_CLIPS`` (ten CMU clips no choice of auto was made
+on), cropped and resampled as in the protocol (8 s at 120 fps, and resampled to 30 fps),
+written clean, corrupted by the CLI with the protocol's conditions (seed = clip index), and
+denoised by the CLI with no options. Scores, against the clean file read back the same
+way: RMSE (cm) over the samples the output holds; the oracle-tuned classical filter of
+the protocol (:func:`mocapkit.bench.protocols.auto.oracle_classical`) on the corrupted
+file; auto's estimate as the CLI printed it.
+"""
+from __future__ import annotations
+
+import os
+
+for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_v, "1")
+
+import argparse  # noqa: E402
+import json  # noqa: E402
+import re  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
+import tempfile  # noqa: E402
+import time  # noqa: E402
+import warnings  # noqa: E402
+from collections import defaultdict  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from mocapkit import io  # noqa: E402
+from mocapkit.bench.protocols import auto as P  # noqa: E402
+from mocapkit.datasets import shared_data_dir  # noqa: E402
+from mocapkit.motion import Motion  # noqa: E402
+
+OUT = ROOT / "docs" / "results" / "auto_files.md"
+ROUTES = {"amc": ("gauss1", "gauss3", "spikes", "mixed"),
+          "c3d": ("gauss1", "spikes", "missing30", "gaps10x60")}
+EST_RE = re.compile(r"estimated error ([0-9.]+) cm RMSE")
+
+
+def _spec(cond: str) -> str:
+    """The protocol's condition as a ``mocapkit corrupt --spec`` string."""
+    return ",".join(f"{name}:" + ",".join(f"{k}={v}" for k, v in kw.items()) for name, kw in P.CONDITIONS[cond])
+
+
+def _cli(*args: str) -> str:
+    r = subprocess.run([sys.executable, "-m", "mocapkit", *args], capture_output=True, text=True,
+                       env={**os.environ, "PYTHONPATH": str(ROOT)})
+    if r.returncode != 0:
+        raise RuntimeError(f"mocapkit {' '.join(args)}: {r.stderr.strip().splitlines()[-1:]}")
+    return r.stdout
+
+
+def _by_name(m: Motion, names) -> np.ndarray:
+    idx = {n: i for i, n in enumerate(m.skeleton.names)}
+    return m.positions[:, [idx[n] for n in names]]
+
+
+def _rmse(truth: Motion, out: Motion) -> float:
+    """RMSE (cm) over the samples ``out`` holds, joints matched by name."""
+    Pt, Po = truth.positions, _by_name(out, truth.skeleton.names)
+    ok = np.isfinite(Po).all(axis=2)
+    return float(np.sqrt(np.mean((Po[ok] - Pt[ok]) ** 2)))
+
+
+def run(data: Path, tmp: Path) -> list[dict]:
+    rows = []
+    for i, (label, clip) in enumerate(P.load_clips(data, False, 8.0, P.HELDOUT_CLIPS)):
+        for fps in (30, 120):
+            tr = clip if fps == 120 else clip.resample(float(fps))
+            for fmt, conds in ROUTES.items():
+                clean = io.write(tr, tmp / f"{label}_{fps}_clean.{fmt}", overwrite=True)
+                truth = io.read(clean)
+                for cond in conds:
+                    if cond == "gaps10x60" and tr.n_frames < 120:
+                        continue
+                    noisy = tmp / f"{label}_{fps}_{cond}.{fmt}"
+                    outp = tmp / f"{label}_{fps}_{cond}_out.{fmt}"
+                    for p in (noisy, outp):
+                        for q in (p, p.with_suffix(".asf")):
+                            q.unlink(missing_ok=True)
+                    _cli("corrupt", str(clean), str(noisy), "--spec", _spec(cond), "--seed", str(i), "-q")
+                    t0 = time.perf_counter()
+                    text = _cli("denoise", str(noisy), str(outp))
+                    dt = time.perf_counter() - t0
+                    with warnings.catch_warnings():
+                        warnings.simplefilter("ignore")
+                        nm, out = io.read(noisy), io.read(outp)
+                    # the oracle on the corrupted file, scored against the clean one
+                    Pn = _by_name(nm, truth.skeleton.names)
+                    obs = np.isfinite(Pn).all(axis=2)
+                    orc = P.oracle_classical(truth, Motion(Pn, truth.skeleton, truth.fps, obs))
+                    m = EST_RE.search(text)
+                    rows.append({"clip": f"{label}@{fps}", "format": fmt, "condition": cond,
+                                 "input": _rmse(truth, nm) if obs.all() else None,
+                                 "auto": _rmse(truth, out), "oracle": orc,
+                                 "estimate": float(m.group(1)) if m else None,
+                                 "left": int((~np.isfinite(_by_name(out, truth.skeleton.names)).all(axis=2)).sum()),
+                                 "seconds": dt})
+                    print(rows[-1], flush=True)
+    return rows
+
+
+def render(doc: dict) -> str:
+    rows = doc["rows"]
+    out = ["# `mocapkit denoise` with no options, end to end through files (issue #19)", "",
+           f"Generated by `benchmarks/auto_files.py` from auto_files.json ({doc['seconds']:.0f} s wall, "
+           "one BLAS thread; see the script's docstring). Held-out CMU clips written clean, corrupted "
+           "by `mocapkit corrupt` with the `auto` protocol's conditions, cleaned by `mocapkit denoise IN "
+           "OUT`; RMSE in cm against the clean file; the oracle is the protocol's truth-tuned classical "
+           "filter on the corrupted file.", "",
+           "| format | condition | n | input | auto | oracle | auto / oracle median | worst | estimate within 1.5x |",
+           "|---|---|---:|---:|---:|---:|---:|---:|---:|"]
+    g = defaultdict(list)
+    for r in rows:
+        g[(r["format"], r["condition"], r["clip"].split("@")[1])].append(r)
+    for (fmt, cond, fps), rs in g.items():
+        ratio = [r["auto"] / r["oracle"] for r in rs if r["oracle"] > 0]
+        inp = [r["input"] for r in rs if r["input"] is not None]
+        est = sum(1 for r in rs if r["estimate"] and r["auto"] > 0 and 1 / 1.5 <= r["estimate"] / r["auto"] <= 1.5)
+        mean_in = f"{np.mean(inp):.3f}" if inp else ""
+        out.append(f"| {fmt} | {cond}@{fps} | {len(rs)} | {mean_in} | {np.mean([r['auto'] for r in rs]):.3f} | "
+                   f"{np.mean([r['oracle'] for r in rs]):.3f} | {np.median(ratio):.2f} | {np.max(ratio):.2f} | "
+                   f"{est} of {len(rs)} |")
+    out += ["", "Means over clips; `input` is the corrupted file's RMSE where it has no missing sample. "
+            "In memory (auto.md, auto_heldout.md) the same clips and conditions give auto / oracle at most "
+            "0.49 on spikes and 0.76 on mixed: written to AMC, a spike is spread by the writer's inverse "
+            "kinematics over the whole frame, and the corruption is no longer sparse.", "",
+            "## Every case", "", "| clip | format | condition | input | auto | oracle | auto / oracle | estimate | s |",
+            "|---|---|---|---:|---:|---:|---:|---:|---:|"]
+    for r in rows:
+        inp = "" if r["input"] is None else f"{r['input']:.3f}"
+        est = "" if r["estimate"] is None else f"{r['estimate']:.3f}"
+        out.append(f"| {r['clip']} | {r['format']} | {r['condition']} | {inp} | {r['auto']:.3f} | "
+                   f"{r['oracle']:.3f} | {r['auto'] / r['oracle']:.2f} | {est} | {r['seconds']:.1f} |")
+    return "\n".join(out) + "\n"
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument("--data")
+    ap.add_argument("--render-only", action="store_true")
+    a = ap.parse_args()
+    js = OUT.with_suffix(".json")
+    if not a.render_only:
+        t0 = time.time()
+        with tempfile.TemporaryDirectory() as d:
+            rows = run(Path(a.data) if a.data else shared_data_dir(), Path(d))
+        js.write_text(json.dumps({"seconds": time.time() - t0, "rows": rows}, indent=0))
+    OUT.write_text(render(json.loads(js.read_text())))
+    print(f"wrote {OUT}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
