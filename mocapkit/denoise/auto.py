@@ -569,6 +569,13 @@ def _judged(ref: np.ndarray, hide: np.ndarray, a: np.ndarray, b: np.ndarray
     return da, db, hide[:, ::3] & (np.minimum(da, db) <= _BISQUARE ** 2)
 
 
+#: frames (evenly spaced) on which :func:`_partner_fill` picks each point's rigid partners:
+#: 512 as :func:`mocapkit.rigid.distance_noise` (1,024 before 2026-12-05: on the two clip
+#: sets' missing30 / spikes cases 10 of 80 outputs moved, by 0.974-1.001x, and the 120 fps
+#: cases ran 6 % faster)
+PARTNER_REF_FRAMES = 512
+
+
 def _length_weights(kept: np.ndarray, W: np.ndarray, fill: np.ndarray, hp: np.ndarray) -> np.ndarray:
     """(T, J) weights of the hidden points ``hp`` that give the lengths (1, 2, 3+ frames) of
     the holes they sit in -- in the validation's pattern ``W`` (kept and not hidden) -- the
@@ -650,7 +657,8 @@ def _partner_fill(X: np.ndarray, kept: np.ndarray, fit: np.ndarray, s: np.ndarra
         return fit, None, None, None
     W = kept & ~hide
     pa = _solve_weighted(Y0, W.astype(float), np.asarray(s, float), 2)
-    part, real, _, _ = rigid_partners(np.where(kept, X, np.nan).reshape(T, J, 3), kept[:, ::3])
+    part, real, _, _ = rigid_partners(np.where(kept, X, np.nan).reshape(T, J, 3), kept[:, ::3],
+                                    n_ref=PARTNER_REF_FRAMES)
     if not real.any():
         return fit, None, (hide, pa), None
     xyz = np.tile(np.arange(3), J)
