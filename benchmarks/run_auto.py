@@ -123,37 +123,35 @@ def render(doc: dict) -> str:
 def _estimate_misses(rows: list[dict]) -> list[str]:
     """The corrupted cases whose estimate is off by more than 1.5x, with the share of the
     error on the ground truth's glitches (P.truth_glitches) and a cause."""
-    miss = []
+    miss = []                                        # (row, estimate / true, cause)
     for r in rows:
-        if r["method"] != "auto" or r["clip"] == "summary" or r["condition"] == "clean" or r["metric"] != "rmse":
+        x = r.get("extra") or {}
+        if (r["method"] != "auto" or r["clip"] == "summary" or r["condition"] == "clean"
+                or r["metric"] != "rmse" or "glitch_share" not in x):
             continue
-        est, v = (r.get("extra") or {}).get("estimate"), r["value"]
+        est, v = x.get("estimate"), r["value"]
         if est and v > 0 and not 1 / 1.5 <= est / v <= 1.5:
-            miss.append((r, est / v))
+            cause = ("glitch" if x["glitch_share"] >= 0.7 else
+                     "ten-gap" if r["condition"] == "gaps10x60" else "other")
+            miss.append((r, est / v, cause))
     if not miss:
         return []
-    rows_ = [m for m in miss if "glitch_share" in (m[0].get("extra") or {})]
-    if not rows_:
-        return []
-    glitch = [m for m in rows_ if m[0]["extra"]["glitch_share"] >= 0.7]
-    gaps = [m for m in rows_ if m not in glitch and m[0]["condition"] == "gaps10x60"]
+    n = {c: sum(m[2] == c for m in miss) for c in ("glitch", "ten-gap", "other")}
     out = ["", "## Where the estimate misses", "",
-           f"{len(rows_)} cases outside a factor 1.5. **Glitch-ruled**: {len(glitch)} cases, 70 % "
+           f"{len(miss)} cases outside a factor 1.5. **Glitch-ruled**: {n['glitch']} cases, 70 % "
            "or more of auto's squared error on glitches of the ground truth -- samples further than "
            f"{P.GLITCH_CM[120]:g} cm (120 fps) / {P.GLITCH_CM[30]:g} cm (30 fps) from the cubic "
            "through their neighbours, and the frames beside them (CMU thumbs, hands and toes that "
            "step in one frame; `truth_glitches` in the protocol module), about 0.1 % of the "
            "samples: the error is then a count of the few glitches that fall in a hole or are "
            "taken for spikes, which no validation on the clip foresees. **Ten-gap**: "
-           f"{len(gaps)} cases of ten 60-frame gaps, whose per-gap errors are heavy-tailed both "
-           f"ways. **Other**: {len(rows_) - len(glitch) - len(gaps)}.", "",
+           f"{n['ten-gap']} cases of ten 60-frame gaps, whose per-gap errors are heavy-tailed both "
+           f"ways. **Other**: {n['other']}.", "",
            "| clip | condition | true | estimate | estimate / true | error share on glitches | cause |",
            "|---|---|---:|---:|---:|---:|---|"]
-    for r, q in rows_:
-        g = r["extra"]["glitch_share"]
-        cause = "glitch" if (r, q) in glitch else "ten-gap" if r["condition"] == "gaps10x60" else "other"
+    for r, q, cause in miss:
         out.append(f"| {r['clip']} | {r['condition']} | {_v(r['value'])} | {_v(r['extra']['estimate'])} | "
-                   f"{q:.2f} | {100 * g:.0f} % | {cause} |")
+                   f"{q:.2f} | {100 * r['extra']['glitch_share']:.0f} % | {cause} |")
     return out
 
 

@@ -94,7 +94,7 @@ def targets_section(rows: list[dict], methods: list[str]) -> str:
             return "" if x is None else ("met" if good(x) else "**not met**")
 
         zero = v("default", "zero_fills")
-        out += ["`default` (`denoise.default_for(motion)` where it exists, else `denoise.default()`) ran as "
+        out += ["`default` (`denoise.default()`) ran as "
                 + " / ".join(f"`{x}`" for x in ran) + ".", "",
                 "| target | default | goal | |", "|---|---:|---:|---|",
                 f"| median ratio of gap RMSE to the best of linear / cubic / kineticstoolkit (same samples) "

@@ -172,7 +172,7 @@ def plan_motion_write(motion, out: str | os.PathLike, *, inputs: Iterable = (), 
     return opts, written
 
 
-#: method name meaning "the default for each file" (:func:`mocapkit.denoise.default_for`)
+#: method name meaning "the default" (:func:`mocapkit.denoise.default`)
 DEFAULT = "default"
 
 
@@ -190,9 +190,7 @@ def process_one(in_path: str, out_path: str, method: str, params: dict[str, Any]
             if params:
                 den.set_params(**params)
         elif method == DEFAULT:
-            den = denoise.default_for(m)          # auto (for marker captures too)
-            if den.name == denoise.DEFAULT_METHOD:
-                den.set_params(**denoise.DEFAULT_PARAMS)
+            den = denoise.default()
         else:
             den = denoise.get(method, **params)
             if den.needs_training:                # the shipped general model, if one fits

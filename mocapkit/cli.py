@@ -304,12 +304,7 @@ def cmd_denoise(a: argparse.Namespace) -> int:
 
     m = _read(a.input, a.skeleton)
     if a.method is None and a.model is None:
-        # the default (denoise.default_for): auto, with its own settings for the data
-        method = denoise.default_for(m)
-        params = _params_for(method.name, a.param)
-        if method.name == denoise.DEFAULT_METHOD:
-            params = {**denoise.DEFAULT_PARAMS, **params}
-        method.set_params(**params)
+        method = denoise.default(**_params_for(denoise.DEFAULT_METHOD, a.param))
     else:
         method = _method(a.method or "auto", parse_params(a.param), a.model, m, a.quiet)
     opts, _ = _plan_output(m, a.output, a.force, (a.input, a.model))
@@ -526,7 +521,7 @@ def cmd_batch(a: argparse.Namespace) -> int:
         params = method_params(method.name, params, type(method)) if params else params
         name = a.method or method.name
     elif a.method is None and not params:
-        name = DEFAULT                          # per file: denoise.default_for
+        name = DEFAULT                          # denoise.default() for every file
     else:
         name = a.method or denoise.DEFAULT_METHOD
         if a.method is None:

@@ -274,7 +274,8 @@ def fixed_bones(motion) -> tuple[np.ndarray, np.ndarray]:
     return bones[keep], lengths[keep]
 
 
-def hold_lengths(P: np.ndarray, pairs: np.ndarray, lengths: np.ndarray, *, sweeps: int = 10) -> np.ndarray:
+def hold_lengths(P: np.ndarray, pairs: np.ndarray, lengths: np.ndarray, *, sweeps: int = 10,
+                 movable: np.ndarray | None = None, max_off: np.ndarray | None = None) -> np.ndarray:
     """Points moved so that each pair is ``lengths`` apart, both ends by the same amount
     along the pair's line (the distance-constraint projection of position-based dynamics,
     Müller, Heidelberger, Hennix & Ratcliff 2007, J. Vis. Commun. Image R. 18(2):109, with
@@ -288,6 +289,12 @@ def hold_lengths(P: np.ndarray, pairs: np.ndarray, lengths: np.ndarray, *, sweep
     against -14..-19 % for the full least-squares IK of the AMC writer at 0.5-1.0 ms per
     frame (11-25 times the cost).
 
+    ``movable`` (T, J) bool: only these samples move (PBD with inverse mass 0 for the
+    others), the whole length error onto the one end that moves -- the first of the pair
+    (a skeleton's child) where both may; ``max_off`` (T, J) cm: a pair is left alone where
+    its length is off by more than the moving end's value (a fill the length would pull
+    far). Without ``movable`` every point may move and both ends share the move.
+
     P : (T, J, 3) cm, NaN where missing (a pair with a missing end is left as it is);
     pairs (B, 2) int; lengths (B,) cm. Returns a new (T, J, 3) array.
 
@@ -295,18 +302,31 @@ def hold_lengths(P: np.ndarray, pairs: np.ndarray, lengths: np.ndarray, *, sweep
     >>> P = np.array([[[0.0, 0, 0], [3.0, 0, 0]]])
     >>> hold_lengths(P, np.array([[1, 0]]), np.array([2.0]))[0].tolist()
     [[0.5, 0.0, 0.0], [2.5, 0.0, 0.0]]
+    >>> hold_lengths(P, np.array([[1, 0]]), np.array([2.0]), movable=np.array([[False, True]]))[0].tolist()
+    [[0.0, 0.0, 0.0], [2.0, 0.0, 0.0]]
     """
     Q = np.array(P, dtype=float, copy=True)
     pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
     L = np.asarray(lengths, dtype=float).reshape(-1)
     for _ in range(int(sweeps)):
         for (a, b), l in zip(pairs, L):
+            if movable is None:
+                wa = wb = np.full(Q.shape[0], 0.5)
+            else:
+                ma = movable[:, a]
+                wa, wb = ma.astype(float), (movable[:, b] & ~ma).astype(float)
+                if not (wa.any() or wb.any()):
+                    continue
             d = Q[:, a] - Q[:, b]
-            n = np.sqrt(np.einsum("ij,ij->i", d, d))[:, None]       # NaN with a missing end
+            n = np.sqrt(np.einsum("ij,ij->i", d, d))                        # NaN with a missing end
             with np.errstate(invalid="ignore"):
-                c = np.where(n > 1e-9, 0.5 * (n - l) / np.maximum(n, 1e-9) * d, 0.0)
-            Q[:, a] -= c
-            Q[:, b] += c
+                k = np.where(n > 1e-9, (n - l) / np.maximum(n, 1e-9), 0.0)
+                if max_off is not None:
+                    lim = np.where(wa > 0, max_off[:, a], max_off[:, b])
+                    k = np.where(np.abs(n - l) <= lim, k, 0.0)
+            c = np.where((k != 0.0)[:, None], k[:, None] * d, 0.0)       # 0 with a missing end
+            Q[:, a] -= wa[:, None] * c
+            Q[:, b] += wb[:, None] * c
     return Q
 
 

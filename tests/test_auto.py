@@ -554,22 +554,25 @@ def test_auto_bone_fill_holds_filled_bones_and_lowers_the_error(clip, monkeypatc
     assert np.median(off(out)) < 0.5 * np.median(off(before))
 
 
-def test_hold_fills_moves_only_movable_ends_and_leaves_far_off_bones():
-    """The bone projection: a movable child goes onto its fixed parent's sphere (the
+def test_hold_lengths_with_movable_ends_moves_only_those_and_leaves_far_off_pairs():
+    """The bone step's projection: a movable child goes onto its fixed parent's sphere (the
     parent stays), a parent moves when the child is measured, nothing moves when neither
-    end may, and a bone off by more than the guard times the tolerance is left alone."""
-    from mocapkit.denoise.auto import BONE_FILL_GUARD, _hold_fills
+    end may, and a pair off by more than ``max_off`` is left alone."""
+    from mocapkit.rigid import hold_lengths
 
     P = np.array([[[0.0, 0, 0], [0.0, 12, 0]]] * 4)         # (T=4, J=2, 3): bone 12 cm
     bones, lengths = np.array([[1, 0]]), np.array([10.0])   # child 1, parent 0: 10 cm
     mov = np.array([[False, True], [True, False], [False, False], [False, True]])
-    tol = np.full((4, 2), 1.0)
-    tol[3] = 2.0 / (BONE_FILL_GUARD + 1)                  # 2 cm off > guard x tol
-    Q = _hold_fills(P, mov, bones, lengths, tol)
+    max_off = np.full((4, 2), 5.0)
+    max_off[3] = 1.0                                        # 2 cm off > 1 cm allowed
+    Q = hold_lengths(P, bones, lengths, movable=mov, max_off=max_off)
     np.testing.assert_allclose(Q[0], [[0, 0, 0], [0, 10, 0]], atol=1e-12)   # child moved
     np.testing.assert_allclose(Q[1], [[0, 2, 0], [0, 12, 0]], atol=1e-12)   # parent moved
     np.testing.assert_array_equal(Q[2], P[2])                               # neither may
     np.testing.assert_array_equal(Q[3], P[3])                               # guarded
+    gap = P.copy()
+    gap[0, 0] = np.nan                                      # a missing end: pair left alone
+    np.testing.assert_array_equal(hold_lengths(gap, bones, lengths, movable=mov)[0, 1], P[0, 1])
 
 
 def test_truth_glitches_flag_a_one_frame_step_and_not_smooth_motion(clip):

@@ -177,7 +177,7 @@ def test_fill_auto_leaves_gaps_it_cannot_validate_below_threshold():
     assert out.source["fill_auto"]["left_gaps"] == 1
 
 
-def test_default_for_marker_files_is_auto_which_hands_clean_gaps_to_fill_auto():
+def test_the_default_on_marker_files_is_auto_which_hands_clean_gaps_to_fill_auto():
     """auto is the default for marker files too: on a clean capture it keeps the measured
     samples and its fill of gaps of 3 frames and more is fill-auto's; a noisy one it
     cleans, where fill-auto (the marker default until 2026-12-05) left the noise."""
@@ -185,19 +185,18 @@ def test_default_for_marker_files_is_auto_which_hands_clean_gaps_to_fill_auto():
 
     P = _walker()
     assert denoise.is_marker_capture(_markers(P))
-    assert denoise.default_for(_markers(P)).name == denoise.DEFAULT_METHOD
-    assert denoise.default_for(io.read(bundled("16_15.amc"))).name == denoise.DEFAULT_METHOD
+    assert not denoise.is_marker_capture(io.read(bundled("16_15.amc")))
     obs = np.ones(P.shape[:2], bool)
     obs[100:130, 1] = False
     obs[200:202, 3] = False                                   # 2 frames: the spline chain
     m = _markers(P).with_observed(obs)
-    out = denoise.default_for(m).denoise(m)
+    out = denoise.default().denoise(m)
     fa = denoise.get("fill-auto").denoise(m)
     assert "fill-auto" in out.source["auto"]["chain"]
     assert np.array_equal(out.positions[obs], P[obs])
     np.testing.assert_allclose(out.positions[100:130, 1], fa.positions[100:130, 1], atol=1e-9)
     noisy, _ = corrupt.combine(_markers(P), [("gaussian", {"sigma_cm": 1.0})], seed=0)
-    cleaned = denoise.default_for(noisy).denoise(noisy)
+    cleaned = denoise.default().denoise(noisy)
     assert metrics.rmse(_markers(P), cleaned) < 0.7 * metrics.rmse(_markers(P), noisy)
 
 

@@ -32,11 +32,13 @@ from .base import Denoiser, available, get, register  # noqa: F401
 
 DEFAULT_METHOD = "auto"
 DEFAULT_PARAMS: dict = {}
-"""Method (and settings) used when none is named for skeleton data: ``auto`` (diagnose,
-remove spikes, smooth by GCV spline / MSSA / Kalman mixed by SURE weights, fill long gaps by
-fill-auto), measured better than the previous default ``kalman-cv`` with ``gate=5`` in the
-``auto`` protocol (docs/results/auto.md). Marker captures get ``fill-auto``
-(:func:`default_for`)."""
+"""Method (and settings) used when none is named: ``auto`` (diagnose, remove spikes, smooth
+by GCV spline / MSSA / Kalman mixed by SURE weights, fill long gaps by fill-auto), measured
+better than the previous default ``kalman-cv`` with ``gate=5`` in the ``auto`` protocol
+(docs/results/auto.md). For marker captures too (since 2026-12-05; ``fill-auto`` before,
+which fills gaps and leaves noise and spikes as they are): on a clean capture ``auto`` keeps
+the measured samples and hands gaps of 3 frames and more to fill-auto
+(:func:`is_marker_capture`, ``auto.MARKER_SHORT_FRAMES``)."""
 
 
 def default(**params):
@@ -49,15 +51,6 @@ def is_marker_capture(motion) -> bool:
     return motion.source.get("format") in ("c3d", "trc") or bool(
         np.all(np.asarray(motion.skeleton.parents) < 0) and motion.n_joints > 1)
 
-
-def default_for(motion):
-    """The method mocapkit uses when none is named, chosen for ``motion``: :func:`default`
-    (``auto``) for every kind of data. Until 2026-12-05 marker captures
-    (:func:`is_marker_capture`) defaulted to ``fill-auto``, which fills the gaps and leaves
-    the measured samples as they are -- noise and spikes included; ``auto`` now hands a
-    clean marker capture's gaps of 3 frames and more to fill-auto (:class:`~mocapkit.denoise.auto.Auto`),
-    and cleans a noisy or spiky one."""
-    return default()
 
 
 _FAMILIES = ("filters", "fill", "kalman", "lowrank", "bases", "sparse", "wavelet", "psc", "completion", "neural", "fill_auto",

@@ -823,7 +823,7 @@ def _lowrank_fill(X: np.ndarray, kept: np.ndarray, out: np.ndarray, val, sigma: 
 #: a bone is left alone where its length is off by more than this many times the moving
 #: end's estimated 3-D fill error (a kept spike, a step, a fill the validation missed)
 BONE_FILL_GUARD = 5.0
-#: Gauss-Seidel sweeps of :func:`_hold_fills` (the bones are in parent-first order, so a
+#: Gauss-Seidel sweeps of :func:`_bone_fill`'s projection (the bones are in parent-first order, so a
 #: moving child is final after one; 3 against 10: the same mean RMSE to 0.001 cm on the
 #: two clip sets' missing30 / spikes cases, at a fifth of the time, 9 against 51 ms on 469
 #: frames)
@@ -833,8 +833,9 @@ BONE_FILL_SWEEPS = 3
 def _fixed_bones_of(motion: Motion, P: np.ndarray):
     """(pairs (B, 2) child, parent; lengths (B,)) of the bones the file format fixes
     (:func:`mocapkit.rigid.fixed_bones`), or None when there are none or the positions P
-    (T, J, 3) are not on the skeleton's scale (rescaled without it: the typical bone far
-    off its declared length)."""
+    (T, J, 3) are not on the skeleton's scale: the skeleton must describe these positions,
+    not so when they were rescaled (metres, millimetres) without it -- then the typical
+    bone is far off its declared length."""
     from ..rigid import fixed_bones
 
     bones, lengths = fixed_bones(motion)
@@ -847,38 +848,11 @@ def _fixed_bones_of(motion: Motion, P: np.ndarray):
     return bones, lengths
 
 
-def _hold_fills(P: np.ndarray, movable: np.ndarray, bones: np.ndarray, lengths: np.ndarray,
-                tol: np.ndarray, sweeps: int | None = None) -> np.ndarray:
-    """Filled points P (T, J, 3) moved onto the sphere of their bone: for each fixed bone
-    (child, parent) the child moves where it is ``movable`` (T, J), else the parent where
-    it is, the whole length error along the bone's line (the distance projection of
-    position-based dynamics with the measured end's inverse mass 0); a bone whose length
-    is off by more than ``BONE_FILL_GUARD`` x ``tol`` (T, J: the moving end's estimated
-    3-D error, cm) is left alone. ``sweeps`` Gauss-Seidel passes over the bones,
-    vectorised over frames."""
-    Q = np.array(P, dtype=float, copy=True)
-    for _ in range(BONE_FILL_SWEEPS if sweeps is None else int(sweeps)):
-        for (a, b), l in zip(bones, lengths):
-            ma, mb = movable[:, a], movable[:, b] & ~movable[:, a]
-            if not (ma.any() or mb.any()):
-                continue
-            d = Q[:, a] - Q[:, b]
-            n = np.sqrt(np.einsum("ij,ij->i", d, d))
-            off = n - l
-            t = np.where(ma, tol[:, a], tol[:, b])
-            ok = (ma | mb) & (n > 1e-9) & (np.abs(off) <= BONE_FILL_GUARD * t)
-            if not ok.any():
-                continue
-            c = np.where(ok, off / np.maximum(n, 1e-9), 0.0)[:, None] * d
-            Q[:, a] -= np.where(ma[:, None], c, 0.0)
-            Q[:, b] += np.where(mb[:, None], c, 0.0)
-    return Q
-
-
 def _bone_fill(motion: Motion, usable: np.ndarray, X: np.ndarray, kept: np.ndarray, out: np.ndarray,
                fill: np.ndarray, val, hole: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
     """Short-hole fills of a noise-free clip moved onto the bone lengths the file format
-    fixes (:func:`_hold_fills`; ASF/AMC and BVH, :func:`mocapkit.rigid.fixed_bones`), for
+    fixes (:func:`mocapkit.rigid.hold_lengths` with only the fills movable; ASF/AMC and BVH,
+    :func:`mocapkit.rigid.fixed_bones`), for
     the points where that validates better.
 
     A fill from one point's path, its partners or the body's low-rank model does not know
@@ -907,14 +881,18 @@ def _bone_fill(motion: Motion, usable: np.ndarray, X: np.ndarray, kept: np.ndarr
     96 of 115 (three missing30 / spikes cases whose error thumb steps rule: the
     validated ratio, on ordinary samples, lowers the estimate more than the error falls),
     held-out 97 -> 97 of 117, third set 24 -> 24 of 40. Cost: 9 ms on 469 frames
-    (``BONE_FILL_SWEEPS``); auto / gcv-spline on missing30@120 9.4 -> 9.6x (protocol),
-    9.8x (held-out). Measured and not kept: also leaving a bone alone where the fixed end
-    is a fill with a larger estimate than the moving one (no case changed by over 1 %).
+    (``BONE_FILL_SWEEPS``); auto / gcv-spline on missing30@120 9.4x (protocol), 9.5x
+    (held-out) after it. Measured and not kept: also leaving a bone alone where the fixed
+    end is a fill with a larger estimate than the moving one (mean RMSE the same to 0.001
+    cm, 4 of 80 missing30 / spikes cases worse by over 1 %, and hdm05-hop@30 spikes, the
+    case it aimed at, unchanged).
 
     X, kept, out, fill, hole (T, C) over the used columns (``usable`` (J,) points); hole
     the per-sample estimate (cm per coordinate). Returns (values (T, C), scale (J_used,)
     or None when nothing takes it).
     """
+    from ..rigid import hold_lengths
+
     T, C = out.shape
     J = motion.n_joints
     full = np.full((T, J, 3), np.nan)
@@ -934,7 +912,8 @@ def _bone_fill(motion: Motion, usable: np.ndarray, X: np.ndarray, kept: np.ndarr
     P[:, usable] = np.concatenate([V, out]).reshape(2 * T, -1, 3)
     mov = np.zeros((2 * T, J), bool)
     mov[:, usable] = np.concatenate([fill | hide, fill])[:, ::3]
-    H2 = _hold_fills(P, mov, bones, lengths, np.concatenate([tol, tol]))[:, usable].reshape(2 * T, C)
+    H2 = hold_lengths(P, bones, lengths, sweeps=BONE_FILL_SWEEPS, movable=mov,
+                      max_off=BONE_FILL_GUARD * np.concatenate([tol, tol]))[:, usable].reshape(2 * T, C)
     Hv, H = H2[:T], H2[T:]
     dc, dr, hj = _judged(np.where(kept, X, out), hide, V, Hv)
     ec, er = (dc * hj).sum(axis=0), (dr * hj).sum(axis=0)
@@ -1139,7 +1118,7 @@ def _hold_bones(motion: Motion, out: np.ndarray, usable: np.ndarray) -> tuple[np
     chord fill of a CMU thumb that steps 5 cm inside its hole, pushed onto the bone's
     sphere, lands farther from the step's end, and a poor fill drags a good one (a wrist
     0.01 -> 1.16 cm; a rejected shank filled 34 cm off pulled a good foot fill 8 -> 31 cm
-    in 135_04@30 spikes). Second version (the projection of :func:`_hold_fills`,
+    in 135_04@30 spikes). Second version (the projection :func:`_bone_fill` makes,
     unvalidated): of two fills only the child moves, and a bone is left alone where its length is off by more than 5 x the fills'
     estimated 3-D error (a kept spike, a step, a fill the validation did not see; the
     gain by that ratio, summed over the 112 cases, turned negative above ~10). Mean RMSE
@@ -1169,20 +1148,14 @@ def _hold_bones(motion: Motion, out: np.ndarray, usable: np.ndarray) -> tuple[np
     Bone-holding only matters for AMC/BVH, whose real files have no gaps: their holes are
     rejected spikes.
     """
-    from ..rigid import fixed_bones, hold_lengths
+    from ..rigid import hold_lengths
 
-    bones, lengths = fixed_bones(motion)
-    if not len(bones):
-        return out, None
     T = out.shape[0]
-    # the skeleton must describe these positions: not so when they were rescaled (metres,
-    # millimetres) without it -- then the typical bone is far off its declared length
     P = out.reshape(T, -1, 3)
-    with np.errstate(invalid="ignore"):
-        ratio = np.nanmedian(np.linalg.norm(P[:, bones[:, 0]] - P[:, bones[:, 1]], axis=-1), axis=0) / lengths
-    if not np.isfinite(ratio).any() or not 0.8 <= float(np.nanmedian(ratio)) <= 1.25:
+    fb = _fixed_bones_of(motion, P)
+    if fb is None:
         return out, None
-    held = hold_lengths(P, bones, lengths).reshape(T, -1)
+    held = hold_lengths(P, *fb).reshape(T, -1)
     cols = np.repeat(usable, 3)
     d = (held - out)[:, cols]
     fin = np.isfinite(d)

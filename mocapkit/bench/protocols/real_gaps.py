@@ -38,8 +38,7 @@ through the observed frames of each marker, edges held), ``kineticstoolkit``
 skipped with a note when kineticstoolkit is not installed); mocapkit methods by
 registry name (``kalman-cv``, ``svt``, ``trnn``, ``tsmc``, ``dynammo``, ``auto`` and
 whichever of ``fill-rigid``, ``fill-pattern``, ``fill-pca``, ``fill-auto`` are registered) with their
-default settings, and ``default`` = ``denoise.default_for(motion)`` where it exists, else
-``denoise.default()`` (when that is a registered method with the same settings that
+default settings, and ``default`` = ``denoise.default()`` (when that is a registered method with the same settings that
 already ran on the case, its result is reused rather than computed twice). Each is called
 as ``method.denoise(masked_motion)``; an exception is recorded as a failure row (``metric = 'failed'``) and the run goes on. The mocapkit
 methods run under the user-facing gap policy (:data:`mocapkit.gaps.DEFAULT_POLICY`, the
@@ -325,7 +324,7 @@ def make_runner(name: str, motion: Motion) -> tuple[Callable[[Motion], tuple[np.
     from ... import denoise
 
     if name == "default":
-        meth = denoise.default_for(motion) if hasattr(denoise, "default_for") else denoise.default()
+        meth = denoise.default()
     else:
         meth = denoise.get(name)
 
@@ -439,7 +438,7 @@ def run_methods(case: CaseResult, truth: np.ndarray, inp: Motion, hidden: np.nda
         if name == "default":
             same = _same_as_registered(inp, case)
             if same is not None:
-                # default_for() chose a registered method with the same settings that already
+                # the default is a registered method with the same settings that already
                 # ran on this very input: deterministic, so its fill is the default's fill
                 case.ran[name] = f"{case.ran[same]} (= {same}, result reused)"
                 case.seconds[name] = case.seconds[same]
@@ -464,7 +463,7 @@ def _same_as_registered(inp: Motion, case: CaseResult) -> str | None:
     from ... import denoise
 
     try:
-        meth = denoise.default_for(inp) if hasattr(denoise, "default_for") else denoise.default()
+        meth = denoise.default()
     except Exception:  # noqa: BLE001  (run_methods records the failure)
         return None
     for name, desc in case.ran.items():
