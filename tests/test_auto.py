@@ -592,3 +592,33 @@ def test_truth_glitches_flag_a_one_frame_step_and_not_smooth_motion(clip):
     out_P[100, 5] = smooth.positions[100, 5]              # the fill misses the jump
     out_P[10, 7] += [0.0, 6.0, 0.0]                       # and errs as much on a smooth sample
     assert abs(glitch_share(truth, smooth.with_positions(out_P)) - 0.5) < 1e-9
+
+
+def test_auto_on_corruption_spread_by_the_amc_writer(clip, tmp_path, monkeypatch):
+    """Written to AMC, a corrupted clip is what the writer's IK fits: a spike moves the
+    joints around it (a mixture of exact samples and ones off by 0.3-5 cm) and noise lies
+    on the skeleton's poses. The spiky path's lower robust floor removes the spread spikes
+    the 1 cm floor kept, and the estimate charges no bone-hold gain the input's exact bones
+    cannot give (held-out clips: docs/results/auto_files.md)."""
+    from mocapkit.denoise import auto as A
+
+    clean = io.read(io.write(clip, tmp_path / "clean.amc"))
+    asf = tmp_path / "clean.asf"
+    for name, steps in (("spikes", [("outliers", {"ratio": 0.1, "magnitude_cm": 15.0})]),
+                        ("gauss", [("gaussian", {"sigma_cm": 2.0})])):
+        back = io.read(io.write(_noisy(clean, steps, seed=5), tmp_path / f"{name}.amc"), skeleton=asf)
+        out = get("auto").denoise(back)
+        err = metrics.rmse(clean, out)
+        est = out.source["auto"]["estimated_rmse_cm"]
+        assert 1 / 1.5 < est / err < 1.5, (name, est, err)
+        if name == "spikes":
+            assert err < 0.15 * metrics.rmse(clean, back)
+            refit = A._refit_floor
+            monkeypatch.setattr(A, "_refit_floor", lambda X, M, c, f, floor: refit(X, M, c, f, 1.0))
+            assert err < 0.8 * metrics.rmse(clean, get("auto").denoise(back))
+            monkeypatch.setattr(A, "_refit_floor", refit)
+        else:
+            usable = back.observed.any(axis=0)
+            assert A._off_skeleton_share(back, back.matrix(), back.matrix_mask(), usable, 2.0) < 0.01
+            noisy = _noisy(clean, steps, seed=5)             # in memory: the noise is off the poses
+            assert A._off_skeleton_share(noisy, noisy.matrix(), noisy.matrix_mask(), usable, 2.0) > 0.7

@@ -241,7 +241,7 @@ def test_estimate_noise_rms_estimates_white_noise():
     assert estimate_noise(X, method="diff2-rms", pool="all") == pytest.approx(0.3, rel=0.05)
 
 
-@pytest.mark.parametrize("method", ["diff2-rms", "diff2-mad", "diff4-mad"])
+@pytest.mark.parametrize("method", ["diff2-rms", "diff2-mad", "diff4-mad", "diff4-rms"])
 def test_pooled_noise_estimate_in_frame_blocks(monkeypatch, method):
     """The pooled estimate over blocks of frames equals the whole-matrix formula."""
     from mocapkit.signal import noise
@@ -249,10 +249,10 @@ def test_pooled_noise_estimate_in_frame_blocks(monkeypatch, method):
     rng = np.random.default_rng(9)
     A = np.cumsum(rng.normal(size=(500, 5)), axis=0) * 0.01 + 0.4 * rng.normal(size=(500, 5))
     M = rng.random(A.shape) > 0.15
-    k = 4 if method == "diff4-mad" else 2
+    k = 4 if method.startswith("diff4") else 2
     D, ok = noise._diff(np.where(M, A, 0.0), M, k)
     d2 = D[ok]
-    ref = (np.sqrt(np.mean(d2 ** 2) / 6) if method == "diff2-rms"
+    ref = (np.sqrt(np.mean(d2 ** 2) / (6 if k == 2 else 70)) if method.endswith("rms")
            else noise._MAD * np.median(np.abs(d2)) / np.sqrt(6 if k == 2 else 70))
     from mocapkit import windows
 
