@@ -240,8 +240,10 @@ def fixed_bones(motion) -> tuple[np.ndarray, np.ndarray]:
     its skeleton length in every frame (and a cleaned motion written back to those
     formats gets it back through the writer's IK whatever the positions say). ASF/AMC
     (``source['asf']``): every bone (the reader refuses a length dof). BVH
-    (``source['bvh']``): every joint whose node has no position channel. Any other source
-    (C3D, TRC, Kinect -- whose skeleton is the median of the data --, a Motion built in
+    (``source['bvh']``): every joint whose node has no position channel. A C3D that
+    mocapkit wrote from such a motion (``source['c3d']['fixed_bones']``, the flags of its
+    ``MOCAPKIT`` group, :mod:`mocapkit.io.c3d`): the bones flagged there. Any other source
+    (other C3D, TRC, Kinect -- whose skeleton is the median of the data --, a Motion built in
     code): none.
 
     Returns (pairs (B, 2) int -- child joint, parent joint; lengths (B,) cm), B = 0 when
@@ -268,6 +270,9 @@ def fixed_bones(motion) -> tuple[np.ndarray, np.ndarray]:
         else:
             keep = np.array([not any("position" in c.lower() for c in (nodes[joint_nodes[c]].get("channels") or ()))
                              for c in bones[:, 0]], bool)
+    elif isinstance(src.get("c3d"), dict) and src["c3d"].get("fixed_bones") is not None:
+        flags = np.asarray(src["c3d"]["fixed_bones"], bool)
+        keep = flags[bones[:, 0]] if len(flags) == sk.n_joints else np.zeros(len(bones), bool)
     else:
         keep = np.zeros(len(bones), bool)
     keep &= lengths > 0

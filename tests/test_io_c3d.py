@@ -105,6 +105,34 @@ def test_write_non_c3d_motion_uses_joint_names(tmp_path):
     np.testing.assert_allclose(b.positions, m.positions, atol=1e-5)
 
 
+def test_joint_hierarchy_round_trip_and_fixed_bones(tmp_path):
+    """AMC -> C3D -> C3D keeps the hierarchy, the offsets and the bones the AMC fixed; a
+    built motion's bones are written as not fixed; a group that does not fit the points
+    is ignored with one warning naming the parameter."""
+    from mocapkit.datasets import bundled
+    from mocapkit.denoise import is_marker_capture
+    from mocapkit.errors import MocapWarning
+    from mocapkit.rigid import fixed_bones
+
+    amc = io.read(bundled("16_15.amc")).slice(0, 20)
+    b = io.read(io.write(io.read(io.write(amc, tmp_path / "j.c3d")), tmp_path / "j2.c3d"))
+    assert b.skeleton.names == amc.skeleton.names
+    np.testing.assert_array_equal(b.skeleton.parents, amc.skeleton.parents)
+    np.testing.assert_allclose(b.skeleton.offsets, amc.skeleton.offsets, atol=1e-4)
+    (pa, la), (pb, lb) = fixed_bones(amc), fixed_bones(b)
+    assert len(pa) == 30 and np.array_equal(pa, pb) and np.allclose(la, lb, atol=1e-4)
+    assert not is_marker_capture(b)
+    sk = Skeleton(("a", "b"), [-1, 0], np.array([[0, 0, 0], [0, 10.0, 0]]))
+    built = io.read(io.write(Motion(np.ones((4, 2, 3)), sk, 30.0), tmp_path / "built.c3d"))
+    assert list(built.skeleton.parents) == [-1, 0] and len(fixed_bones(built)[0]) == 0
+    c = ezc3d.c3d(str(tmp_path / "built.c3d"))
+    c.add_parameter("MOCAPKIT", "PARENTS", [-1, 5])          # a parent that is no point
+    c.write(str(tmp_path / "bad.c3d"))
+    with pytest.warns(MocapWarning, match="MOCAPKIT:PARENTS"):
+        bad = io.read(tmp_path / "bad.c3d")
+    assert list(bad.skeleton.parents) == [-1, -1] and is_marker_capture(bad)
+
+
 def test_duplicate_and_blank_labels(tmp_path, rng):
     xyz = rng.uniform(1, 2, size=(3, 3, 3))
     m = io.read(_make_c3d(tmp_path / "lab.c3d", xyz, labels=["X", "X", " "]))

@@ -47,9 +47,11 @@ def default(**params):
 
 
 def is_marker_capture(motion) -> bool:
-    """A marker capture: read from C3D/TRC, or points with no joint hierarchy."""
-    return motion.source.get("format") in ("c3d", "trc") or bool(
-        np.all(np.asarray(motion.skeleton.parents) < 0) and motion.n_joints > 1)
+    """A marker capture: points with no joint hierarchy (read from C3D / TRC, or more than
+    one point built so). A C3D that carries the joint hierarchy mocapkit writes
+    (:mod:`mocapkit.io.c3d`) holds joint centres, not markers."""
+    flat = bool(np.all(np.asarray(motion.skeleton.parents) < 0))
+    return flat and (motion.source.get("format") in ("c3d", "trc") or motion.n_joints > 1)
 
 
 

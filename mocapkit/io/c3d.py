@@ -16,7 +16,12 @@ points), ``fps = POINT:RATE`` and positions in **cm**:
   exactly 0 (how several exporters write gaps).
 * **Skeleton**: a marker set has no hierarchy: every joint is a root (parent -1, zero
   offset), named by its label (blank labels become ``M001`` …, repeated ones get ``_2``
-  …; the original labels are kept in ``source['c3d']['labels']``).
+  …; the original labels are kept in ``source['c3d']['labels']``) -- unless the file
+  carries the joint hierarchy mocapkit writes (group ``MOCAPKIT``: ``PARENTS``,
+  ``OFFSETS`` in point units, ``FIXED_BONES``, see Writing), which is read back: the
+  points are then joint centres of that skeleton, and the bones whose length the motion's
+  first format fixed (ASF/AMC, BVH) stay fixed (:func:`mocapkit.rigid.fixed_bones`). A
+  group that does not fit the points is ignored with a warning naming the parameter.
 * **Residuals and filled samples** (the convention of Vicon Nexus / QTM): residual < 0
   missing, 0 computed (filled / interpolated), > 0 measured. The residuals (file units,
   -1 where missing) are kept in ``source['per_frame']['residuals']``. ``Motion.filled`` is
@@ -49,7 +54,13 @@ labels (the original ones when the joints are unchanged), rate, and units (the f
 original unit when the motion came from a C3D, else ``mm``; ``units=`` to choose).
 Residuals: -1 (and NaN coordinates) for missing samples, **0 for filled samples**
 (``motion.filled``), the **measured residual** kept from a C3D input for the others,
-converted to the output unit. The residual field is one byte times ``|POINT:SCALE|``:
+converted to the output unit. A motion with a joint hierarchy (read from ASF/AMC, BVH,
+Kinect, or built with one) also gets it written, as group ``MOCAPKIT`` (at most 255
+joints): ``PARENTS`` (parent index per point, -1 for a root), ``OFFSETS`` (3 x points,
+rest offsets in the point unit) and ``FIXED_BONES`` (1 where the bone to the point's
+parent has a length the source format fixed) -- so AMC -> C3D -> back loses no
+hierarchy, and a cleaner knows the bone lengths of joint-centre data. Other readers skip
+the unknown group. The residual field is one byte times ``|POINT:SCALE|``:
 the writer sets ``POINT:SCALE = -step`` (the C3D input's own step when its residuals fit,
 else 0.01 mm, coarser only when the kept residuals exceed 255 steps), rounds residuals to it, and writes a measured sample without
 a known positive residual (e.g. from a TRC input) as **one step** (0.01 mm), never 0,
@@ -66,7 +77,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import HeaderMismatchWarning, MocapFormatError, MocapValueError
+from ..errors import HeaderMismatchWarning, MocapFormatError, MocapValueError, MocapWarning
 from ..motion import Motion
 from ..skeleton import Skeleton
 from ._atomic import atomic_write_path
@@ -274,23 +285,64 @@ def read(path: str | os.PathLike, *, units: str | float | None = None, zero_miss
     filled = obs & (res_t == 0) if has_residuals else np.zeros_like(obs)
     labels = _labels(params, N)
     names = _unique_names(labels, N)
-    sk = Skeleton(tuple(names), -np.ones(N, dtype=int), np.zeros((N, 3)))
+    sk_warn: list[str] = []
+    sk, fixed = _stored_skeleton(path, params, names, factor, sk_warn)
     meta = {"labels": labels + [""] * (N - len(labels)), "rate": rate,
             "first_frame": int(c["header"]["points"]["first_frame"]), **_analogs(c),
             "processor": info["processor"], "header_frames": announced,
             "residual_step": _residual_step(params),
             "residuals": "measured (0 = filled)" if has_residuals else
                          "none (every valid sample has residual 0: nothing read as filled)"}
+    if fixed is not None:
+        meta["fixed_bones"] = fixed
     src = {"path": str(path), "format": "c3d",
            "units": {"file": ulabel, "cm_per_unit": factor, "how": how}, "c3d": meta,
            "per_frame": {"residuals": res_t}}
-    if warn:
-        src["warnings"] = warn
+    if warn or sk_warn:
+        src["warnings"] = warn + sk_warn
     for w in warn:
         warnings.warn(f"{path}: {w}", HeaderMismatchWarning, stacklevel=2)
+    for w in sk_warn:
+        warnings.warn(f"{path}: {w}", MocapWarning, stacklevel=2)
     with np.errstate(over="ignore", invalid="ignore"):
         P = xyz * factor
     return Motion(P, sk, rate, obs, src, filled)
+
+
+#: the parameter group of the joint hierarchy mocapkit writes (module docstring)
+SKELETON_GROUP = "MOCAPKIT"
+
+
+def _stored_skeleton(path: Path, params: dict, names: list[str], factor: float, warn: list[str]
+                     ) -> tuple[Skeleton, list[bool] | None]:
+    """The skeleton of a file's points: the hierarchy of group ``MOCAPKIT`` when the file
+    has one that fits, else a marker set (every point a root). Returns it and the
+    per-point fixed-bone flags (None for a marker set). A group that does not fit adds a
+    line to ``warn``."""
+    N = len(names)
+    marker_set = Skeleton(tuple(names), -np.ones(N, dtype=int), np.zeros((N, 3)))
+    grp = params.get(SKELETON_GROUP)
+    if not isinstance(grp, dict):
+        return marker_set, None
+
+    def value(key):
+        v = grp.get(key)
+        return None if not isinstance(v, dict) else np.asarray(v.get("value"), dtype=float)
+
+    par, off, fix = value("PARENTS"), value("OFFSETS"), value("FIXED_BONES")
+    bad = ("PARENTS" if par is None or par.shape != (N,) or not np.all(np.isin(par, np.arange(-1, N)))
+           else "OFFSETS" if off is None or off.shape != (3, N) or not np.isfinite(off).all()
+           else "FIXED_BONES" if fix is None or fix.shape != (N,) else None)
+    if bad is None:
+        try:
+            sk = Skeleton(tuple(names), par.astype(int), off.T * factor)
+        except MocapValueError:
+            bad = "PARENTS"
+    if bad is not None:
+        warn.append(f"parameter {SKELETON_GROUP}:{bad} does not fit the {N} points: the joint hierarchy "
+                    f"is ignored (read as a marker set)")
+        return marker_set, None
+    return sk, [bool(x) for x in (fix > 0) & (par >= 0)]
 
 
 def _frame_rate(path: Path, c) -> float:
@@ -437,6 +489,15 @@ def write(motion: Motion, path: str | os.PathLike, *, units: str | float | None 
     c["data"]["points"] = pts
     c["data"]["meta_points"]["residuals"] = res.T[None, :, :]
     c["data"]["meta_points"]["camera_masks"] = np.zeros((7, J, T), dtype=bool)
+    parents = np.asarray(motion.skeleton.parents, dtype=int)
+    if (parents >= 0).any() and J <= 255:         # a C3D parameter dimension is one byte
+        from ..rigid import fixed_bones
+
+        fixed = np.zeros(J, int)
+        fixed[fixed_bones(motion)[0][:, 0]] = 1
+        c.add_parameter(SKELETON_GROUP, "PARENTS", parents.tolist())
+        c.add_parameter(SKELETON_GROUP, "OFFSETS", np.asarray(motion.skeleton.offsets, float).T / factor)
+        c.add_parameter(SKELETON_GROUP, "FIXED_BONES", fixed.tolist())
 
     def _write(tmp: str) -> None:
         try:
