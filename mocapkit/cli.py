@@ -325,10 +325,19 @@ def cmd_denoise(a: argparse.Namespace) -> int:
             chose = ", ".join(f"{k} {v}" for k, v in sorted(auto["chosen"].items(), key=lambda kv: -kv[1]))
             print(f"fill-auto: {auto['gaps']} gaps, best validated fill per gap: {chose or 'none'}; "
                   f"estimated fill error "
-                  f"{auto['estimated_rmse_cm']:.2f} cm RMSE (from observed stretches hidden like the "
+                  f"{_cm(auto['estimated_rmse_cm'])} cm RMSE (from observed stretches hidden like the "
                   f"file's own gaps)" + (f"; {auto['left_gaps']} gaps left missing (no fill validated "
                                         f"under {auto['max_error_cm']:g} cm)" if auto["left_gaps"] else ""))
     return 0
+
+
+def _cm(x: float) -> str:
+    """A length in cm to two significant digits, never fewer than two decimals: 1.30, 0.23,
+    0.019, 0.0056 (two fixed decimals printed a 0.0185 cm estimate as 0.01)."""
+    x = float(x)
+    if not np.isfinite(x) or x <= 0:
+        return f"{x:.2f}"
+    return f"{x:.{max(2, 1 - int(np.floor(np.log10(x))))}f}"
 
 
 def _print_auto(src: dict | None) -> None:
@@ -340,12 +349,12 @@ def _print_auto(src: dict | None) -> None:
     est = src.get("estimated_rmse_cm")
     facts = []
     if d:
-        facts.append(f"noise {d['noise_cm']:.2f} cm")
+        facts.append(f"noise {_cm(d['noise_cm'])} cm")
         facts.append(f"spikes {100 * d['spike_rate']:.1f} %")
         if d.get("n_gaps"):
             facts.append(f"{d['n_gaps']} gaps")
     line = f"auto: {chain} ({', '.join(facts)}); estimated error " + (
-        f"{est:.2f} cm RMSE ({src.get('how', '')})" if est is not None else "not available")
+        f"{_cm(est)} cm RMSE ({src.get('how', '')})" if est is not None else "not available")
     left, lim = src.get("left_missing") or 0, src.get("max_fill_error_cm")
     if left and lim is not None:
         line += (f"; {left} missing samples not filled (no fill validated under {lim:g} cm or no "
