@@ -13,8 +13,11 @@ file format changes what the corruption is:
   joints around it too (10 % spiked samples: ~43 % of the samples off by more than 1 cm
   in the file), and Gaussian noise is projected onto the skeleton's poses. AMC cannot hold
   a missing sample, so only the noise conditions go this way.
-* **C3D** keeps the positions as they are (and the missing samples missing); read back,
-  the clip is a marker capture (no joint hierarchy).
+* **C3D** keeps the positions as they are (and the missing samples missing), and since
+  2026-12-05 the joint hierarchy and the bones the AMC fixed (group ``MOCAPKIT``,
+  :mod:`mocapkit.io.c3d`): read back, the clip is joint-centre data of that skeleton, as in
+  memory (before, it was read as a marker capture, without the bone step: gauss1 auto /
+  oracle worst 0.84 against 0.70 now).
 
 Clips: the protocol module's ``HELDOUT_CLIPS`` (ten CMU clips no choice of auto was made
 on), cropped and resampled as in the protocol (8 s at 120 fps, and resampled to 30 fps),
@@ -22,7 +25,8 @@ written clean, corrupted by the CLI with the protocol's conditions (seed = clip 
 denoised by the CLI with no options. Scores, against the clean file read back the same
 way: RMSE (cm) over the samples the output holds; the oracle-tuned classical filter of
 the protocol (:func:`mocapkit.bench.protocols.auto.oracle_classical`) on the corrupted
-file; auto's estimate as the CLI printed it.
+file, scored on the same samples (auto leaves a long gap no fill validated under 5 cm
+missing); auto's estimate as the CLI printed it.
 """
 from __future__ import annotations
 
@@ -109,7 +113,8 @@ def run(data: Path, tmp: Path) -> list[dict]:
                     # the oracle on the corrupted file, scored against the clean one
                     Pn = _by_name(nm, truth.skeleton.names)
                     obs = np.isfinite(Pn).all(axis=2)
-                    orc = P.oracle_classical(truth, Motion(Pn, truth.skeleton, truth.fps, obs))
+                    wrote = np.isfinite(_by_name(out, truth.skeleton.names)).all(axis=2)
+                    orc = P.oracle_classical(truth, Motion(Pn, truth.skeleton, truth.fps, obs), mask=wrote)
                     m = EST_RE.search(text)
                     rows.append({"clip": f"{label}@{fps}", "format": fmt, "condition": cond,
                                  "input": _rmse(truth, nm) if obs.all() else None,
@@ -142,17 +147,23 @@ def render(doc: dict) -> str:
         out.append(f"| {fmt} | {cond}@{fps} | {len(rs)} | {mean_in} | {np.mean([r['auto'] for r in rs]):.3f} | "
                    f"{np.mean([r['oracle'] for r in rs]):.3f} | {np.median(ratio):.2f} | {np.max(ratio):.2f} | "
                    f"{est} of {len(rs)} |")
-    out += ["", "Means over clips; `input` is the corrupted file's RMSE where it has no missing sample. "
-            "In memory (auto.md, auto_heldout.md) the same clips and conditions give auto / oracle at most "
-            "0.49 on spikes and 0.76 on mixed: written to AMC, a spike is spread by the writer's inverse "
-            "kinematics over the whole frame, and the corruption is no longer sparse.", "",
-            "## Every case", "", "| clip | format | condition | input | auto | oracle | auto / oracle | estimate | s |",
-            "|---|---|---|---:|---:|---:|---:|---:|---:|"]
+    out += ["", "Means over clips; `input` is the corrupted file's RMSE where it has no missing sample; "
+            "auto and the oracle are scored on the samples auto wrote (`left`: samples of long gaps "
+            "no fill validated under 5 cm, left missing). Read back from C3D the clip keeps its "
+            "skeleton and fixed bones, so the C3D route is the in-memory one (auto_heldout.md). "
+            "Written to AMC, a spike is spread by the writer's inverse kinematics over the frame "
+            "(about 30 % of the samples stay exact, the rest are off by 0.3-5 cm) and Gaussian noise "
+            "is projected onto the skeleton's poses (joint angles): on Gaussian noise the AMC route "
+            "stays at 0.81-0.87 x the oracle in its worst clip, where memory and C3D are under 0.72.", "",
+            "## Every case", "",
+            "| clip | format | condition | input | auto | oracle | auto / oracle | estimate | left | s |",
+            "|---|---|---|---:|---:|---:|---:|---:|---:|---:|"]
     for r in rows:
         inp = "" if r["input"] is None else f"{r['input']:.3f}"
         est = "" if r["estimate"] is None else f"{r['estimate']:.3f}"
         out.append(f"| {r['clip']} | {r['format']} | {r['condition']} | {inp} | {r['auto']:.3f} | "
-                   f"{r['oracle']:.3f} | {r['auto'] / r['oracle']:.2f} | {est} | {r['seconds']:.1f} |")
+                   f"{r['oracle']:.3f} | {r['auto'] / r['oracle']:.2f} | {est} | {r.get('left', 0)} | "
+                   f"{r['seconds']:.1f} |")
     return "\n".join(out) + "\n"
 
 

@@ -614,7 +614,7 @@ def test_auto_on_corruption_spread_by_the_amc_writer(clip, tmp_path, monkeypatch
         if name == "spikes":
             assert err < 0.15 * metrics.rmse(clean, back)
             refit = A._refit_floor
-            monkeypatch.setattr(A, "_refit_floor", lambda X, M, c, f, floor: refit(X, M, c, f, 1.0))
+            monkeypatch.setattr(A, "_refit_floor", lambda X, M, c, f, i, floor: refit(X, M, c, f, i, 1.0))
             assert err < 0.8 * metrics.rmse(clean, get("auto").denoise(back))
             monkeypatch.setattr(A, "_refit_floor", refit)
         else:

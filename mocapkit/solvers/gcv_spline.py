@@ -46,6 +46,7 @@ True
 """
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -61,6 +62,9 @@ from ..windows import frame_blocks
 __all__ = ["gcv_smooth", "GCVInfo", "cutoff_hz"]
 
 _BISQUARE = 4.685
+#: default floor of the robust weights' residual scale (cm): noise-free fast motion is not
+#: turned into outliers (:func:`gcv_smooth`'s ``min_scale``)
+ROBUST_MIN_SCALE = 1.0
 _GRID = np.logspace(-4, 11, 61)           # candidate s (dimensionless); 4 per decade
 
 
@@ -209,7 +213,7 @@ def _select_and_fit(Y: np.ndarray, W: np.ndarray, order: int, s_fixed: np.ndarra
 
 
 def gcv_smooth(X, mask=None, *, order: int = 2, s: float | np.ndarray | None = None,
-               robust: bool = False, group: int = 1, min_scale: float = 1.0,
+               robust: bool = False, group: int = 1, min_scale: float = ROBUST_MIN_SCALE,
                n_robust: int = 3, validate: bool = True) -> tuple[np.ndarray, GCVInfo]:
     """Smooth every column of ``X`` (T, C) with its own GCV-chosen smoothing spline.
 
@@ -392,9 +396,11 @@ def _with_hole_error(info: GCVInfo, Y: np.ndarray, W: np.ndarray, s: np.ndarray,
     return replace(info, error=err, hole_error=e_hole, hole_map=hmap)
 
 
-def _bisquare(Y: np.ndarray, f: np.ndarray, M: np.ndarray, h: np.ndarray, group: int,
-              min_scale: float) -> np.ndarray:
-    """Bisquare weights (T, C) from the residuals Y - f and mean leverages h (C,), per point.
+def residual_scale(Y: np.ndarray, f: np.ndarray, M: np.ndarray, h: np.ndarray, group: int
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """The robust weights' residual scale per point (points,) -- the median norm of a
+    point's residuals Y - f on the observed samples M over the chi median of ``group``
+    dof, over sqrt(1 - mean leverage h (C,)) -- and the norms (T, points).
 
     The residual norms are formed a block of frames at a time (the whole-matrix residuals,
     their NaN-masked copy and squares were three more matrices of a long clip)."""
@@ -406,7 +412,16 @@ def _bisquare(Y: np.ndarray, f: np.ndarray, M: np.ndarray, h: np.ndarray, group:
     # median of a chi distribution with `group` dof: the MAD constant 0.6745 for group 1
     med = float(np.sqrt(chi2.ppf(0.5, group)))
     lev = np.sqrt(np.maximum(1 - h.reshape(-1, group).mean(axis=1), 1e-6))
-    scale = np.nanmedian(norm, axis=0) / med / lev
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)          # a point never observed: NaN
+        return np.nanmedian(norm, axis=0) / med / lev, norm
+
+
+def _bisquare(Y: np.ndarray, f: np.ndarray, M: np.ndarray, h: np.ndarray, group: int,
+              min_scale: float) -> np.ndarray:
+    """Bisquare weights (T, C) from the residuals Y - f and mean leverages h (C,), per point
+    (:func:`residual_scale`, floored at ``min_scale``)."""
+    scale, norm = residual_scale(Y, f, M, h, group)
     u = np.nan_to_num(norm / (_BISQUARE * np.maximum(scale, min_scale)), nan=2.0)
     w = np.where(u < 1, (1 - u ** 2) ** 2, 0.0)
     W = np.repeat(w, group, axis=1)
