@@ -468,3 +468,21 @@ def test_motionbuilder_bvh_is_cmu_units_in_cm(shared_data):
     root = [ln for ln in amc if ln.startswith("root ")][:2]
     amc_root = np.array([[float(v) for v in ln.split()[1:4]] for ln in root])
     np.testing.assert_allclose(m.positions[:2, 0], amc_root * 2.54 / 0.45, rtol=2e-4)
+
+
+def test_writing_a_skeleton_bvh_cannot_hold_says_how_far_off(tmp_path):
+    """ASF/AMC turns the bones that share a start point (CMU thorax -> lower neck and both
+    clavicles) separately; a BVH joint turns its children together: the writer says how
+    far off the written joints are, in one warning. A BVH read back and written again is
+    held (no warning)."""
+    from mocapkit.datasets import bundled
+    from mocapkit.errors import MocapWarning
+
+    amc = mio.read(bundled("16_15.amc")).slice(0, 40)
+    with pytest.warns(MocapWarning, match=r"hold the motion's joint positions only to .* cm at most"):
+        mio.write(amc, tmp_path / "a.bvh")
+    back = mio.read(tmp_path / "a.bvh")
+    assert 0.1 < float(np.abs(back.positions - amc.positions).max()) < 5.0
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", MocapWarning)
+        mio.write(back, tmp_path / "b.bvh")
