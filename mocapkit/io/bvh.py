@@ -76,6 +76,13 @@ with 9 decimals (trailing zeros trimmed). Motions with missing entries are refus
 gaps first), as are motions whose joints do not match the stored hierarchy (pass
 ``hierarchy='skeleton'`` to build a new hierarchy from ``motion.skeleton``: root with 6
 channels, other joints ``Zrotation Xrotation Yrotation``, an End Site on each leaf).
+A BVH joint turns the offsets of all its children together; a skeleton whose bones that
+share a start point turn separately (ASF/AMC: CMU's thorax -> lower neck and both
+clavicles) cannot be held exactly by the hierarchy built from it, and the writer says so
+in one :class:`~mocapkit.errors.MocapWarning` with the mean and largest distance (CMU
+16_15: 0.51 cm mean, 2.2 cm at the lower neck). Not done yet: one zero-offset joint per
+such bone (as CMU's own BVH conversions have ``LHipJoint`` / ``LowerBack``), which would
+hold them but add joints on read-back.
 """
 from __future__ import annotations
 
