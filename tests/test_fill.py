@@ -391,3 +391,37 @@ def test_real_gaps_basket_sprint_stay_near_the_body(shared_data):
         assert np.percentile(near, 95) < 60 and near.max() < 100              # near the body
     # measured: rigid 2620, pattern 11337, pca 16709 of 37068 missing samples
     assert counts["fill-pca"] > counts["fill-pattern"] > counts["fill-rigid"] > 1000
+
+
+def test_fill_kinematic_puts_a_knee_back_on_its_bones():
+    """A knee's 60-frame gap in a CMU walk (120 fps): on the circle of the two fixed bone
+    lengths, at the interpolated swivel, it comes back far closer than a cubic through its
+    path, both bones exactly their length; a gap at the clip's end, a marker file and
+    positions in metres (the declared lengths then describe other positions) get no fill."""
+    from mocapkit import io
+    from mocapkit.datasets import bundled
+    from mocapkit.rigid import fixed_bones
+
+    clip = io.read(bundled("16_15.amc")).slice(2, None)
+    j = clip.skeleton.names.index("lfemur")                 # the end of the thigh: the knee
+    obs = clip.observed.copy()
+    obs[200:260, j] = False
+    obs[-30:, j] = False
+    noisy = clip.with_observed(obs)
+    out = denoise.get("fill-kinematic").denoise(noisy)
+    assert out.observed[200:260, j].all() and not out.observed[-30:, j].any()
+    truth = clip.positions[200:260, j]
+    e_kin = np.sqrt(np.mean((out.positions[200:260, j] - truth) ** 2))
+    cub = fill(noisy.matrix(), noisy.matrix_mask(), kind="cubic").reshape(clip.positions.shape)
+    e_cub = np.sqrt(np.mean((cub[200:260, j] - truth) ** 2))
+    assert e_kin < 0.5 * e_cub and e_kin < 1.0, (e_kin, e_cub)
+    bones, lengths = fixed_bones(clip)
+    for k in np.flatnonzero((bones[:, 0] == j) | (bones[:, 1] == j)):
+        c, p = bones[k]
+        d = np.linalg.norm(out.positions[200:260, c] - out.positions[200:260, p], axis=1)
+        assert np.allclose(d, lengths[k], atol=1e-6)
+    markers = Motion(noisy.positions, Skeleton(clip.skeleton.names, -np.ones(clip.n_joints, int),
+                                               np.zeros((clip.n_joints, 3))), clip.fps, obs)
+    assert not denoise.get("fill-kinematic").denoise(markers).observed[200:260, j].any()
+    metres = noisy.with_positions(noisy.positions * 0.01)
+    assert not denoise.get("fill-kinematic").denoise(metres).observed[200:260, j].any()

@@ -878,21 +878,13 @@ BONE_FILL_SWEEPS = 3
 
 
 def _fixed_bones_of(motion: Motion, P: np.ndarray):
-    """(pairs (B, 2) child, parent; lengths (B,)) of the bones the file format fixes
-    (:func:`mocapkit.rigid.fixed_bones`), or None when there are none or the positions P
-    (T, J, 3) are not on the skeleton's scale: the skeleton must describe these positions,
-    not so when they were rescaled (metres, millimetres) without it -- then the typical
-    bone is far off its declared length."""
+    """(pairs (B, 2) child, parent; lengths (B,)) of the bones the file format fixes, on
+    the scale of the positions P (T, J, 3) (:func:`mocapkit.rigid.fixed_bones`), or None
+    when there are none."""
     from ..rigid import fixed_bones
 
-    bones, lengths = fixed_bones(motion)
-    if not len(bones):
-        return None
-    with np.errstate(invalid="ignore"):
-        ratio = np.nanmedian(np.linalg.norm(P[:, bones[:, 0]] - P[:, bones[:, 1]], axis=-1), axis=0) / lengths
-    if not np.isfinite(ratio).any() or not 0.8 <= float(np.nanmedian(ratio)) <= 1.25:
-        return None
-    return bones, lengths
+    bones, lengths = fixed_bones(motion, P)
+    return (bones, lengths) if len(bones) else None
 
 
 def _bone_fill(motion: Motion, usable: np.ndarray, X: np.ndarray, kept: np.ndarray, out: np.ndarray,

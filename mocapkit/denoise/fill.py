@@ -324,3 +324,48 @@ class FillPCA(Denoiser):
                               end_correction=bool(self.end_correction), return_info=True)
         return _result(motion, X, f, {self.name: info["pca"],
                                       f"{self.name}:iterative": info["pca-iterative"]})
+
+
+@register
+class FillKinematic(Denoiser):
+    """Kinematic gap fill of a skeleton's joints on the bone lengths the file format fixes
+    (ASF/AMC, BVH, or a C3D mocapkit wrote from them: :func:`mocapkit.rigid.fixed_bones`):
+    a joint whose parent and a child are seen is put on the circle of its two bone
+    lengths, at the swivel angle about the parent -> child axis interpolated over the gap
+    (:func:`mocapkit.rigid.kinematic_fill`). QTM's "kinematic gap fill" and MotionBuilder's
+    reach-based fills work the same way with a solved skeleton.
+
+    No parameters. Marker files (no fixed bones), joints without a seen parent and child,
+    and gaps at the clip's ends are left missing. A candidate of ``fill-auto``
+    (:data:`mocapkit.denoise.fill_auto.DEFAULT_CANDIDATES`), which picks it per gap where
+    it validates best: knees, elbows and ankles rather than trunk joints.
+
+    >>> from mocapkit import corrupt, datasets, denoise, io
+    >>> clean = io.read(datasets.bundled("16_15.amc")).slice(0, 240)
+    >>> noisy, _ = corrupt.combine(clean, [("block_gaps", {"n_markers": 3, "length": 60})], seed=2)
+    >>> out = denoise.get("fill-kinematic").denoise(noisy)
+    >>> int((~noisy.observed).sum()) > int((~out.observed).sum())      # some gaps filled
+    True
+    """
+
+    name = "fill-kinematic"
+    description = ("kinematic gap fill of a skeleton's joints on their fixed bone lengths (swivel angle "
+                   "interpolated); observed samples unchanged")
+    needs_training = False
+    keeps_observed = True
+    fill_evidence = "markers"
+    clean_tolerance_cm = 1e-9
+
+    _parameter_constraints: dict = {}
+
+    def __init__(self):
+        self._store_params(locals())
+
+    def denoise(self, motion: Motion) -> Motion:
+        from ..rigid import fixed_bones, kinematic_fill
+
+        if motion.observed.all():
+            return motion
+        bones, lengths = fixed_bones(motion, motion.positions)
+        X, f = kinematic_fill(motion.positions, motion.observed, motion.skeleton.parents, bones, lengths)
+        return _result(motion, X, f)

@@ -81,7 +81,7 @@ _SHAPE_FILLS = ("fill-pattern",)
 _SIMPLE_FIRST = ("spline", "linear")
 
 #: candidates tried by default, cheapest first (registry names)
-DEFAULT_CANDIDATES = ("linear", "spline", "fill-pattern", "fill-rigid", "fill-pca")
+DEFAULT_CANDIDATES = ("linear", "spline", "fill-pattern", "fill-rigid", "fill-pca", "fill-kinematic")
 
 
 def _candidate_fill(method: Denoiser, motion: Motion) -> np.ndarray:
