@@ -622,3 +622,24 @@ def test_auto_on_corruption_spread_by_the_amc_writer(clip, tmp_path, monkeypatch
             assert A._off_skeleton_share(back, back.matrix(), back.matrix_mask(), usable, 2.0) < 0.01
             noisy = _noisy(clean, steps, seed=5)             # in memory: the noise is off the poses
             assert A._off_skeleton_share(noisy, noisy.matrix(), noisy.matrix_mask(), usable, 2.0) > 0.7
+
+
+def test_validated_choice_scale_is_cross_fitted():
+    """A refinement that is truly better (half the squared error) gets a scale near
+    sqrt(0.5) whichever half judged it; one that is as good as the fill by chance is taken
+    where its samples favour it, but its scale stays near 1 -- the ratio on the deciding
+    samples (< 1 by construction) would have called it a gain."""
+    from mocapkit.denoise.auto import _validated_choice
+
+    rng = np.random.default_rng(0)
+    T, J = 120, 200                                      # ~36 hidden samples per point
+    dc = rng.chisquare(3, (T, J))
+    dr = dc.copy()
+    dr[:, :100] *= 0.5                                   # really better
+    dr[:, 100:] = rng.chisquare(3, (T, 100))             # as good, by chance either way
+    hj = rng.random((T, J)) < 0.3
+    use, scale = _validated_choice(dc, dr, hj)
+    assert use[:100].all() and np.allclose(scale[:100], np.sqrt(0.5), atol=0.02)
+    lucky = np.flatnonzero(use[100:]) + 100
+    naive = np.sqrt((dr * hj).sum(axis=0) / (dc * hj).sum(axis=0))[lucky]
+    assert len(lucky) > 20 and naive.mean() < 0.93 and scale[lucky].mean() > naive.mean() + 0.03
