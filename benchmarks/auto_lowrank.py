@@ -12,7 +12,8 @@ starts from the spline and partner fills) -- on:
 
 * ten CMU clips that neither the ``auto`` protocol nor its held-out set uses, and that
   took part in no choice of the refinement (05_01, 05_05, 07_05, 131_01 / 04 / 09 / 14,
-  135_03 / 06 / 11), first 8 s at 120 fps and resampled to 30 fps, with the protocol's
+  135_03 / 06 / 11; they were one of the three sets the 4-frame step below 60 fps,
+  ``LOWRANK_WINDOW_LOW_FPS``, was checked on before it was kept, 2026-12-05), first 8 s at 120 fps and resampled to 30 fps, with the protocol's
   ``missing30`` (30 % of the joints removed in every frame) and ``spikes`` (10 % of the
   samples moved 15 cm), seed = clip index, every gap fillable (``FILL_ALL``) as in the
   protocol: RMSE (cm, all coordinates auto wrote: a hole no fill validated under 5 cm is
