@@ -276,6 +276,7 @@ class Auto(Denoiser):
         diag = diagnose(motion, robust)
         cols = np.repeat(usable, 3)
         spiky = diag.spike_rate > float(self.spike_rate)
+        flagged = info.rejected                          # the robust fit's, spiky or not
         if not spiky:                                    # nothing rejected: plain GCV fit
             f, info = gcv_smooth(used_columns(X, cols), used_columns(M, cols), group=3)
             fit[:, cols] = f
@@ -317,7 +318,7 @@ class Auto(Denoiser):
         if smooth:
             out[:, cols], picked, est["kept"][cols], sigma_s = _smooth(
                 out[:, cols], ~holes[:, cols], fit[:, cols], diag.noise_cm, motion.fps,
-                s=None if spiky else info.s)
+                s=None if spiky else info.s, flagged=flagged)
             chain.append(picked)
         long = self._long_gaps(motion, smooth)
         if (holes & ~long).any() and not smooth:
@@ -1012,12 +1013,13 @@ def _end_spikes_kept(X: np.ndarray, M: np.ndarray, cols: np.ndarray, fit: np.nda
 
 
 def _smooth(Y: np.ndarray, kept: np.ndarray, fit: np.ndarray, sigma: float,
-            fps: float, s: np.ndarray | None = None) -> tuple[np.ndarray, str, float, float]:
+            fps: float, s: np.ndarray | None = None, flagged: np.ndarray | None = None
+            ) -> tuple[np.ndarray, str, float, float]:
     """GCV spline, MSSA and a constant-velocity Kalman/RTS smoother on the complete matrix Y
     (holes filled), mixed by the convex weights of lowest Monte-Carlo SURE on the kept
     samples (:func:`mocapkit.solvers.mssa.sure_weights`). Returns (out, what was used,
     estimated RMSE, the noise level used). ``sigma`` (the GCV noise level) is used only where the fourth
-    differences cannot be formed. ``s`` (per column): ``fit`` is the plain GCV fit of the
+    differences cannot be formed; ``flagged`` (T, C): samples the noise level leaves out. ``s`` (per column): ``fit`` is the plain GCV fit of the
     kept samples with this smoothing (the path without spikes) and is used as it is; None:
     the spline is fitted here. Either way its probe run holds that smoothing (a fixed
     linear map, as the other two hold their ranks and process noise).
@@ -1067,8 +1069,12 @@ def _smooth(Y: np.ndarray, kept: np.ndarray, fit: np.ndarray, sigma: float,
     # by 0.3-3 cm (held-out 01_01@120: MAD 0.21, RMS of the kept error 0.77 cm). Through
     # AMC files (docs/results/auto_files.md) RMSE spikes@120 0.247 -> 0.195, gauss3@120
     # 0.822 -> 0.770 on 01_01; in memory, Gaussian noise, every protocol / held-out case
-    # within 0.97-1.008x of the MAD's.
-    sig4 = float(estimate_noise(Y, kept, method="diff4-rms", pool="all"))
+    # within 0.97-1.008x of the MAD's. The RMS leaves out the samples the robust fit
+    # flagged (``flagged``, (T, C)) even where the clip was not called spiky: a few jumps it
+    # keeps would rule it -- 10,000 frames of a clip tiled 9 times with 1 cm noise read
+    # 3.2 cm from its seams, 1.0 without them.
+    sig4 = float(estimate_noise(Y, kept if flagged is None else kept & ~flagged, method="diff4-rms",
+                                pool="all"))
     sigma = sig4 if np.isfinite(sig4) and sig4 > 0 else float(sigma)
 
     held = [] if s is None else [s]          # the smoothing, chosen on Y, then held
@@ -1159,13 +1165,15 @@ def _refit_floor(X: np.ndarray, M: np.ndarray, cols: np.ndarray, fit: np.ndarray
     RMS noise level of :func:`_smooth`); mixed and Gaussian cases -- in memory and through
     AMC -- came out the same to the 4th digit: their residual scale is above 1 cm anyway
     (points' scales 1.3-2.2 cm with 2 cm noise, 0.35-0.9 cm on the spread spikes). So the
-    refit runs only where some point's scale is under the 1 cm floor: run on every spiky
-    noisy clip it had doubled auto's time on the protocol's mixed@30 (7.8 -> 13.8 x the
-    method it picks, against the 10x target).
+    refit runs only where some point's scale is under half the 1 cm floor: run on every
+    spiky noisy clip it had doubled auto's time on the protocol's mixed@30 (7.8 -> 13.8 x
+    the method it picks, against the 10x target), and with 1 cm noise half the points read
+    a scale just under 1 cm (10,000 frames with 1 cm noise and a few jumps: 2,150 -> 1,750
+    frames/s for nothing).
     """
     Xc, Mc = used_columns(X, cols), used_columns(M, cols)
     scale, _ = residual_scale(Xc, used_columns(fit, cols), Mc, info.trace / X.shape[0], 3)
-    if not (scale < ROBUST_MIN_SCALE).any():
+    if not (scale < 0.5 * ROBUST_MIN_SCALE).any():
         return fit, info
     f, info = gcv_smooth(Xc, Mc, robust=True, group=3, min_scale=floor)
     fit = fit.copy()
