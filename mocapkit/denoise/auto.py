@@ -65,6 +65,10 @@ memory then stays that of one piece (docs/results/scaling.md: 13.6x -> 2.8x the 
 is the whole-clip one within noise (docs/results/auto_pieces.md). The report lists the
 pieces (``source['auto']['pieces']``: frames, chain, estimate) and merges them.
 
+**Whole-body jumps** (two takes in one file, an edit point, a loop seam: :func:`_jumps`) cut
+the clip hard, and each side is cleaned on its own (``source['auto']['jumps']``); smoothing,
+fills and the noise estimate across a jump would mix two motions.
+
 The error estimate (cm RMS over all coordinates, ``source['auto']['estimated_rmse_cm']``)
 is the RMS over every fitted sample of an estimate per sample, by class:
 
