@@ -160,7 +160,7 @@ def render(doc: dict) -> str:
             "Written to AMC, a spike is spread by the writer's inverse kinematics over the frame "
             "(about 30 % of the samples stay exact, the rest are off by 0.3-5 cm) and Gaussian noise "
             "is projected onto the skeleton's poses (joint angles): on Gaussian noise the AMC route "
-            "stays at 0.81-0.87 x the oracle in its worst clip, where memory and C3D are under 0.72.", "",
+            "stays at 0.81-0.88 x the oracle in its worst clip, where memory and C3D are under 0.77.", "",
             "## Every case", "",
             "| clip | format | condition | input | auto | oracle | auto / oracle | estimate | left | s |",
             "|---|---|---|---:|---:|---:|---:|---:|---:|---:|"]
