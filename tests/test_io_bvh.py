@@ -268,7 +268,14 @@ def test_writer_refusals(synth_file, tmp_path):
         bvh.write(sub, tmp_path / "sub.bvh")
     bvh.write(sub, tmp_path / "sub.bvh", hierarchy="skeleton")        # new hierarchy: fine
     r = bvh.read(tmp_path / "sub.bvh", units="cm")
-    assert r.skeleton.names == sub.skeleton.names
+    # LeftUpLeg (under the dropped LHipJoint) and Spine turn apart under Hips: each hangs
+    # from a zero-offset joint of its own, and the leg is held (Chest had position
+    # channels: its bone, fixed in the new hierarchy, cannot follow)
+    assert [n for n in r.skeleton.names if not n.endswith("_base")] == list(sub.skeleton.names)
+    assert {"LeftUpLeg_base", "Spine_base"} <= set(r.skeleton.names)
+    leg = ["Hips", "LeftUpLeg", "LeftLeg", "Spine"]
+    np.testing.assert_allclose(r.positions[:, [r.skeleton.index(n) for n in leg]],
+                               sub.positions[:, [sub.skeleton.index(n) for n in leg]], atol=1e-5)
     with pytest.raises(MocapValueError, match="refusing to overwrite the input"):
         mio.write(m, p, overwrite=True)
     assert not list(tmp_path.glob(".*.tmp"))                        # atomic: no leftovers
@@ -470,19 +477,32 @@ def test_motionbuilder_bvh_is_cmu_units_in_cm(shared_data):
     np.testing.assert_allclose(m.positions[:2, 0], amc_root * 2.54 / 0.45, rtol=2e-4)
 
 
-def test_writing_a_skeleton_bvh_cannot_hold_says_how_far_off(tmp_path):
+def test_writing_a_skeleton_bvh_holds_amc_or_says_how_far_off(tmp_path):
     """ASF/AMC turns the bones that share a start point (CMU thorax -> lower neck and both
-    clavicles) separately; a BVH joint turns its children together: the writer says how
-    far off the written joints are, in one warning. A BVH read back and written again is
-    held (no warning)."""
+    clavicles) separately; a BVH joint turns its children together: the writer gives each
+    such bone a zero-offset joint and holds the positions; a BVH read back and written
+    again is held too; positions no pose reaches get one warning saying how far off."""
     from mocapkit.datasets import bundled
     from mocapkit.errors import MocapWarning
 
     amc = mio.read(bundled("16_15.amc")).slice(0, 40)
-    with pytest.warns(MocapWarning, match=r"hold the motion's joint positions only to .* cm at most"):
-        mio.write(amc, tmp_path / "a.bvh")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", MocapWarning)
+        mio.write(amc, tmp_path / "a.bvh")               # zero-offset joints: held exactly
     back = mio.read(tmp_path / "a.bvh")
-    assert 0.1 < float(np.abs(back.positions - amc.positions).max()) < 5.0
+    keep = [back.skeleton.index(n) for n in amc.skeleton.names]
+    assert back.n_joints > amc.n_joints and "lowerneck_base" in back.skeleton.names
+    assert float(np.abs(back.positions[:, keep] - amc.positions).max()) < 1e-5
     with warnings.catch_warnings():
         warnings.simplefilter("error", MocapWarning)
         mio.write(back, tmp_path / "b.bvh")
+    # the guard behind it: written joints off the motion's positions by more than their
+    # bone lengths explain make one line saying how far (a head 1 cm sideways of its bone
+    # keeps its length to 0.02 cm)
+    P = amc.positions.copy()
+    h = amc.skeleton.index("head")
+    assert bvh._unreachable(amc, P) is None
+    P[:, h] += np.cross(amc.positions[:, h] - amc.positions[:, amc.skeleton.parents[h]], [0.0, 1.0, 0.0])
+    P[:, h] = amc.positions[:, h] + (P[:, h] - amc.positions[:, h]) / np.linalg.norm(
+        P[:, h] - amc.positions[:, h], axis=1, keepdims=True)
+    assert re.search(r"only to .* cm mean, 1\.00 cm at most \(head", bvh._unreachable(amc, P))

@@ -76,13 +76,15 @@ with 9 decimals (trailing zeros trimmed). Motions with missing entries are refus
 gaps first), as are motions whose joints do not match the stored hierarchy (pass
 ``hierarchy='skeleton'`` to build a new hierarchy from ``motion.skeleton``: root with 6
 channels, other joints ``Zrotation Xrotation Yrotation``, an End Site on each leaf).
-A BVH joint turns the offsets of all its children together; a skeleton whose bones that
-share a start point turn separately (ASF/AMC: CMU's thorax -> lower neck and both
-clavicles) cannot be held exactly by the hierarchy built from it, and the writer says so
-in one :class:`~mocapkit.errors.MocapWarning` with the mean and largest distance (CMU
-16_15: 0.51 cm mean, 2.2 cm at the lower neck). Not done yet: one zero-offset joint per
-such bone (as CMU's own BVH conversions have ``LHipJoint`` / ``LowerBack``), which would
-hold them but add joints on read-back.
+A BVH joint turns the offsets of all its children together; where a skeleton's bones
+that share a start point turn separately in the motion (ASF/AMC: CMU's thorax -> lower
+neck and both clavicles; :func:`_turn_apart`), the built hierarchy hangs each of them
+from a zero-offset joint ``<child>_base`` of its own, as CMU's own BVH conversions have
+``LHipJoint`` / ``LowerBack``: the positions are held (CMU 16_15 AMC -> BVH: 1e-9 cm;
+without them 0.51 cm mean, 2.2 cm at the lower neck), and the file read back has those
+joints too (41 for CMU's 31). Whatever the hierarchy cannot hold beyond what the bone
+lengths explain, the writer says in one :class:`~mocapkit.errors.MocapWarning` with the
+mean and largest distance (:func:`_unreachable`).
 """
 from __future__ import annotations
 
@@ -1052,7 +1054,36 @@ def _solve_node(nodes, plan: _IKPlan, k: int, Gp, L0, t0, Xk, Xt, ch0, prev, out
 # ----------------------------------------------------------------------------------------
 # writer
 # ----------------------------------------------------------------------------------------
-def _hierarchy_from_skeleton(sk: Skeleton, factor: float) -> tuple[list[_Node], list[int]]:
+def _unique_name(name: str, taken: set[str]) -> str:
+    """``name``, or with ``_2``, ``_3`` ... appended when taken; added to ``taken``."""
+    out, k = name, 2
+    while out in taken:
+        out, k = f"{name}_{k}", k + 1
+    taken.add(out)
+    return out
+
+
+def _turn_apart(positions: np.ndarray | None, offsets: np.ndarray, kids: list[int]) -> bool:
+    """Whether sibling joints stray from their rest offsets' shape in ``positions`` (T, J,
+    3) cm: a distance between two of them off the distance of their rest offsets (cm) by
+    more than :data:`UNREACHABLE_CM` in some frame. A BVH joint holds its children's
+    offsets rigid, so such siblings each need a joint of their own; siblings that keep
+    their rest shape (a BVH source, a rigid pelvis) do not, and the hierarchy keeps the
+    motion's joints one to one."""
+    if positions is None:
+        return False
+    P = positions[:, kids]
+    i, j = np.triu_indices(len(kids), 1)
+    d = np.linalg.norm(P[:, i] - P[:, j], axis=2)
+    rest = np.linalg.norm(offsets[kids][i] - offsets[kids][j], axis=1)
+    return bool(np.any(np.abs(d - rest) > UNREACHABLE_CM))
+
+
+def _hierarchy_from_skeleton(sk: Skeleton, factor: float, positions: np.ndarray | None = None
+                             ) -> tuple[list[_Node], list[int]]:
+    """Nodes of a new hierarchy for ``sk`` (and the node of each joint): root with 6
+    channels, other joints 3 rotations, an End Site per leaf; children that move apart in
+    ``positions`` (:func:`_turn_apart`) each hang from a zero-offset joint ``<child>_base``."""
     roots = [j for j in range(sk.n_joints) if sk.parents[j] < 0]
     if len(roots) != 1:
         raise MocapValueError(
@@ -1060,6 +1091,7 @@ def _hierarchy_from_skeleton(sk: Skeleton, factor: float) -> tuple[list[_Node], 
             f"(marker data without a hierarchy cannot be written as BVH; use C3D or TRC)")
     nodes: list[_Node] = []
     joint_nodes = [0] * sk.n_joints
+    taken = set(sk.names)
 
     def add(j, parent_node):
         k = len(nodes)
@@ -1070,8 +1102,21 @@ def _hierarchy_from_skeleton(sk: Skeleton, factor: float) -> tuple[list[_Node], 
         if parent_node >= 0:
             nodes[parent_node].children.append(k)
         kids = sk.children(j)
+        split = len(kids) > 1 and _turn_apart(positions, np.asarray(sk.offsets, float), kids)
         for c in kids:
-            add(c, k)
+            if split:
+                # a zero-offset joint per child bone: a BVH joint turns all its children's
+                # offsets together, and a skeleton's bones that share a start point (ASF/AMC:
+                # CMU's thorax -> lower neck and both clavicles) turn separately -- without
+                # these AMC -> BVH put CMU 16_15's joints 0.51 cm off on average, 2.2 cm at
+                # the lower neck (as CMU's own BVH conversions have LHipJoint, LowerBack)
+                b = len(nodes)
+                nodes.append(_Node(_unique_name(f"{sk.names[c]}_base", taken), k, 0, np.zeros(3),
+                                   ("Zrotation", "Xrotation", "Yrotation")))
+                nodes[k].children.append(b)
+                add(c, b)
+            else:
+                add(c, k)
         if not kids:
             off = sk.offsets[j] / factor
             L = np.linalg.norm(off)
@@ -1202,7 +1247,7 @@ def write(motion: Motion, path: str | os.PathLike, *, hierarchy: str = "auto",
         frame_time = ft if abs(1.0 / ft - motion.fps) <= 1e-9 * motion.fps else 1.0 / motion.fps
     else:
         factor = 1.0 if units is None else _resolve_units(units, [], path)["factor_to_cm"]
-        nodes, joint_nodes = _hierarchy_from_skeleton(motion.skeleton, factor)
+        nodes, joint_nodes = _hierarchy_from_skeleton(motion.skeleton, factor, motion.positions)
         frame_time = 1.0 / motion.fps
     if not FRAME_TIME_RANGE[0] <= frame_time <= FRAME_TIME_RANGE[1]:
         raise MocapValueError(f"cannot write BVH at {motion.fps:g} fps: the frame time {frame_time:g} s "
@@ -1226,11 +1271,10 @@ UNREACHABLE_CM = 0.1
 def _unreachable(motion: Motion, P: np.ndarray) -> str | None:
     """One line when the written rotations put joints off the motion's positions P (T, J,
     3) cm by more than ``UNREACHABLE_CM`` + 3 x the frame's largest bone-length mismatch
-    (the part no pose can reach): a BVH joint turns the offsets of all its children
-    together, so a skeleton whose bones sharing a start point turn separately -- ASF/AMC
-    (CMU: thorax -> lower neck and both clavicles, root -> lower back and both hip
-    joints) written with a hierarchy built from it -- cannot be held exactly (CMU 16_15:
-    0.51 cm mean, 2.2 cm at the lower neck). None when every frame is held."""
+    (the part no pose can reach) -- e.g. a stored hierarchy whose joint turns children
+    together that the motion moves apart (before the zero-offset joints of
+    :func:`_hierarchy_from_skeleton`, CMU 16_15 AMC -> BVH was 0.51 cm off on average, 2.2
+    cm at the lower neck, silently). None when every frame is held."""
     X = motion.positions
     err = np.linalg.norm(P - X, axis=2)                                    # (T, J)
     sk = motion.skeleton
