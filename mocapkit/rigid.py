@@ -307,9 +307,9 @@ def kinematic_fill(P: np.ndarray, observed: np.ndarray, parents, bones: np.ndarr
     """Gaps of a skeleton's joints filled on their fixed bone lengths: a joint j whose
     parent p and a child c are seen lies on the circle where the spheres of its two bone
     lengths about them meet; where on it -- the swivel angle about the axis p -> c (a
-    knee's or an elbow's, measured from the direction of p's parent, or of a world axis
-    for the root's children) -- is interpolated over the gap by the package's cubic gap
-    fill of the angle (:func:`mocapkit.gaps.fill`). The swivel moves slowly where the
+    knee's or an elbow's, measured from a world axis carried along by the axis' minimal
+    rotations) -- is interpolated over the gap by the package's cubic gap fill of the angle
+    (:func:`mocapkit.gaps.fill`). The swivel moves slowly where the
     joint's path does not: a knee's 60-frame gap at 120 fps, 3.8 cm off with fill-auto's
     rigid / PCA candidates, 1.3 cm with a cubic through the position, is 0.48 cm this way
     (CMU 05_03, docs/results/auto_heldout.md); a trunk joint with several children is
@@ -317,9 +317,9 @@ def kinematic_fill(P: np.ndarray, observed: np.ndarray, parents, bones: np.ndarr
 
     P (T, J, 3) cm, observed (T, J); parents (J,); bones (B, 2) child, parent and lengths
     (B,) cm of the fixed bones (:func:`fixed_bones`). Returns (P with the filled samples,
-    filled (T, J)); filled only inside a gap of the angle (seen on both sides: no
-    extrapolation) and where p, c (and p's parent) are seen. Of several children the one
-    seen most. ``(P, zeros)`` when no bone is fixed.
+    filled (T, J)); filled only inside a gap of the angle (seen on both sides, and p and c
+    seen from one side to the other: no extrapolation). Of several children the one seen
+    most. ``(P, zeros)`` when no bone is fixed.
 
     >>> import numpy as np
     >>> t = np.linspace(0, 1, 50)
@@ -374,7 +374,8 @@ def kinematic_fill(P: np.ndarray, observed: np.ndarray, parents, bones: np.ndarr
         # beyond that, summed frame by frame, is known inside a gap too (p and c are seen),
         # so the angle to interpolate is th - gamma and the fill th = interpolated + gamma.
         # (The parent's parent as the reference, without the transport, put a raised arm's
-        # elbow 9.1 cm off over a 60-frame gap of CMU 135_07 at 120 fps.)
+        # elbow 9.1 cm off over a 60-frame gap of CMU 135_02, the protocol's martial-arts
+        # clip, at 120 fps.)
         gam = np.zeros(T)
         pair = seen[1:] & seen[:-1]
         vt = _transport(u[:-1], u[1:], v[:-1])
