@@ -286,7 +286,7 @@ def read(path: str | os.PathLike, *, units: str | float | None = None, zero_miss
     labels = _labels(params, N)
     names = _unique_names(labels, N)
     sk_warn: list[str] = []
-    sk, fixed = _stored_skeleton(path, params, names, factor, sk_warn)
+    sk, fixed = _stored_skeleton(params, names, factor, sk_warn)
     meta = {"labels": labels + [""] * (N - len(labels)), "rate": rate,
             "first_frame": int(c["header"]["points"]["first_frame"]), **_analogs(c),
             "processor": info["processor"], "header_frames": announced,
@@ -313,7 +313,7 @@ def read(path: str | os.PathLike, *, units: str | float | None = None, zero_miss
 SKELETON_GROUP = "MOCAPKIT"
 
 
-def _stored_skeleton(path: Path, params: dict, names: list[str], factor: float, warn: list[str]
+def _stored_skeleton(params: dict, names: list[str], factor: float, warn: list[str]
                      ) -> tuple[Skeleton, list[bool] | None]:
     """The skeleton of a file's points: the hierarchy of group ``MOCAPKIT`` when the file
     has one that fits, else a marker set (every point a root). Returns it and the
