@@ -620,9 +620,9 @@ def test_auto_on_corruption_spread_by_the_amc_writer(clip, tmp_path, monkeypatch
             monkeypatch.setattr(A, "_refit_floor", refit)
         else:
             usable = back.observed.any(axis=0)
-            assert A._off_skeleton_share(back, back.matrix(), back.matrix_mask(), usable, 2.0) < 0.01
+            assert A._off_skeleton_share(back.matrix(), back.matrix_mask(), usable, 2.0) < 0.01
             noisy = _noisy(clean, steps, seed=5)             # in memory: the noise is off the poses
-            assert A._off_skeleton_share(noisy, noisy.matrix(), noisy.matrix_mask(), usable, 2.0) > 0.7
+            assert A._off_skeleton_share(noisy.matrix(), noisy.matrix_mask(), usable, 2.0) > 0.7
 
 
 def test_validated_choice_scale_is_cross_fitted():

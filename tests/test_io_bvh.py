@@ -501,8 +501,9 @@ def test_writing_a_skeleton_bvh_holds_amc_or_says_how_far_off(tmp_path):
     # keeps its length to 0.02 cm)
     P = amc.positions.copy()
     h = amc.skeleton.index("head")
-    assert bvh._unreachable(amc, P) is None
+    frames = np.arange(amc.n_frames)
+    assert bvh._unreachable(amc, frames, P) is None
     P[:, h] += np.cross(amc.positions[:, h] - amc.positions[:, amc.skeleton.parents[h]], [0.0, 1.0, 0.0])
     P[:, h] = amc.positions[:, h] + (P[:, h] - amc.positions[:, h]) / np.linalg.norm(
         P[:, h] - amc.positions[:, h], axis=1, keepdims=True)
-    assert re.search(r"only to .* cm mean, 1\.00 cm at most \(head", bvh._unreachable(amc, P))
+    assert re.search(r"only to .* cm mean, 1\.00 cm at most \(head", bvh._unreachable(amc, frames, P))

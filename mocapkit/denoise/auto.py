@@ -399,7 +399,7 @@ class Auto(Denoiser):
             out, moved2 = _hold_bones(motion, out, usable)
             if moved2 is not None:
                 chain.append("bone lengths held")
-                moved2 *= _off_skeleton_share(motion, X, ~holes, usable, sigma_s)
+                moved2 *= _off_skeleton_share(X, ~holes, usable, sigma_s)
         estimate = _combine(est, holes, long, e_long, usable, out)
         if estimate is not None and moved2 is not None:
             # the move is (nearly) orthogonal to the error left: the smoothed pose lies off
@@ -779,7 +779,7 @@ LOWRANK_WINDOW = 2
 #: cm, missing30@30): protocol 0.209 -> 0.202 (worst auto / oracle 0.83 -> 0.72: the 0.8
 #: target is met), held-out 0.125 -> 0.120 (0.77 -> 0.71), the ten clips of
 #: docs/results/auto_lowrank.md 0.175 -> 0.165 (0.81 -> 0.67); spikes@30 -0.1 / -2 / -1 %;
-#: per case 0.81-1.08x but for one 1.30x (held-out 135_09: a knee's 6-frame gap, which
+#: per case 0.80-1.07x but for one 1.29x (held-out 135_09: a knee's 6-frame gap, which
 #: fill-auto fills from its neighbours, went to another candidate and 8 cm off); estimates
 #: within 1.5x 49 -> 48 of 60 (the three sets' missing30 / spikes @30)
 LOWRANK_WINDOW_LOW_FPS = 4
@@ -900,16 +900,6 @@ BONE_FILL_GUARD = 5.0
 BONE_FILL_SWEEPS = 3
 
 
-def _fixed_bones_of(motion: Motion, P: np.ndarray):
-    """(pairs (B, 2) child, parent; lengths (B,)) of the bones the file format fixes, on
-    the scale of the positions P (T, J, 3) (:func:`mocapkit.rigid.fixed_bones`), or None
-    when there are none."""
-    from ..rigid import fixed_bones
-
-    bones, lengths = fixed_bones(motion, P)
-    return (bones, lengths) if len(bones) else None
-
-
 def _bone_fill(motion: Motion, usable: np.ndarray, X: np.ndarray, kept: np.ndarray, out: np.ndarray,
                fill: np.ndarray, val, hole: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
     """Short-hole fills of a noise-free clip moved onto the bone lengths the file format
@@ -953,16 +943,15 @@ def _bone_fill(motion: Motion, usable: np.ndarray, X: np.ndarray, kept: np.ndarr
     the per-sample estimate (cm per coordinate). Returns (values (T, C), scale (J_used,)
     or None when nothing takes it).
     """
-    from ..rigid import hold_lengths
+    from ..rigid import fixed_bones, hold_lengths
 
     T, C = out.shape
     J = motion.n_joints
     full = np.full((T, J, 3), np.nan)
     full[:, usable] = out.reshape(T, -1, 3)
-    fb = _fixed_bones_of(motion, full)
-    if fb is None or val is None:
+    bones, lengths = fixed_bones(motion, full)
+    if not len(bones) or val is None:
         return out, None
-    bones, lengths = fb
     hide, pred = val
     tol = np.full((T, J), np.inf)
     tol[:, usable] = np.sqrt(3.0) * np.nan_to_num(hole[:, ::3], nan=np.inf)
@@ -1182,10 +1171,11 @@ def _refit_floor(X: np.ndarray, M: np.ndarray, cols: np.ndarray, fit: np.ndarray
     is a mixture. Written to AMC by ``mocapkit corrupt`` (the writer's IK fits each
     spiked frame), 10 % spiked samples leave ~30 % of the samples exact and spread the rest
     over 0.3-5 cm; with a 1 cm floor only the samples off by more than 4.7 cm were rejected
-    and the rest smoothed as noise. Held-out clips through AMC, auto / oracle-tuned
-    classical (median, worst of 10 clips), spikes@120: 1.04 / 1.71 -> 0.54 / 0.80 (with the
-    RMS noise level of :func:`_smooth`); mixed and Gaussian cases -- in memory and through
-    AMC -- came out the same to the 4th digit: their residual scale is above 1 cm anyway
+    and the rest smoothed as noise. Held-out clips through AMC (docs/results/auto_files.md),
+    auto / oracle-tuned classical, median / worst of 10 clips, with the RMS noise level of
+    :func:`_smooth`: spikes@120 1.01 / 1.67 -> 0.47 / 0.52, spikes@30 0.76 / 1.18 -> 0.58 /
+    0.79; mixed and Gaussian cases -- in memory and through AMC -- came out the same to the
+    4th digit: their residual scale is above 1 cm anyway
     (points' scales 1.3-2.2 cm with 2 cm noise, 0.35-0.9 cm on the spread spikes). So the
     refit runs only where some point's scale is under half the 1 cm floor: run on every
     spiky noisy clip it had doubled auto's time on the protocol's mixed@30 (7.8 -> 13.8 x
@@ -1203,28 +1193,23 @@ def _refit_floor(X: np.ndarray, M: np.ndarray, cols: np.ndarray, fit: np.ndarray
     return fit, info
 
 
-def _off_skeleton_share(motion: Motion, X: np.ndarray, kept: np.ndarray, usable: np.ndarray,
-                        sigma: float) -> float:
-    """Share (0-1) of the kept samples' noise that lies off the skeleton's poses: the
-    spread of the fixed bones' measured lengths (1.4826 MAD of length - declared length,
-    bones with both ends kept) squared over 2 sigma^2, its value for white noise of
-    ``sigma`` cm per coordinate on both ends. 0 where the input's bones hold their length,
-    e.g. positions read from an AMC / BVH file: there noise is in the joint angles, and
-    holding the bones after smoothing only undoes the smoother's shortening of them, not
-    noise (held-out 01_01@120 through AMC, Gaussian 3 cm: true RMSE 0.714 -> 0.712 by the
-    hold while the full Pythagoras subtraction took the estimate 0.53 -> 0.27)."""
+def _off_skeleton_share(X: np.ndarray, kept: np.ndarray, usable: np.ndarray, sigma: float) -> float:
+    """Share (0-1) of the kept samples' noise that lies off the skeleton's poses: the noise
+    the rigid distances read (:func:`mocapkit.rigid.distance_noise`, cm per coordinate: it
+    holds only the noise along the bones) squared over ``sigma`` squared. 0 where the
+    input's bones hold their length, e.g. positions read from an AMC / BVH file: there
+    noise is in the joint angles, and holding the bones after smoothing only undoes the
+    smoother's shortening of them, not noise (held-out 01_01@120 through AMC, Gaussian 3
+    cm: true RMSE 0.714 -> 0.712 by the hold while the full Pythagoras subtraction took the
+    estimate 0.53 -> 0.27). 1 where the distances say nothing (NaN: too few rigid pairs)."""
+    from ..rigid import distance_noise
+
     T = X.shape[0]
-    P = X.reshape(T, -1, 3)
-    fb = _fixed_bones_of(motion, P)
-    if fb is None or not sigma > 0:
+    K = kept.reshape(T, -1, 3).all(axis=2)[:, usable]
+    sd = distance_noise(X.reshape(T, -1, 3)[:, usable], K)
+    if not (sigma > 0 and np.isfinite(sd)):
         return 1.0
-    (bones, lengths), K = fb, kept.reshape(T, -1, 3).all(axis=2) & usable[None, :]
-    both = K[:, bones[:, 0]] & K[:, bones[:, 1]]
-    dev = (np.linalg.norm(P[:, bones[:, 0]] - P[:, bones[:, 1]], axis=-1) - lengths)[both]
-    if dev.size < 10:
-        return 1.0
-    spread = 1.4826 * float(np.median(np.abs(dev - np.median(dev))))
-    return float(min(spread ** 2 / (2.0 * sigma ** 2), 1.0))
+    return float(min(sd ** 2 / sigma ** 2, 1.0))
 
 
 def _hold_bones(motion: Motion, out: np.ndarray, usable: np.ndarray) -> tuple[np.ndarray, float | None]:
@@ -1277,14 +1262,14 @@ def _hold_bones(motion: Motion, out: np.ndarray, usable: np.ndarray) -> tuple[np
     Bone-holding only matters for AMC/BVH, whose real files have no gaps: their holes are
     rejected spikes.
     """
-    from ..rigid import hold_lengths
+    from ..rigid import fixed_bones, hold_lengths
 
     T = out.shape[0]
     P = out.reshape(T, -1, 3)
-    fb = _fixed_bones_of(motion, P)
-    if fb is None:
+    bones, lengths = fixed_bones(motion, P)
+    if not len(bones):
         return out, None
-    held = hold_lengths(P, *fb).reshape(T, -1)
+    held = hold_lengths(P, bones, lengths).reshape(T, -1)
     cols = np.repeat(usable, 3)
     d = (held - out)[:, cols]
     fin = np.isfinite(d)
