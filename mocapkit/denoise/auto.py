@@ -1050,6 +1050,22 @@ def _smooth(Y: np.ndarray, kept: np.ndarray, fit: np.ndarray, sigma: float,
     Typical weights: MSSA 0.5-0.8, the Kalman smoother 0.2-0.4, the spline 0-0.2 (more
     on slow clips).
 
+    Measured and not kept on Gaussian noise written to AMC (2026-12-05, sixth session;
+    held-out clips, gauss3@30 unless said; auto / oracle median / worst 0.817 / 0.878):
+    the three smoothers on bone vectors (child minus parent, summed back from the root),
+    since an AMC read-back's noise is per bone: 1.24 / 1.29 (the smoothing errors add up
+    along each chain); on channels whitened by the noise covariance of the fourth
+    differences (eigenvalues floored at 1 / 10 / 30 % of their mean): 0.89-0.95; SURE for
+    noise correlated across channels (the probe drawn from that covariance, so that the
+    divergence is tr(J Sigma) / sigma^2): weights move from MSSA to the spline, mean RMSE
+    +1.1 %; truth-optimal convex weights of the three (least squares on the truth, before
+    the bone hold) gain 3-8 % on the SURE mix, so the weights are not where the AMC route
+    loses. MSSA's window doubled: AMC gauss3 / mixed mean RMSE -2 % (worst, in memory
+    after the AMC read: 0.88 / 0.87 -> 0.87 / 0.85 at 30 fps, 0.87 / 0.84 -> 0.83 / 0.80
+    at 120), gauss1 -0.4 / -0.3 %; but positions in memory +0.6 / +0.3 / +0.7 % at 120 fps
+    (gauss1 / gauss3 / mixed) -- the AMC worst case still misses 0.8, not kept; window
+    x3 / x4 no better on AMC gauss3@30, x0.5 +5 %.
+
     Measured on 5 CMU clips x 30/120 fps x Gaussian 1/3 cm (before the bench, see
     docs/results/auto.md for the full run): the mean of GCV and MSSA was best or tied in
     18 of 20 cases (0.60-0.80 x the oracle-tuned classical filter; GCV alone 0.67-0.92,

@@ -330,7 +330,16 @@ class FillAuto(Denoiser):
             # gap length further out, for the estimate only -- within 1.5x of the true
             # error in 18 of 31 cases against 17, RMS log-ratio 0.64 -> 0.59, at 40 % more
             # time: ten gaps' realised error is heavy-tailed (one gap 3.6 cm off where its
-            # stretches read 0.66), which no number of stretches next to it foresees
+            # stretches read 0.66), which no number of stretches next to it foresees.
+            # Also measured and not kept (2026-12-05, sixth session; fill-auto with auto's
+            # candidates on the gaps10x60 cases of both clip sets, per-gap estimate / true
+            # RMSE, median at 120 / 30 fps 1.55 / 1.23, cases within 1.5x 9 of 19 / 9 of
+            # 12): each stretch 15 or 30 frames clear of its gap (1.70 / 1.63 at 120 fps,
+            # cases 8 / 9); each stretch hidden in a round of its own, so that no other
+            # hide takes a donor (1.48, cases 9; 20 rounds); the estimate not shrunk
+            # towards the file-wide pool (prior 0: per-gap median 1.22, RMS log-ratio 1.64
+            # -> 0.86 at 120 fps but 1.02 -> 1.58 at 30, cases 9 -> 7 of 19). A case's RMSE
+            # is ruled by its one or two worst gaps, and so is its estimate
             e_all = np.where(n_own > 0, np.sqrt(sq / n_own), np.sqrt((sq + sq_nb) / (n_own + n_nb)))
             e_all = np.where(np.isnan(err) | np.isinf(err), err, e_all)
         err = _pooled(err, cnt, gaps, float(self.prior_frames))
