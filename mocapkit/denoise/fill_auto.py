@@ -28,7 +28,9 @@ file, so (decision, METHODS.md §6 "self-validation"):
    round, only left unjudged on it; where no round judged it, it stays failed. Whether a
    gap is filled at all (``max_error_cm``), and which candidates may fill its remaining
    frames, is still decided as before, every uncovered stretch counting against a
-   candidate (``strict``), so that no gap is filled on less evidence than before.
+   candidate (``strict``), so that no gap is filled on less evidence than before (deciding
+   that on the relaxed scores too filled 176 more samples of the cases below, at 1.2-6.2
+   cm RMSE, up to 16.6 cm off).
    Measured (2026-12-05, sixth session) on the auto protocol's gaps10x60 cases, both clip
    sets, fill-auto with auto's candidates, on the samples filled before and after (the
    same): pooled RMSE 0.885 -> 0.834 cm at 120 fps, 1.619 -> 1.604 at 30; walk@120
@@ -175,10 +177,13 @@ def _stretch_errors(X: np.ndarray, P: np.ndarray, hide, n_gaps: int) -> tuple[np
 def _coverage(fills: Sequence[np.ndarray], gaps: Sequence[Gap]) -> np.ndarray:
     """(n_gaps, n_candidates) True where a candidate's fill of the real file covers at
     least half of the gap's frames."""
+    j = np.array([g.joint for g in gaps])
+    a = np.array([g.start for g in gaps])
+    b = np.array([g.stop for g in gaps])
     out = np.zeros((len(gaps), len(fills)), bool)
-    for gi, g in enumerate(gaps):
-        for k, X in enumerate(fills):
-            out[gi, k] = np.isfinite(X[g.start:g.stop, g.joint]).all(axis=1).mean() >= 0.5
+    for k, X in enumerate(fills):           # frames covered, summed over each gap at once
+        cs = np.vstack([np.zeros((1, X.shape[1])), np.cumsum(np.isfinite(X).all(axis=2), axis=0)])
+        out[:, k] = (cs[b, j] - cs[a, j]) >= 0.5 * (b - a)
     return out
 
 
