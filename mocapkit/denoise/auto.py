@@ -1064,7 +1064,9 @@ def _smooth(Y: np.ndarray, kept: np.ndarray, fit: np.ndarray, sigma: float,
     after the AMC read: 0.88 / 0.87 -> 0.87 / 0.85 at 30 fps, 0.87 / 0.84 -> 0.83 / 0.80
     at 120), gauss1 -0.4 / -0.3 %; but positions in memory +0.6 / +0.3 / +0.7 % at 120 fps
     (gauss1 / gauss3 / mixed) -- the AMC worst case still misses 0.8, not kept; window
-    x3 / x4 no better on AMC gauss3@30, x0.5 +5 %.
+    x3 / x4 no better on AMC gauss3@30, x0.5 +5 %. MSSA's noise level x1.3 (fewer
+    components kept): AMC gauss3@30 -1.9 % (worst 0.878 -> 0.862), its estimate within
+    1.5x 10 -> 7 of 10; x0.8 +9 %.
 
     Measured on 5 CMU clips x 30/120 fps x Gaussian 1/3 cm (before the bench, see
     docs/results/auto.md for the full run): the mean of GCV and MSSA was best or tied in
