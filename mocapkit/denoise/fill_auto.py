@@ -32,8 +32,8 @@ file, so (decision, METHODS.md §6 "self-validation"):
    that on the relaxed scores too filled 176 more samples of the cases below, at 1.2-6.2
    cm RMSE, up to 16.6 cm off).
    Measured (2026-12-05, sixth session) on the auto protocol's gaps10x60 cases, both clip
-   sets, fill-auto with auto's candidates, on the samples filled before and after (the
-   same): pooled RMSE 0.885 -> 0.834 cm at 120 fps, 1.619 -> 1.604 at 30; walk@120
+   sets, fill-auto with auto's candidates, on the samples filled both before and after (9
+   more filled after, 1.5 cm RMSE): pooled RMSE 0.885 -> 0.834 cm at 120 fps, 1.619 -> 1.604 at 30; walk@120
    1.31 -> 0.65 (an ankle's gap: the kinematic fill, 0.60 cm, had been failed by the
    stretch where the foot was in a gap of its own, and body-frame PCA took it, 3.6 cm
    off), 07_03@120 0.91 -> 0.73; balance@120 0.126 -> 0.158 (a kinematic fill trusted
