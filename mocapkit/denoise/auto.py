@@ -408,12 +408,18 @@ class Auto(Denoiser):
             # estimate / true RMSE 0.83-1.18 after the subtraction, 1.05-1.38 without it) --
             # for the share of the noise that was off the skeleton's poses
             estimate = float(np.sqrt(max(estimate ** 2 - moved2, 0.25 * estimate ** 2)))
+        bound = _bone_bound(motion, out, usable) if estimate is not None else None
+        if bound is not None and bound > estimate:
+            estimate = bound
         src = {
             "chain": chain, "diagnosis": diag.as_dict(),
             "gcv_cutoff_hz": float(np.median(cutoff_hz(info.s, 2, motion.fps))),
             "rejected": int(info.rejected[:, ::3].sum()) if spiky else 0,
             "estimated_rmse_cm": estimate, "seconds": time.perf_counter() - t0,
-            "how": _how(smooth, bool(holes.any()), e_long is not None),
+            "how": _how(smooth, bool(holes.any()), e_long is not None)
+            + ("; raised to the least error the written bones' lengths allow"
+               if bound is not None and bound >= estimate else ""),
+            "bone_bound_cm": bound,
             "left_missing": _left_missing(out, usable),
             "max_fill_error_cm": self.max_fill_error_cm,
             "fill_codes": _fill_codes(~M & ~long, fa, out),
@@ -1294,6 +1300,33 @@ def _hold_bones(motion: Motion, out: np.ndarray, usable: np.ndarray) -> tuple[np
     d = (held - out)[:, cols]
     fin = np.isfinite(d)
     return held, float(np.mean(d[fin] ** 2)) if fin.any() else None
+
+
+def _bone_bound(motion: Motion, out: np.ndarray, usable: np.ndarray) -> float | None:
+    """A lower bound (cm RMS per coordinate over the written samples) on the error of the
+    (T, 3J) ``out``, from the bones the file format fixes (:func:`mocapkit.rigid.fixed_bones`);
+    None where it fixes none.
+
+    The truth holds every such bone at its length L, so a written bone of length d puts its
+    two ends' errors at e_c + e_p >= |d - L| = v, hence e_c^2 + e_p^2 >= v^2 / 2; the bones
+    of one frame share joints, so only the frame's worst bone is counted (one bone is a set
+    of disjoint pairs), and frames add up. No assumption about the fill: a fill the
+    validation vouched for but that puts a shank 26 cm too long (135_04@30 with 10 %
+    spikes: a kick's apex rejected and filled from the frames around it, 33 cm off, the
+    validated estimate 0.05 cm) raises the estimate to what the output itself shows."""
+    from ..rigid import fixed_bones
+
+    T = out.shape[0]
+    P = out.reshape(T, -1, 3)
+    bones, lengths = fixed_bones(motion, P)
+    if not len(bones):
+        return None
+    v = np.abs(np.linalg.norm(P[:, bones[:, 0]] - P[:, bones[:, 1]], axis=2) - lengths)    # (T, B)
+    v = np.where(np.isfinite(v), v, 0.0)
+    n = int(np.count_nonzero(np.isfinite(out[:, np.repeat(usable, 3)])))
+    if n == 0:
+        return None
+    return float(np.sqrt(np.sum(v.max(axis=1) ** 2 / 2.0) / n))
 
 
 #: the gap report's name for auto's own fills of short gaps (spline, partner-relative,
