@@ -665,3 +665,23 @@ def test_auto_cuts_at_whole_body_jumps(clip, steps):
     e_many = metrics.rmse(tiled, out, mask=out.observed)
     e_alone = metrics.rmse(clip, get("auto").denoise(alone), mask=None)
     assert e_many < 1.5 * e_alone + 0.02, (e_many, e_alone)
+
+
+def test_the_estimate_is_at_least_what_the_written_bones_prove(clip):
+    """A written toe 6 cm out along its bone in one frame: the bound is that frame's worst
+    bone, v^2 / 2 over the written coordinates; a motion whose format fixes no bone has
+    none; the exact clip has none either."""
+    from mocapkit.denoise.auto import _bone_bound
+
+    j = clip.skeleton.names.index("ltoes")
+    p = clip.skeleton.parents[j]
+    P = clip.positions.copy()
+    u = P[10, j] - P[10, p]
+    P[10, j] += 6.0 * u / np.linalg.norm(u)
+    out = P.reshape(clip.n_frames, -1)
+    usable = np.ones(clip.n_joints, bool)
+    n = out.size
+    assert _bone_bound(clip, out, usable) == pytest.approx(np.sqrt(36.0 / 2 / n), rel=1e-6)
+    assert _bone_bound(clip, clip.positions.reshape(clip.n_frames, -1), usable) < 1e-9
+    flat = Motion(clip.positions, clip.skeleton, clip.fps)                # built in code
+    assert _bone_bound(flat, out, usable) is None

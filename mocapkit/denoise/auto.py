@@ -103,6 +103,11 @@ is the RMS over every fitted sample of an estimate per sample, by class:
   own marker (not the worst round, which is right for choosing but biased up as an
   estimate); where fill-auto filled nothing the spline's own validation on the gap.
 
+The total is then raised, where the file format fixes bone lengths, to the least error
+the written bones prove (:func:`_bone_bound`: a bone written v cm off its length puts
+its two ends at e_c^2 + e_p^2 >= v^2 / 2; the worst bone of each frame) -- a floor that
+needs no assumption about the fills, for what the validations cannot see (below).
+
 What it cannot see: measured samples rejected in the fastest motion that no trusted
 partner brings back (a whole hand over 4 frames at 120 fps, a whole leg over 12 frames
 in CMU 05_05), whose fill error is the motion the spline cut: the hidden stretch next to
