@@ -668,9 +668,10 @@ def test_auto_cuts_at_whole_body_jumps(clip, steps):
 
 
 def test_the_estimate_is_at_least_what_the_written_bones_prove(clip):
-    """A written toe 6 cm out along its bone in one frame: the bound is that frame's worst
-    bone, v^2 / 2 over the written coordinates; a motion whose format fixes no bone has
-    none; the exact clip has none either."""
+    """A written toe 6 cm out along its bone in one frame: the floor is that frame's worst
+    bone, v^2 / 2 over the written coordinates, or all of v^2 where the toe is a fill
+    next to a foot kept as measured; a motion whose format fixes no bone has none; the
+    exact clip has none either."""
     from mocapkit.denoise.auto import _bone_bound
 
     j = clip.skeleton.names.index("ltoes")
@@ -682,6 +683,11 @@ def test_the_estimate_is_at_least_what_the_written_bones_prove(clip):
     usable = np.ones(clip.n_joints, bool)
     n = out.size
     assert _bone_bound(clip, out, usable) == pytest.approx(np.sqrt(36.0 / 2 / n), rel=1e-6)
+    filled = np.zeros(clip.positions.shape[:2], bool)
+    filled[10, j] = True                          # the toe a fill, its foot kept: all of v
+    assert _bone_bound(clip, out, usable, filled) == pytest.approx(np.sqrt(36.0 / n), rel=1e-6)
+    filled[10, p] = True                          # both ends fills: half of v^2
+    assert _bone_bound(clip, out, usable, filled) == pytest.approx(np.sqrt(36.0 / 2 / n), rel=1e-6)
     assert _bone_bound(clip, clip.positions.reshape(clip.n_frames, -1), usable) < 1e-9
     flat = Motion(clip.positions, clip.skeleton, clip.fps)                # built in code
     assert _bone_bound(flat, out, usable) is None

@@ -103,10 +103,11 @@ is the RMS over every fitted sample of an estimate per sample, by class:
   own marker (not the worst round, which is right for choosing but biased up as an
   estimate); where fill-auto filled nothing the spline's own validation on the gap.
 
-The total is then raised, where the file format fixes bone lengths, to the least error
-the written bones prove (:func:`_bone_bound`: a bone written v cm off its length puts
-its two ends at e_c^2 + e_p^2 >= v^2 / 2; the worst bone of each frame) -- a floor that
-needs no assumption about the fills, for what the validations cannot see (below).
+The total is then raised, where the file format fixes bone lengths, to the error the
+written bones show (:func:`_bone_bound`: a bone written v cm off its length puts its two
+ends at e_c + e_p >= v; a fill next to a sample kept as measured is charged v) -- a
+floor that needs no assumption about the fills, for what the validations cannot see
+(below).
 
 What it cannot see: measured samples rejected in the fastest motion that no trusted
 partner brings back (a whole hand over 4 frames at 120 fps, a whole leg over 12 frames
@@ -413,7 +414,7 @@ class Auto(Denoiser):
             # estimate / true RMSE 0.83-1.18 after the subtraction, 1.05-1.38 without it) --
             # for the share of the noise that was off the skeleton's poses
             estimate = float(np.sqrt(max(estimate ** 2 - moved2, 0.25 * estimate ** 2)))
-        bound = _bone_bound(motion, out, usable) if estimate is not None else None
+        bound = _bone_bound(motion, out, usable, holes[:, ::3]) if estimate is not None else None
         if bound is not None and bound > estimate:
             estimate = bound
         src = {
@@ -1307,31 +1308,46 @@ def _hold_bones(motion: Motion, out: np.ndarray, usable: np.ndarray) -> tuple[np
     return held, float(np.mean(d[fin] ** 2)) if fin.any() else None
 
 
-def _bone_bound(motion: Motion, out: np.ndarray, usable: np.ndarray) -> float | None:
-    """A lower bound (cm RMS per coordinate over the written samples) on the error of the
+def _bone_bound(motion: Motion, out: np.ndarray, usable: np.ndarray,
+                filled: np.ndarray | None = None) -> float | None:
+    """A floor (cm RMS per coordinate over the written samples) under the error of the
     (T, 3J) ``out``, from the bones the file format fixes (:func:`mocapkit.rigid.fixed_bones`);
-    None where it fixes none.
+    None where it fixes none. ``filled`` (T, J): the samples auto wrote in place of a
+    missing or rejected one (the rest are kept as measured).
 
-    The truth holds every such bone at its length L, so a written bone of length d puts its
-    two ends' errors at e_c + e_p >= |d - L| = v, hence e_c^2 + e_p^2 >= v^2 / 2; the bones
-    of one frame share joints, so only the frame's worst bone is counted (one bone is a set
-    of disjoint pairs), and frames add up. No assumption about the fill: a fill the
-    validation vouched for but that puts a shank 26 cm too long (135_04@30 with 10 %
-    spikes: a kick's apex rejected and filled from the frames around it, 33 cm off, the
-    validated estimate 0.05 cm) raises the estimate to what the output itself shows."""
+    The truth holds every such bone at its length L, so a written bone of length d puts
+    its two ends' errors at e_c + e_p >= |d - L| = v. Per frame the larger of two floors
+    on the squared error is counted:
+
+    * each filled sample, the largest v of its bones whose other end is kept as measured
+      (that end taken as exact: this path runs on noise-free samples, the smoothing path
+      gives every bone its length back, v ~ 0) -- distinct samples, so they add up;
+    * the frame's worst bone, v^2 / 2 (e_c^2 + e_p^2 >= v^2 / 2, whatever the ends).
+
+    No assumption about the fills: a fill the validation vouched for but that puts a shank
+    26 cm too long (135_04@30 with 10 % spikes: a kick's apex rejected and filled from the
+    frames around it, 33 cm off, its validated estimate 0.05 cm) raises the estimate to
+    what the output itself shows.
+    """
     from ..rigid import fixed_bones
 
     T = out.shape[0]
     P = out.reshape(T, -1, 3)
     bones, lengths = fixed_bones(motion, P)
-    if not len(bones):
-        return None
-    v = np.abs(np.linalg.norm(P[:, bones[:, 0]] - P[:, bones[:, 1]], axis=2) - lengths)    # (T, B)
-    v = np.where(np.isfinite(v), v, 0.0)
     n = int(np.count_nonzero(np.isfinite(out[:, np.repeat(usable, 3)])))
-    if n == 0:
+    if not len(bones) or n == 0:
         return None
-    return float(np.sqrt(np.sum(v.max(axis=1) ** 2 / 2.0) / n))
+    c, p = bones[:, 0], bones[:, 1]
+    v = np.abs(np.linalg.norm(P[:, c] - P[:, p], axis=2) - lengths)        # (T, B)
+    v = np.where(np.isfinite(v), v, 0.0)
+    worst = v.max(axis=1) ** 2 / 2.0
+    if filled is None:
+        return float(np.sqrt(worst.sum() / n))
+    # per filled joint: the largest v of a bone whose other end is kept (T, J)
+    lb = np.zeros(P.shape[:2])
+    np.maximum.at(lb.T, c, np.where(filled[:, c] & ~filled[:, p], v, 0.0).T)
+    np.maximum.at(lb.T, p, np.where(filled[:, p] & ~filled[:, c], v, 0.0).T)
+    return float(np.sqrt(np.maximum((lb ** 2).sum(axis=1), worst).sum() / n))
 
 
 #: the gap report's name for auto's own fills of short gaps (spline, partner-relative,
