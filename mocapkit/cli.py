@@ -361,6 +361,12 @@ def _print_auto(src: dict | None) -> None:
                  f"evidence; --param max_fill_error_cm=... to accept more)")
     elif left:
         line += f"; {left} missing samples not filled (no fill had evidence)"
+    off = src.get("bones_off")
+    if off:
+        from .denoise.auto import BONE_OFF_CM
+
+        line += (f"; {off['frames']} frames write a bone more than {BONE_OFF_CM:g} cm off its length (worst "
+                 f"{off['worst_cm']:.0f} cm, {off['joint']} at frame {off['frame']}): fills there are uncertain")
     print(line)
 
 

@@ -682,12 +682,23 @@ def test_the_estimate_is_at_least_what_the_written_bones_prove(clip):
     out = P.reshape(clip.n_frames, -1)
     usable = np.ones(clip.n_joints, bool)
     n = out.size
-    assert _bone_bound(clip, out, usable) == pytest.approx(np.sqrt(36.0 / 2 / n), rel=1e-6)
+    assert _bone_bound(clip, out, usable)[0] == pytest.approx(np.sqrt(36.0 / 2 / n), rel=1e-6)
     filled = np.zeros(clip.positions.shape[:2], bool)
     filled[10, j] = True                          # the toe a fill, its foot kept: all of v
-    assert _bone_bound(clip, out, usable, filled) == pytest.approx(np.sqrt(36.0 / n), rel=1e-6)
+    assert _bone_bound(clip, out, usable, filled)[0] == pytest.approx(np.sqrt(36.0 / n), rel=1e-6)
     filled[10, p] = True                          # both ends fills: half of v^2
-    assert _bone_bound(clip, out, usable, filled) == pytest.approx(np.sqrt(36.0 / 2 / n), rel=1e-6)
-    assert _bone_bound(clip, clip.positions.reshape(clip.n_frames, -1), usable) < 1e-9
+    assert _bone_bound(clip, out, usable, filled)[0] == pytest.approx(np.sqrt(36.0 / 2 / n), rel=1e-6)
+    assert _bone_bound(clip, clip.positions.reshape(clip.n_frames, -1), usable)[0] < 1e-9
     flat = Motion(clip.positions, clip.skeleton, clip.fps)                # built in code
-    assert _bone_bound(flat, out, usable) is None
+    assert _bone_bound(flat, out, usable) == (None, None)
+    off = _bone_bound(clip, out, usable)[1]
+    assert off == {"frames": 1, "worst_cm": pytest.approx(6.0), "frame": 10, "joint": "ltoes"}
+
+
+def test_the_cli_line_names_a_bone_written_far_off_its_length(capsys):
+    from mocapkit.cli import _print_auto
+
+    _print_auto({"chain": ["spike removal"], "estimated_rmse_cm": 0.19, "how": "x",
+                 "bones_off": {"frames": 3, "worst_cm": 26.2, "frame": 115, "joint": "lfoot"}})
+    line = capsys.readouterr().out
+    assert "3 frames write a bone more than 5 cm off its length (worst 26 cm, lfoot at frame 115)" in line

@@ -414,7 +414,8 @@ class Auto(Denoiser):
             # estimate / true RMSE 0.83-1.18 after the subtraction, 1.05-1.38 without it) --
             # for the share of the noise that was off the skeleton's poses
             estimate = float(np.sqrt(max(estimate ** 2 - moved2, 0.25 * estimate ** 2)))
-        bound = _bone_bound(motion, out, usable, holes[:, ::3]) if estimate is not None else None
+        bound, bones_off = (_bone_bound(motion, out, usable, holes[:, ::3]) if estimate is not None
+                            else (None, None))
         if bound is not None and bound > estimate:
             estimate = bound
         src = {
@@ -423,9 +424,9 @@ class Auto(Denoiser):
             "rejected": int(info.rejected[:, ::3].sum()) if spiky else 0,
             "estimated_rmse_cm": estimate, "seconds": time.perf_counter() - t0,
             "how": _how(smooth, bool(holes.any()), e_long is not None)
-            + ("; raised to the least error the written bones' lengths allow"
+            + ("; raised to the error the written bones' lengths show"
                if bound is not None and bound >= estimate else ""),
-            "bone_bound_cm": bound,
+            "bone_bound_cm": bound, "bones_off": bones_off,
             "left_missing": _left_missing(out, usable),
             "max_fill_error_cm": self.max_fill_error_cm,
             "fill_codes": _fill_codes(~M & ~long, fa, out),
@@ -1308,12 +1309,19 @@ def _hold_bones(motion: Motion, out: np.ndarray, usable: np.ndarray) -> tuple[np
     return held, float(np.mean(d[fin] ** 2)) if fin.any() else None
 
 
+#: a written bone further than this (cm) off its fixed length is reported
+#: (``source['auto']['bones_off']``, one CLI line): a fill no validation saw go wrong
+BONE_OFF_CM = 5.0
+
+
 def _bone_bound(motion: Motion, out: np.ndarray, usable: np.ndarray,
-                filled: np.ndarray | None = None) -> float | None:
+                filled: np.ndarray | None = None) -> tuple[float | None, dict | None]:
     """A floor (cm RMS per coordinate over the written samples) under the error of the
-    (T, 3J) ``out``, from the bones the file format fixes (:func:`mocapkit.rigid.fixed_bones`);
-    None where it fixes none. ``filled`` (T, J): the samples auto wrote in place of a
-    missing or rejected one (the rest are kept as measured).
+    (T, 3J) ``out``, from the bones the file format fixes (:func:`mocapkit.rigid.fixed_bones`),
+    and the bones written more than :data:`BONE_OFF_CM` off their length (frames, the
+    worst: cm, frame, joint); (None, None) where the format fixes no bone. ``filled``
+    (T, J): the samples auto wrote in place of a missing or rejected one (the rest are kept
+    as measured).
 
     The truth holds every such bone at its length L, so a written bone of length d puts
     its two ends' errors at e_c + e_p >= |d - L| = v. Per frame the larger of two floors
@@ -1336,18 +1344,23 @@ def _bone_bound(motion: Motion, out: np.ndarray, usable: np.ndarray,
     bones, lengths = fixed_bones(motion, P)
     n = int(np.count_nonzero(np.isfinite(out[:, np.repeat(usable, 3)])))
     if not len(bones) or n == 0:
-        return None
+        return None, None
     c, p = bones[:, 0], bones[:, 1]
     v = np.abs(np.linalg.norm(P[:, c] - P[:, p], axis=2) - lengths)        # (T, B)
     v = np.where(np.isfinite(v), v, 0.0)
+    t, b = np.unravel_index(int(np.argmax(v)), v.shape)
+    off = None
+    if v[t, b] > BONE_OFF_CM:
+        off = {"frames": int(np.count_nonzero((v > BONE_OFF_CM).any(axis=1))), "worst_cm": float(v[t, b]),
+               "frame": int(t), "joint": motion.skeleton.names[int(c[b])]}
     worst = v.max(axis=1) ** 2 / 2.0
     if filled is None:
-        return float(np.sqrt(worst.sum() / n))
+        return float(np.sqrt(worst.sum() / n)), off
     # per filled joint: the largest v of a bone whose other end is kept (T, J)
     lb = np.zeros(P.shape[:2])
     np.maximum.at(lb.T, c, np.where(filled[:, c] & ~filled[:, p], v, 0.0).T)
     np.maximum.at(lb.T, p, np.where(filled[:, p] & ~filled[:, c], v, 0.0).T)
-    return float(np.sqrt(np.maximum((lb ** 2).sum(axis=1), worst).sum() / n))
+    return float(np.sqrt(np.maximum((lb ** 2).sum(axis=1), worst).sum() / n)), off
 
 
 #: the gap report's name for auto's own fills of short gaps (spline, partner-relative,
