@@ -1360,6 +1360,32 @@ def _bone_bound(motion: Motion, out: np.ndarray, usable: np.ndarray,
     lb = np.zeros(P.shape[:2])
     np.maximum.at(lb.T, c, np.where(filled[:, c] & ~filled[:, p], v, 0.0).T)
     np.maximum.at(lb.T, p, np.where(filled[:, p] & ~filled[:, c], v, 0.0).T)
+    # a fill between a kept parent and a kept child: the truth is on the circle where the
+    # two bones' spheres meet, and the distance to that circle is at least either v
+    if len(bones) > 1:
+        idx = {int(ch): k for k, ch in enumerate(c)}            # a joint's bone to its parent
+        for k2 in range(len(bones)):
+            j, ch = int(p[k2]), int(c[k2])
+            k1 = idx.get(j)
+            if k1 is None:
+                continue
+            pa = int(p[k1])
+            rows = filled[:, j] & ~filled[:, pa] & ~filled[:, ch]
+            if not rows.any():
+                continue
+            L1, L2 = float(lengths[k1]), float(lengths[k2])
+            A, B, X = P[rows, pa], P[rows, ch], P[rows, j]
+            ax = B - A
+            D = np.linalg.norm(ax, axis=1)
+            ok = (D > 1e-9) & (D <= L1 + L2) & (D >= abs(L1 - L2))
+            u = ax / np.where(D > 1e-9, D, 1.0)[:, None]
+            a0 = (L1 ** 2 - L2 ** 2 + D ** 2) / (2 * np.where(D > 1e-9, D, 1.0))
+            R = np.sqrt(np.maximum(L1 ** 2 - a0 ** 2, 0.0))
+            x = X - A
+            a = np.einsum("ij,ij->i", x, u)
+            r = np.linalg.norm(x - a[:, None] * u, axis=1)
+            dist = np.where(ok, np.hypot(a - a0, r - R), 0.0)
+            lb[rows, j] = np.maximum(lb[rows, j], np.nan_to_num(dist))
     return float(np.sqrt(np.maximum((lb ** 2).sum(axis=1), worst).sum() / n)), off
 
 
