@@ -702,3 +702,26 @@ def test_the_cli_line_names_a_bone_written_far_off_its_length(capsys):
                  "bones_off": {"frames": 3, "worst_cm": 26.2, "frame": 115, "joint": "lfoot"}})
     line = capsys.readouterr().out
     assert "3 frames write a bone more than 5 cm off its length (worst 26 cm, lfoot at frame 115)" in line
+
+
+def test_the_bone_floor_uses_the_circle_a_fill_between_two_kept_joints_must_be_on(clip):
+    """A knee fill moved 4 cm towards the hip-ankle line: each bone is off by less than
+    4 cm, but the truth is on the circle where the two bones' spheres meet, 4 cm away."""
+    from mocapkit.denoise.auto import _bone_bound
+
+    names, parents = clip.skeleton.names, clip.skeleton.parents
+    knee = names.index("lfemur")
+    hip, ankle = parents[knee], names.index("ltibia")
+    P = clip.positions.copy()
+    A, B, X = P[10, hip], P[10, ankle], P[10, knee]
+    u = (B - A) / np.linalg.norm(B - A)
+    radial = (X - A) - np.dot(X - A, u) * u
+    P[10, knee] -= 4.0 * radial / np.linalg.norm(radial)
+    out = P.reshape(clip.n_frames, -1)
+    filled = np.zeros(P.shape[:2], bool)
+    filled[10, knee] = True
+    v = [abs(np.linalg.norm(P[10, knee] - P[10, k]) - np.linalg.norm(clip.positions[10, knee] - clip.positions[10, k]))
+         for k in (hip, ankle)]
+    assert max(v) < 3.5
+    floor = _bone_bound(clip, out, np.ones(clip.n_joints, bool), filled)[0]
+    assert floor == pytest.approx(np.sqrt(16.0 / out.size), rel=1e-6)
