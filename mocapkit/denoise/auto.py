@@ -1329,13 +1329,18 @@ def _bone_bound(motion: Motion, out: np.ndarray, usable: np.ndarray,
 
     * each filled sample, the largest v of its bones whose other end is kept as measured
       (that end taken as exact: this path runs on noise-free samples, the smoothing path
-      gives every bone its length back, v ~ 0) -- distinct samples, so they add up;
+      gives every bone its length back, v ~ 0), or, between a kept parent and a kept
+      child, its distance to the circle where the two bones' spheres meet (at least
+      either v) -- distinct samples, so they add up;
     * the frame's worst bone, v^2 / 2 (e_c^2 + e_p^2 >= v^2 / 2, whatever the ends).
 
     No assumption about the fills: a fill the validation vouched for but that puts a shank
     26 cm too long (135_04@30 with 10 % spikes: a kick's apex rejected and filled from the
     frames around it, 33 cm off, its validated estimate 0.05 cm) raises the estimate to
-    what the output itself shows.
+    what the output itself shows. Measured on the auto protocol / held-out clips
+    (2026-12-05): estimates within 1.5x of the true error 95 -> 99 of 114 and 98 -> 99 of
+    117 (the circle: one of them); the 11 estimates it moves all move towards their true
+    error, none past it.
     """
     from ..rigid import fixed_bones
 
