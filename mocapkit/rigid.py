@@ -302,6 +302,26 @@ def _transport(a: np.ndarray, b: np.ndarray, v: np.ndarray) -> np.ndarray:
     return v * c + np.cross(k, v) + k * (np.sum(k * v, axis=1)[:, None] / np.maximum(1.0 + c, 1e-12))
 
 
+def sphere_circle(A: np.ndarray, C: np.ndarray, l1: float, l2: float
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Where a joint between a parent at A and a child at C (each (N, 3) cm) can be with
+    bones of lengths l1 (to A) and l2 (to C): the circle where the two spheres meet. Returns
+    (u (N, 3) the unit axis A -> C, d (N,) the circle's centre along it from A, r (N,) its
+    radius, ok (N,) True where the spheres meet; elsewhere r is clamped at 0).
+
+    >>> u, d, r, ok = sphere_circle(np.zeros((1, 3)), np.array([[0.0, 0, 8]]), 5.0, 5.0)
+    >>> d.round(6).tolist(), r.round(6).tolist(), ok.tolist()
+    ([4.0], [3.0], [True])
+    """
+    D = C - A
+    dn = np.maximum(np.linalg.norm(D, axis=1), 1e-9)
+    u = D / dn[:, None]
+    d = (l1 ** 2 - l2 ** 2 + dn ** 2) / (2.0 * dn)
+    r2 = l1 ** 2 - d ** 2
+    ok = (np.linalg.norm(D, axis=1) > 1e-9) & (r2 >= 0)
+    return u, d, np.sqrt(np.maximum(r2, 0.0)), ok
+
+
 def kinematic_fill(P: np.ndarray, observed: np.ndarray, parents, bones: np.ndarray, lengths: np.ndarray
                    ) -> tuple[np.ndarray, np.ndarray]:
     """Gaps of a skeleton's joints filled on their fixed bone lengths: a joint j whose
@@ -351,11 +371,7 @@ def kinematic_fill(P: np.ndarray, observed: np.ndarray, parents, bones: np.ndarr
         c = max(kids, key=lambda k: int(obs[:, k].sum()))
         seen = obs[:, p] & obs[:, c]
         A, C = np.where(seen[:, None], P[:, p], 0.0), np.where(seen[:, None], P[:, c], 0.0)
-        D = C - A
-        dn = np.maximum(np.linalg.norm(D, axis=1), 1e-9)
-        u = D / dn[:, None]
-        d = (L[j] ** 2 - L[c] ** 2 + dn ** 2) / (2.0 * dn)
-        r = np.sqrt(np.maximum(L[j] ** 2 - d ** 2, 0.0))
+        u, d, r, _ = sphere_circle(A, C, L[j], L[c])
         # reference: the world axis least along the axis on average (carried along below)
         ref = np.eye(3)[int(np.argmin(np.abs(u[seen]).mean(axis=0)))] if seen.any() else np.eye(3)[0]
         v = ref[None, :] - (u @ ref)[:, None] * u

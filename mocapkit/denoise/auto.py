@@ -1342,7 +1342,7 @@ def _bone_bound(motion: Motion, out: np.ndarray, usable: np.ndarray,
     117 (the circle: one of them); the 11 estimates it moves all move towards their true
     error, none past it.
     """
-    from ..rigid import fixed_bones
+    from ..rigid import fixed_bones, sphere_circle
 
     T = out.shape[0]
     P = out.reshape(T, -1, 3)
@@ -1378,14 +1378,8 @@ def _bone_bound(motion: Motion, out: np.ndarray, usable: np.ndarray,
             rows = filled[:, j] & ~filled[:, pa] & ~filled[:, ch]
             if not rows.any():
                 continue
-            L1, L2 = float(lengths[k1]), float(lengths[k2])
-            A, B, X = P[rows, pa], P[rows, ch], P[rows, j]
-            ax = B - A
-            D = np.linalg.norm(ax, axis=1)
-            ok = (D > 1e-9) & (D <= L1 + L2) & (D >= abs(L1 - L2))
-            u = ax / np.where(D > 1e-9, D, 1.0)[:, None]
-            a0 = (L1 ** 2 - L2 ** 2 + D ** 2) / (2 * np.where(D > 1e-9, D, 1.0))
-            R = np.sqrt(np.maximum(L1 ** 2 - a0 ** 2, 0.0))
+            A, X = P[rows, pa], P[rows, j]
+            u, a0, R, ok = sphere_circle(A, P[rows, ch], float(lengths[k1]), float(lengths[k2]))
             x = X - A
             a = np.einsum("ij,ij->i", x, u)
             r = np.linalg.norm(x - a[:, None] * u, axis=1)
