@@ -1075,8 +1075,9 @@ def _smooth(Y: np.ndarray, kept: np.ndarray, fit: np.ndarray, sigma: float,
     the bone hold) gain 3-8 % on the SURE mix, so the weights are not where the AMC route
     loses. MSSA's window doubled: AMC gauss3 / mixed mean RMSE -2 % (worst, in memory
     after the AMC read: 0.88 / 0.87 -> 0.87 / 0.85 at 30 fps, 0.87 / 0.84 -> 0.83 / 0.80
-    at 120), gauss1 -0.4 / -0.3 %; but positions in memory +0.6 / +0.3 / +0.7 % at 120 fps
-    (gauss1 / gauss3 / mixed) -- the AMC worst case still misses 0.8, not kept; window
+    at 120), gauss1 -0.4 / -0.3 %; but positions in memory +0.9 / +0.3 / +0.7 % at 120 fps
+    (held-out, gauss1 / gauss3 / mixed), +0.6 / +0.3 / +0.6 % at 30 fps (protocol clips),
+    -0.3..+0.4 % at 30 fps (held-out) -- the AMC worst case still misses 0.8, not kept; window
     x3 / x4 no better on AMC gauss3@30, x0.5 +5 %. MSSA's noise level x1.3 (fewer
     components kept): AMC gauss3@30 -1.9 % (worst 0.878 -> 0.862), its estimate within
     1.5x 10 -> 7 of 10; x0.8 +9 %.
