@@ -1335,9 +1335,10 @@ def _bone_bound(motion: Motion, out: np.ndarray, usable: np.ndarray,
       either v) -- distinct samples, so they add up;
     * the frame's worst bone, v^2 / 2 (e_c^2 + e_p^2 >= v^2 / 2, whatever the ends).
 
-    No assumption about the fills: a fill the validation vouched for but that puts a shank
-    26 cm too long (135_04@30 with 10 % spikes: a kick's apex rejected and filled from the
-    frames around it, 33 cm off, its validated estimate 0.05 cm) raises the estimate to
+    No assumption about the fills: fills the validation vouched for but that put the
+    ankle-to-foot bone 26 cm too long (135_04@30 with 10 % spikes: a kick's apex rejected
+    and filled from the frames around it, the ankle 33 cm off, the validated estimate
+    0.05 cm) raise the estimate to
     what the output itself shows. Measured on the auto protocol / held-out clips
     (2026-12-05): estimates within 1.5x of the true error 95 -> 99 of 114 and 98 -> 99 of
     117 (the circle: one of them); the 11 estimates it moves all move towards their true
