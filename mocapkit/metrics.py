@@ -40,6 +40,7 @@ import numpy as np
 
 from .errors import MocapValueError
 from .motion import Motion
+from .rigid import bone_lengths
 from .skeleton import Skeleton
 
 __all__ = ["rmse", "mean_joint_error", "per_frame_rmse", "per_frame_rmse_stats",
@@ -352,10 +353,6 @@ def _joint_need(valid: np.ndarray, c: np.ndarray, p: np.ndarray, J: int) -> np.n
     return need
 
 
-def _lengths(P: np.ndarray, c: np.ndarray, p: np.ndarray) -> np.ndarray:
-    return np.linalg.norm(P[:, c] - P[:, p], axis=2)                    # (T, B)
-
-
 def bone_length_error(truth: Any, est: Any, *, per_bone: bool = False) -> float | np.ndarray:
     """Mean absolute bone-length difference, cm/bone.
 
@@ -374,11 +371,12 @@ def bone_length_error(truth: Any, est: Any, *, per_bone: bool = False) -> float 
     """
     t, e, sk, _ = _pair(truth, est)
     c, p = _bones(sk, "bone_length_error")
+    bp = np.stack([c, p], axis=1)
     valid = t.obs[:, c] & t.obs[:, p]
     if not valid.any():
         raise _empty("bone_length_error")
     _need_finite(e.P, _joint_need(valid, c, p, e.P.shape[1]), sk, "bone_length_error")
-    d = np.where(valid, np.abs(np.nan_to_num(_lengths(e.P, c, p)) - np.nan_to_num(_lengths(t.P, c, p))), 0.0)
+    d = np.where(valid, np.abs(np.nan_to_num(bone_lengths(e.P, bp)) - np.nan_to_num(bone_lengths(t.P, bp))), 0.0)
     if per_bone:
         n = valid.sum(axis=0)
         with np.errstate(invalid="ignore", divide="ignore"):
@@ -512,9 +510,10 @@ def brap_bone_error(truth: Any, est: Any, *, lengths: np.ndarray | None = None) 
     else:
         _, e, sk, _ = _pair(truth, est)
     c, p = _bones(sk, "brap_bone_error")
+    bp = np.stack([c, p], axis=1)
     if lengths is None:
         t = _Data(truth, "truth")
-        Lt = np.where(t.obs[:, c] & t.obs[:, p], _lengths(t.P, c, p), np.nan)
+        Lt = np.where(t.obs[:, c] & t.obs[:, p], bone_lengths(t.P, bp), np.nan)
         if np.isnan(Lt).all(axis=0).any():
             b = int(np.flatnonzero(np.isnan(Lt).all(axis=0))[0])
             raise MocapValueError(f"brap_bone_error: bone {_name(sk, int(c[b]))} is never observed in the truth")
@@ -524,7 +523,7 @@ def brap_bone_error(truth: Any, est: Any, *, lengths: np.ndarray | None = None) 
         if ref.shape != c.shape or not np.isfinite(ref).all():
             raise MocapValueError(f"lengths must be {len(c)} finite bone lengths (cm), got shape {ref.shape}")
     _need_finite(e.P, np.ones(e.P.shape, dtype=bool), sk, "brap_bone_error")
-    return float(np.mean(np.abs(_lengths(e.P, c, p) - ref)))
+    return float(np.mean(np.abs(bone_lengths(e.P, bp) - ref)))
 
 
 def brap_smoothness_error(motion: Any) -> float:

@@ -52,7 +52,7 @@ from .windows import frame_blocks
 
 __all__ = ["kabsch", "yaw_kabsch", "apply_rigid", "distance_stats", "rigid_partners", "distance_noise",
            "distance_consistency", "find_clusters", "parse_clusters", "rigid_fill", "cluster_template",
-           "fixed_bones", "hold_lengths", "kinematic_fill", "REFERENCES"]
+           "fixed_bones", "bone_lengths", "hold_lengths", "kinematic_fill", "REFERENCES"]
 
 #: reference shapes :func:`rigid_fill` knows (see its docstring)
 REFERENCES = ("ends", "average")
@@ -233,6 +233,17 @@ def rigid_partners(P: np.ndarray, observed: np.ndarray, *, n_partners: int = 4,
     return part, real, np.take_along_axis(med, part, axis=1), np.where(real, sc, np.nan)
 
 
+def bone_lengths(P: np.ndarray, bones: np.ndarray) -> np.ndarray:
+    """(T, B) length (cm) of each bone (child, parent) of ``bones`` (B, 2) in every frame of
+    P (T, J, 3); NaN where an end is missing.
+
+    >>> bone_lengths(np.array([[[0.0, 0, 0], [3, 4, 0]]]), np.array([[1, 0]])).tolist()
+    [[5.0]]
+    """
+    bones = np.asarray(bones).reshape(-1, 2)
+    return np.linalg.norm(P[:, bones[:, 0]] - P[:, bones[:, 1]], axis=-1)
+
+
 def fixed_bones(motion, positions: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The bones whose length the motion's file format fixes.
 
@@ -286,7 +297,7 @@ def fixed_bones(motion, positions: np.ndarray | None = None) -> tuple[np.ndarray
         P = np.asarray(positions, float)
         with np.errstate(invalid="ignore"), warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)          # a bone never seen: NaN
-            ratio = np.nanmedian(np.linalg.norm(P[:, bones[:, 0]] - P[:, bones[:, 1]], axis=-1), axis=0) / lengths
+            ratio = np.nanmedian(bone_lengths(P, bones), axis=0) / lengths
         if not np.isfinite(ratio).any() or not 0.8 <= float(np.nanmedian(ratio)) <= 1.25:
             return bones[:0], lengths[:0]
     return bones, lengths

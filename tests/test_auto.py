@@ -682,16 +682,16 @@ def test_the_estimate_is_at_least_what_the_written_bones_prove(clip):
     out = P.reshape(clip.n_frames, -1)
     usable = np.ones(clip.n_joints, bool)
     n = out.size
-    assert _bone_bound(clip, out, usable)[0] == pytest.approx(np.sqrt(36.0 / 2 / n), rel=1e-6)
-    filled = np.zeros(clip.positions.shape[:2], bool)
+    filled = np.zeros(clip.positions.shape[:2], bool)               # every sample as measured
+    assert _bone_bound(clip, out, usable, filled)[0] == pytest.approx(np.sqrt(36.0 / 2 / n), rel=1e-6)
     filled[10, j] = True                          # the toe a fill, its foot kept: all of v
     assert _bone_bound(clip, out, usable, filled)[0] == pytest.approx(np.sqrt(36.0 / n), rel=1e-6)
     filled[10, p] = True                          # both ends fills: half of v^2
     assert _bone_bound(clip, out, usable, filled)[0] == pytest.approx(np.sqrt(36.0 / 2 / n), rel=1e-6)
-    assert _bone_bound(clip, clip.positions.reshape(clip.n_frames, -1), usable)[0] < 1e-9
+    assert _bone_bound(clip, clip.positions.reshape(clip.n_frames, -1), usable, filled)[0] < 1e-9
     flat = Motion(clip.positions, clip.skeleton, clip.fps)                # built in code
-    assert _bone_bound(flat, out, usable) == (None, None)
-    off = _bone_bound(clip, out, usable)[1]
+    assert _bone_bound(flat, out, usable, filled) == (None, None)
+    off = _bone_bound(clip, out, usable, filled)[1]
     assert off == {"frames": 1, "worst_cm": pytest.approx(6.0), "frame": 10, "joint": "ltoes"}
 
 

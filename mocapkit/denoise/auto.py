@@ -414,8 +414,9 @@ class Auto(Denoiser):
             # estimate / true RMSE 0.83-1.18 after the subtraction, 1.05-1.38 without it) --
             # for the share of the noise that was off the skeleton's poses
             estimate = float(np.sqrt(max(estimate ** 2 - moved2, 0.25 * estimate ** 2)))
-        bound, bones_off = (_bone_bound(motion, out, usable, holes[:, ::3]) if estimate is not None
-                            else (None, None))
+        # (where the bones were just held -- the smoothing path -- they show nothing)
+        bound, bones_off = (_bone_bound(motion, out, usable, holes[:, ::3])
+                            if estimate is not None and moved2 is None else (None, None))
         if bound is not None and bound > estimate:
             estimate = bound
         src = {
@@ -1316,7 +1317,7 @@ BONE_OFF_CM = 5.0
 
 
 def _bone_bound(motion: Motion, out: np.ndarray, usable: np.ndarray,
-                filled: np.ndarray | None = None) -> tuple[float | None, dict | None]:
+                filled: np.ndarray) -> tuple[float | None, dict | None]:
     """A floor (cm RMS per coordinate over the written samples) under the error of the
     (T, 3J) ``out``, from the bones the file format fixes (:func:`mocapkit.rigid.fixed_bones`),
     and the bones written more than :data:`BONE_OFF_CM` off their length (frames, the
@@ -1344,7 +1345,7 @@ def _bone_bound(motion: Motion, out: np.ndarray, usable: np.ndarray,
     117 (the circle: one of them); the 11 estimates it moves all move towards their true
     error, none past it.
     """
-    from ..rigid import fixed_bones, sphere_circle
+    from ..rigid import bone_lengths, fixed_bones, sphere_circle
 
     T = out.shape[0]
     P = out.reshape(T, -1, 3)
@@ -1353,7 +1354,7 @@ def _bone_bound(motion: Motion, out: np.ndarray, usable: np.ndarray,
     if not len(bones) or n == 0:
         return None, None
     c, p = bones[:, 0], bones[:, 1]
-    v = np.abs(np.linalg.norm(P[:, c] - P[:, p], axis=2) - lengths)        # (T, B)
+    v = np.abs(bone_lengths(P, bones) - lengths)                        # (T, B)
     v = np.where(np.isfinite(v), v, 0.0)
     t, b = np.unravel_index(int(np.argmax(v)), v.shape)
     off = None
@@ -1361,8 +1362,6 @@ def _bone_bound(motion: Motion, out: np.ndarray, usable: np.ndarray,
         off = {"frames": int(np.count_nonzero((v > BONE_OFF_CM).any(axis=1))), "worst_cm": float(v[t, b]),
                "frame": int(t), "joint": motion.skeleton.names[int(c[b])]}
     worst = v.max(axis=1) ** 2 / 2.0
-    if filled is None:
-        return float(np.sqrt(worst.sum() / n)), off
     # per filled joint: the largest v of a bone whose other end is kept (T, J)
     lb = np.zeros(P.shape[:2])
     np.maximum.at(lb.T, c, np.where(filled[:, c] & ~filled[:, p], v, 0.0).T)

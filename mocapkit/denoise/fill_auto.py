@@ -387,13 +387,12 @@ class FillAuto(Denoiser):
         return self._assemble(motion, gaps, methods, fills, err, e_all, strict)
 
     def _assemble(self, motion: Motion, gaps: Sequence[Gap], methods, fills, err: np.ndarray,
-                  e_all: np.ndarray | None = None, strict: np.ndarray | None = None) -> Motion:
-        """Each gap from its best-validated candidate (next best per frame where it has none);
-        ``e_all`` (default ``err``): the validated errors the estimate charges."""
+                  e_all: np.ndarray, strict: np.ndarray) -> Motion:
+        """Each gap from its best-validated candidate by ``err`` (next best per frame where it
+        has none); ``strict``: the scores that decide whether a gap is filled at all and by
+        which fallbacks; ``e_all``: the validated errors the estimate charges."""
         from ..signal import estimate_noise
 
-        e_all = err if e_all is None else e_all
-        strict = err if strict is None else strict
 
         Y = np.array(motion.positions)
         names = [n for n, _ in methods]
