@@ -233,6 +233,10 @@ def rigid_partners(P: np.ndarray, observed: np.ndarray, *, n_partners: int = 4,
     return part, real, np.take_along_axis(med, part, axis=1), np.where(real, sc, np.nan)
 
 
+#: frames :func:`fixed_bones` reads to check that positions are on the skeleton's scale
+SCALE_CHECK_FRAMES = 512
+
+
 def bone_lengths(P: np.ndarray, bones: np.ndarray) -> np.ndarray:
     """(T, B) length (cm) of each bone (child, parent) of ``bones`` (B, 2) in every frame of
     P (T, J, 3); NaN where an end is missing.
@@ -295,6 +299,9 @@ def fixed_bones(motion, positions: np.ndarray | None = None) -> tuple[np.ndarray
     bones, lengths = bones[keep], lengths[keep]
     if positions is not None and len(bones):
         P = np.asarray(positions, float)
+        # a scale check: the median over at most SCALE_CHECK_FRAMES evenly spaced frames
+        # (all 10,000 of a long clip cost 24 ms a call, and auto calls it up to three times)
+        P = P[np.unique(np.linspace(0, len(P) - 1, min(len(P), SCALE_CHECK_FRAMES)).astype(int))]
         with np.errstate(invalid="ignore"), warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)          # a bone never seen: NaN
             ratio = np.nanmedian(bone_lengths(P, bones), axis=0) / lengths
