@@ -320,10 +320,11 @@ def _transport(a: np.ndarray, b: np.ndarray, v: np.ndarray) -> np.ndarray:
     return v * c + np.cross(k, v) + k * (np.sum(k * v, axis=1)[:, None] / np.maximum(1.0 + c, 1e-12))
 
 
-def sphere_circle(A: np.ndarray, C: np.ndarray, l1: float, l2: float
+def sphere_circle(A: np.ndarray, C: np.ndarray, l1: float | np.ndarray, l2: float | np.ndarray
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Where a joint between a parent at A and a child at C (each (N, 3) cm) can be with
-    bones of lengths l1 (to A) and l2 (to C): the circle where the two spheres meet. Returns
+    bones of lengths l1 (to A) and l2 (to C; cm, scalars or (N,)): the circle where the two
+    spheres meet. Returns
     (u (N, 3) the unit axis A -> C, d (N,) the circle's centre along it from A, r (N,) its
     radius, ok (N,) True where the spheres meet; elsewhere r is clamped at 0).
 

@@ -1368,24 +1368,22 @@ def _bone_bound(motion: Motion, out: np.ndarray, usable: np.ndarray,
     np.maximum.at(lb.T, p, np.where(filled[:, p] & ~filled[:, c], v, 0.0).T)
     # a fill between a kept parent and a kept child: the truth is on the circle where the
     # two bones' spheres meet, and the distance to that circle is at least either v
-    if len(bones) > 1:
-        idx = {int(ch): k for k, ch in enumerate(c)}            # a joint's bone to its parent
-        for k2 in range(len(bones)):
-            j, ch = int(p[k2]), int(c[k2])
-            k1 = idx.get(j)
-            if k1 is None:
-                continue
-            pa = int(p[k1])
-            rows = filled[:, j] & ~filled[:, pa] & ~filled[:, ch]
-            if not rows.any():
-                continue
-            A, X = P[rows, pa], P[rows, j]
-            u, a0, R, ok = sphere_circle(A, P[rows, ch], float(lengths[k1]), float(lengths[k2]))
-            x = X - A
+    # (pa -> j -> ch: triples of two fixed bones, all frames at once)
+    up = {int(ch): k for k, ch in enumerate(c)}                 # a joint's bone to its parent
+    k1 = np.array([up.get(int(j), -1) for j in p])
+    k2 = np.flatnonzero(k1 >= 0)
+    if len(k2):
+        k1 = k1[k2]
+        pa, j, ch = p[k1], p[k2], c[k2]
+        rows = filled[:, j] & ~filled[:, pa] & ~filled[:, ch]          # (T, K)
+        if rows.any():
+            f, k = np.nonzero(rows)                                      # frame, triple
+            u, a0, R, ok = sphere_circle(P[f, pa[k]], P[f, ch[k]], lengths[k1][k], lengths[k2][k])
+            x = P[f, j[k]] - P[f, pa[k]]
             a = np.einsum("ij,ij->i", x, u)
             r = np.linalg.norm(x - a[:, None] * u, axis=1)
-            dist = np.where(ok, np.hypot(a - a0, r - R), 0.0)
-            lb[rows, j] = np.maximum(lb[rows, j], np.nan_to_num(dist))
+            dist = np.nan_to_num(np.where(ok, np.hypot(a - a0, r - R), 0.0))
+            np.maximum.at(lb, (f, j[k]), dist)
     return float(np.sqrt(np.maximum((lb ** 2).sum(axis=1), worst).sum() / n)), off
 
 
