@@ -119,6 +119,10 @@ CANDIDATES = {
     "arm view weight 0.5": {"view_weights": [1.0, 0.5]},
     # ninth round: a milder time augmentation (0.2 lost -0.4 / -1.0)
     "time warp 0.05": {"time_warp": 0.05},
+    # tenth round (2026-12-05, seventh session): a two-level temporal pyramid -- the PPV of
+    # each half of the convolution output besides the whole-series poolings (when in the
+    # action a pattern occurs: a throw's wind-up before its release)
+    "+ PPV of each half (temporal pyramid)": {"pooling": ["ppv", "mpv", "mipv", "lspv", "ppv_h1", "ppv_h2"]},
 }
 # candidate keys that are no RocketClassifier parameter: ``skeleton_weight`` w averages the
 # default's softmax probabilities (1 - w) with the skeleton classifier's (w), a late fusion of

@@ -260,7 +260,8 @@ def _convolve(X: np.ndarray, dilation: int, W: np.ndarray) -> np.ndarray:
     return out
 
 
-POOLINGS = ("ppv", "mpv", "mipv", "lspv")
+POOLINGS = ("ppv", "mpv", "mipv", "lspv")          # MultiRocket's four: the default
+PYRAMID_POOLINGS = ("ppv_h1", "ppv_h2")           # offered, not in the default
 
 
 def _pool(Cv: np.ndarray, b: np.ndarray, pooling: Sequence[str]) -> np.ndarray:
@@ -269,7 +270,10 @@ def _pool(Cv: np.ndarray, b: np.ndarray, pooling: Sequence[str]) -> np.ndarray:
     ppv: proportion of positive values (MiniRocket); mpv: mean of the positive values (0
     when none); mipv: mean index of the positive values / (L' - 1) (-1 when none); lspv:
     longest run of consecutive positive values / L' (MultiRocket, Tan et al. 2022 Sec. 3.2;
-    the index and run features are divided by the length here so they do not depend on it).
+    the index and run features are divided by the length here so they do not depend on it);
+    ppv_h1 / ppv_h2: the PPV of the first / second half of the output (a two-level temporal
+    pyramid: *when* in the action a pattern occurs, which the whole-series poolings only
+    summarise through mipv).
     """
     Lp = Cv.shape[1]
     Z = Cv[:, :, :, None] - b[None, None, :, :]                 # (n, L', K, f)
@@ -285,12 +289,16 @@ def _pool(Cv: np.ndarray, b: np.ndarray, pooling: Sequence[str]) -> np.ndarray:
             t = np.arange(Lp, dtype=np.float64)[None, :, None, None]
             mi = (t * pos).sum(axis=1) / np.maximum(cnt, 1) / max(Lp - 1, 1)
             out.append(np.where(cnt > 0, mi, -1.0))
+        elif name in ("ppv_h1", "ppv_h2"):
+            h = Lp // 2
+            part = pos[:, :h] if name == "ppv_h1" else pos[:, h:]
+            out.append(part.sum(axis=1) / max(part.shape[1], 1))
         elif name == "lspv":                                    # run length = t - last non-positive t
             t = np.arange(Lp)[None, :, None, None]
             last = np.maximum.accumulate(np.where(pos, -1, t), axis=1)
             out.append((t - last).max(axis=1) / Lp)
         else:
-            raise MocapValueError(f"unknown pooling {name!r}; choose from {', '.join(POOLINGS)}")
+            raise MocapValueError(f"unknown pooling {name!r}; choose from {', '.join(POOLINGS + PYRAMID_POOLINGS)}")
     return np.stack(out, axis=-1)
 
 
