@@ -1083,6 +1083,21 @@ def _smooth(Y: np.ndarray, kept: np.ndarray, fit: np.ndarray, sigma: float,
     components kept): AMC gauss3@30 -1.9 % (worst 0.878 -> 0.862), its estimate within
     1.5x 10 -> 7 of 10; x0.8 +9 %.
 
+    Where the AMC route loses against memory (2026-12-05, seventh session; per joint,
+    held-out 131_08@30 gauss3: 1.352 cm through AMC, 1.194 in memory): in the short distal
+    bones -- fingers 2.1-2.3 against 1.3-1.5 cm, hands 1.3-1.5 against 1.1, thumbs, the
+    head. A 3 cm bone under 3 cm noise gets an almost random direction from the writer's
+    IK, so the read-back child no longer carries the information a noisy position does.
+    Tried: such a child rebuilt as its parent's result plus its length along the
+    GCV-smoothed noisy parent-to-child vector (in world axes), for bones shorter than k x
+    the diagnosis noise level. Held-out gauss3@30 auto / oracle median / worst 0.817 /
+    0.878 -> 0.803 / 0.875 (k = 1.45), 0.792 / 0.860 (every bone under 3.2 cm: fingers,
+    a few hands and thumbs), none worse; but on the protocol's clips through AMC 0.836 /
+    0.895 -> 0.829 / 0.895 (k = 1.45), 0.814 / 0.897 (1.75), 0.810 / 0.916 (2.1), one or
+    two of ten worse (a fast hand turns the vector faster than the smoothing allows); in
+    memory, where the child's noise is plain positional, +1-5 %. Not kept; a smoother in
+    the parent's own frame (its rotation taken out) is what this points to.
+
     Measured on 5 CMU clips x 30/120 fps x Gaussian 1/3 cm (before the bench, see
     docs/results/auto.md for the full run): the mean of GCV and MSSA was best or tied in
     18 of 20 cases (0.60-0.80 x the oracle-tuned classical filter; GCV alone 0.67-0.92,

@@ -1,0 +1,119 @@
+"""The default classifier's read-out, varied on fixed features (issue #17, inner validation).
+
+Usage: ``python benchmarks/run_recognition_readout.py [--data DIR] [--seed 0]``.
+Writes docs/results/recognition_readout.json; recognition.md (run_recognition.py) quotes it.
+
+The default classifier's ridge picks the smallest penalty of its grid in every recorded
+fit (recognition.md): with ~10^5 standardised features and ~850 training rows it is in
+effect the minimum-norm interpolant. Whether another read-out of the *same* features
+generalises better across subjects is asked here on the inner folds of
+``run_recognition.py --select`` (training clips only: leave one training subject out, and
+two half splits inside the training halves): the default is fitted once per fold, its
+standardised features' Gram matrices (training x training, test x training) kept, and
+read-outs that need only those are scored: the ridge at fixed penalties 1e-3..1e6
+(dual form, +-1 targets, unpenalised intercept, as the default), the cosine-normalised
+kernel, Gaussian kernels exp(-d^2 / (g median d^2)) at g = 0.25..4, polynomial kernels
+(1 + k / median |f|^2)^p, p = 2, 3, and the nearest neighbour. One BLAS thread; ~8 min.
+"""
+from __future__ import annotations
+
+import os
+
+for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_v, "1")
+
+import argparse  # noqa: E402
+import json  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+from mocapkit import bench  # noqa: E402
+from mocapkit.datasets import shared_data_dir  # noqa: E402
+
+OUT = ROOT / "docs" / "results" / "recognition_readout.json"
+RIDGE_ALPHAS = (1e-3, 1e0, 1e1, 1e2, 1e3, 1e4, 3e4, 1e5, 1e6)
+
+
+def gram(m, X: np.ndarray, a: np.ndarray, b: np.ndarray) -> dict[str, np.ndarray]:
+    """The fitted default ``m``'s standardised features of its training rows (the clips of
+    ``a`` and their augmented copies, rebuilt as ``fit_series`` made them) and of the test
+    clips ``b``, as Gram matrices: K (train x train), Kt (test x train), nt (test norms^2)."""
+    from mocapkit.recognition.rocket import augment_series
+
+    rng = np.random.default_rng([int(m.seed), 7])
+    Xa, owner = augment_series(X[a], int(m.augment), rng, time_warp=float(m.time_warp),
+                               rot_deg=float(m.rot_deg), arm_deg=float(m.arm_deg), keypoints=m.keypoints_)
+    F = (m._features(np.concatenate([X[a], Xa])) - m.mean_) / m.scale_
+    Ft = (m._features(X[b]) - m.mean_) / m.scale_
+    return {"K": F @ F.T, "Kt": Ft @ F.T, "nt": (Ft * Ft).sum(1),
+            "rows": np.concatenate([np.arange(len(a)), owner])}
+
+
+def ridge_predict(K: np.ndarray, Kt: np.ndarray, ya: np.ndarray, alpha: float) -> np.ndarray:
+    """Kernel ridge on +-1 one-hot targets with an unpenalised intercept (the default's read-out)."""
+    cls = np.unique(ya)
+    Y = np.where(ya[:, None] == cls[None, :], 1.0, -1.0)
+    ym = Y.mean(0)
+    w, V = np.linalg.eigh(K)
+    A = V @ ((1.0 / (np.maximum(w, 0.0) + alpha))[:, None] * (V.T @ (Y - ym)))
+    return cls[np.argmax(Kt @ A + ym, axis=1)]
+
+
+def readouts(G: dict, ya: np.ndarray) -> dict[str, np.ndarray]:
+    """Predictions of every read-out from one fold's Gram matrices."""
+    K, Kt, nt = G["K"], G["Kt"], G["nt"]
+    n = np.diag(K)
+    out = {f"ridge alpha {a:g}": ridge_predict(K, Kt, ya, a) for a in RIDGE_ALPHAS}
+    out["cosine kernel"] = ridge_predict(K / np.sqrt(np.outer(n, n)), Kt / np.sqrt(np.outer(nt, n)), ya, 1e-3)
+    D2, Dt2 = n[:, None] + n[None, :] - 2 * K, nt[:, None] + n[None, :] - 2 * Kt
+    med = float(np.median(D2[D2 > 0]))
+    for g in (0.25, 0.5, 1.0, 2.0, 4.0):
+        out[f"gaussian kernel g={g:g}"] = ridge_predict(np.exp(-D2 / (g * med)), np.exp(-Dt2 / (g * med)), ya, 1e-3)
+    s = float(np.median(n))
+    for p in (2, 3):
+        out[f"polynomial kernel p={p}"] = ridge_predict((1 + K / s) ** p, (1 + Kt / s) ** p, ya, 1e-3)
+    out["nearest neighbour"] = ya[np.argmin(Dt2, axis=1)]
+    return out
+
+
+def main() -> int:
+    from threadpoolctl import threadpool_limits
+
+    import run_recognition as RR
+    from mocapkit.bench.protocols import retrieval as R
+    from mocapkit.recognition.rocket import RocketClassifier
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--data")
+    ap.add_argument("--seed", type=int, default=0)
+    a = ap.parse_args()
+    t0 = time.time()
+    ctx = bench.Context(data_dir=shared_data_dir(a.data), progress=False)
+    D = R._recog_data(ctx, "msr")
+    X, y, g = D["X"], D["labels"], D["groups"]
+    right: dict[str, dict[str, int]] = {}
+    n = {"cross-subject": 0, "half": 0}
+    with threadpool_limits(1):
+        for kind, name, tr, te in RR.inner_folds(y, g):
+            m = RocketClassifier(seed=a.seed).fit_series(X[tr], y[tr], keypoints=D["keypoints"])
+            G = gram(m, X, tr, te)
+            for ro, pred in readouts(G, y[tr][G["rows"]]).items():
+                right.setdefault(ro, {"cross-subject": 0, "half": 0})[kind] += int((pred == y[te]).sum())
+            n[kind] += len(te)
+            print(kind, name, f"{time.time() - t0:.0f} s", flush=True)
+    rows = [{"readout": ro, "seed": a.seed, **{k: v / n[k] for k, v in r.items()}} for ro, r in right.items()]
+    OUT.write_text(json.dumps({"n": n, "seconds": time.time() - t0, "rows": rows}, indent=1))
+    for r in rows:
+        print(f"{r['readout']:28s} cs {100 * r['cross-subject']:.1f}  half {100 * r['half']:.1f}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
