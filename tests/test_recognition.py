@@ -273,6 +273,16 @@ def test_multirocket_poolings_equal_loops(rng):
         rk._pool(Cv, b, ("max",))
 
 
+def test_pyramid_poolings_are_the_halves_ppv(rng):
+    Cv = rng.normal(size=(2, 15, 3))                  # odd length: halves of 7 and 8
+    b = rng.normal(scale=0.5, size=(3, 2))
+    P = rk._pool(Cv, b, ("ppv_h1", "ppv_h2"))
+    pos = (Cv[:, :, :, None] - b[None, None]) > 0
+    assert np.allclose(P[..., 0], pos[:, :7].mean(axis=1))
+    assert np.allclose(P[..., 1], pos[:, 7:].mean(axis=1))
+    assert "ppv_h1" not in rk.POOLINGS                # offered, not in the default
+
+
 def _toy_skeleton(names=("root", "spine", "head", "hand_a", "hand_b")) -> Skeleton:
     J = len(names)
     parents = np.array([-1] + [0] * (J - 1))

@@ -310,7 +310,8 @@ class MiniRocket:
     n_features : about this many features (multiples of 84).
     max_dilations : maximum dilations per kernel (32, paper).
     pooling : features per (kernel, bias): ``('ppv',)`` = MiniRocket; all four of
-        :data:`POOLINGS` = MultiRocket.
+        :data:`POOLINGS` = MultiRocket; :data:`PYRAMID_POOLINGS` (the PPV of each half)
+        may be added (inner validation did not pay, docs/results/recognition.md).
     max_channels : largest channel subset per (dilation, kernel) (9, reference code).
     seed : random state of the channel subsets and the bias examples.
     """
