@@ -251,7 +251,7 @@ def readout_note() -> str:
         return f"{100 * r['cross-subject']:.1f} / {100 * r['half']:.1f}"
 
     ridge = [k for k in rows if k.startswith("ridge alpha")]
-    flat = [k for k in ridge if rows[k]["cross-subject"] == rows[ridge[0]]["cross-subject"]]
+    flat = [k for k in ridge if pc(k) == pc(ridge[0])]
     others = [k for k in rows if not k.startswith("ridge alpha")]
     best = max(others, key=lambda k: rows[k]["cross-subject"] + rows[k]["half"])
     return ("Eleventh round, the read-out (`benchmarks/run_recognition_readout.py`, "
@@ -261,7 +261,7 @@ def readout_note() -> str:
             f"{ridge[0].split()[-1]} to {flat[-1].split()[-1]} and less above "
             f"({', '.join(f'{k.split()[-1]}: {pc(k)}' for k in ridge if k not in flat)}): the penalty "
             "is not where cross-subject errors come from, and leave-one-clip-out picking the smallest "
-            "is harmless. Every kernel read-out on the same features is lower -- "
+            "is harmless. Every other read-out of the same features is lower -- "
             + ", ".join(f"{k} {pc(k)}" for k in others)
             + f" (best of them: {best}) --, so the linear read-out stays.")
 
