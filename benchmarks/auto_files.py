@@ -168,7 +168,10 @@ def render(doc: dict) -> str:
             "skeleton and fixed bones, so the C3D route is the in-memory one (auto_heldout.md). "
             "Written to AMC, a spike is spread by the writer's inverse kinematics over the frame "
             "(about 30 % of the samples stay exact, the rest are off by 0.3-5 cm) and Gaussian noise "
-            "is projected onto the skeleton's poses (joint angles)" + (f": {gauss}." if gauss else "."), "",
+            "is projected onto the skeleton's poses (joint angles)" + (f": {gauss}." if gauss else ".")
+            + " Per joint, what the AMC route loses against memory sits in the short distal bones "
+            "(fingers, hands, thumbs: a 3 cm bone under 3 cm noise gets an almost random direction "
+            "from the writer's IK); what was tried there is in the `auto._smooth` docstring.", "",
             "## Every case", "",
             "| clip | format | condition | input | auto | oracle | auto / oracle | estimate | left | s |",
             "|---|---|---|---:|---:|---:|---:|---:|---:|---:|"]
