@@ -48,7 +48,7 @@ import numpy as np
 
 from .errors import MocapFormatError, MocapValueError
 from .signal._arrays import nanmedian0
-from .windows import frame_blocks
+from .windows import frame_blocks, spaced_frames
 
 __all__ = ["kabsch", "yaw_kabsch", "apply_rigid", "distance_stats", "rigid_partners", "distance_noise",
            "distance_consistency", "find_clusters", "parse_clusters", "rigid_fill", "cluster_template",
@@ -218,7 +218,7 @@ def rigid_partners(P: np.ndarray, observed: np.ndarray, *, n_partners: int = 4,
     obs = np.asarray(observed, dtype=bool) & np.isfinite(P).all(axis=-1)
     T, J, _ = P.shape
     K = int(max(min(n_partners, J - 1), 0))
-    ref = np.unique(np.linspace(0, T - 1, max(min(T, int(n_ref)), 1)).round().astype(int))
+    ref = spaced_frames(T, n_ref)
     Q = np.where(obs[ref, :, None], P[ref], np.nan)
     D = np.linalg.norm(Q[:, :, None, :] - Q[:, None, :, :], axis=-1)     # (R, J, J), NaN unseen
     with warnings.catch_warnings():
@@ -301,7 +301,7 @@ def fixed_bones(motion, positions: np.ndarray | None = None) -> tuple[np.ndarray
         P = np.asarray(positions, float)
         # a scale check: the median over at most SCALE_CHECK_FRAMES evenly spaced frames
         # (all 10,000 of a long clip cost 24 ms a call, and auto calls it up to three times)
-        P = P[np.unique(np.linspace(0, len(P) - 1, min(len(P), SCALE_CHECK_FRAMES)).astype(int))]
+        P = P[spaced_frames(len(P), SCALE_CHECK_FRAMES)]
         with np.errstate(invalid="ignore"), warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)          # a bone never seen: NaN
             ratio = np.nanmedian(bone_lengths(P, bones), axis=0) / lengths
@@ -333,11 +333,12 @@ def sphere_circle(A: np.ndarray, C: np.ndarray, l1: float | np.ndarray, l2: floa
     ([4.0], [3.0], [True])
     """
     D = C - A
-    dn = np.maximum(np.linalg.norm(D, axis=1), 1e-9)
+    n = np.linalg.norm(D, axis=1)
+    dn = np.maximum(n, 1e-9)
     u = D / dn[:, None]
     d = (l1 ** 2 - l2 ** 2 + dn ** 2) / (2.0 * dn)
     r2 = l1 ** 2 - d ** 2
-    ok = (np.linalg.norm(D, axis=1) > 1e-9) & (r2 >= 0)
+    ok = (n > 1e-9) & (r2 >= 0)
     return u, d, np.sqrt(np.maximum(r2, 0.0)), ok
 
 

@@ -25,7 +25,7 @@ import numpy as np
 
 from .errors import MocapValueError
 
-__all__ = ["lagged", "counts", "window_starts", "overlap_add", "overlap_mean", "window_blocks",
+__all__ = ["lagged", "counts", "window_starts", "spaced_frames", "overlap_add", "overlap_mean", "window_blocks",
            "overlap_add_into", "frame_blocks"]
 
 #: frames per block where long-clip code passes over a (T, ...) array a piece at a time
@@ -192,6 +192,16 @@ def overlap_add_into(acc: np.ndarray, R: np.ndarray, M: int, first: int,
         acc[rows] += R3[:, m] if w is None else R3[:, m] * w[:, None]
         if cnt is not None:
             cnt[rows] += 1 if w is None else w
+
+
+def spaced_frames(T: int, n: int) -> np.ndarray:
+    """At most ``n`` evenly spaced frame indices of 0..T-1, first and last included (sorted,
+    unique) -- the one way a check or a reference reads a sample of a long clip's frames.
+
+    >>> spaced_frames(10, 4).tolist()
+    [0, 3, 6, 9]
+    """
+    return np.unique(np.linspace(0, T - 1, max(min(T, int(n)), 1)).round().astype(int))
 
 
 def frame_blocks(T: int, block: int | None = None) -> list[slice]:

@@ -1095,8 +1095,9 @@ def _smooth(Y: np.ndarray, kept: np.ndarray, fit: np.ndarray, sigma: float,
     a few hands and thumbs), none worse; but on the protocol's clips through AMC 0.836 /
     0.895 -> 0.829 / 0.895 (k = 1.45), 0.814 / 0.897 (1.75), 0.810 / 0.916 (2.1), one or
     two of ten worse (a fast hand turns the vector faster than the smoothing allows); in
-    memory, where the child's noise is plain positional, +1-5 %. Not kept; a smoother in
-    the parent's own frame (its rotation taken out) is what this points to.
+    memory (held-out, bones under 3.2 cm), where the child's noise is plain positional,
+    6 of 10 clips worse, by up to 4.4 % (49_19). Not kept; a smoother in the parent's own
+    frame (its rotation taken out) is what this points to.
 
     Measured on 5 CMU clips x 30/120 fps x Gaussian 1/3 cm (before the bench, see
     docs/results/auto.md for the full run): the mean of GCV and MSSA was best or tied in

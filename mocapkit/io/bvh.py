@@ -104,6 +104,7 @@ from ._rotations import (axis_angle, euler_from_matrix_t, kabsch, min_rotation,
 from ..errors import MocapFormatError, MocapValueError, MocapWarning
 from ..motion import Motion
 from ..skeleton import Skeleton
+from ..windows import spaced_frames
 from ._atomic import atomic_write
 from ._kinematics import require_complete
 from ._text import float_rows, parse_float, parse_int, read_bytes
@@ -1260,7 +1261,7 @@ def write(motion: Motion, path: str | os.PathLike, *, hierarchy: str = "auto",
     atomic_write(path, lambda f: _write_text(f, nodes, ch, frame_time))
     # the check on at most UNREACHABLE_FRAMES evenly spaced frames: what a hierarchy cannot
     # hold shows in many (the FK and the check of every frame were 15 % of the write)
-    frames = np.unique(np.linspace(0, T - 1, min(T, UNREACHABLE_FRAMES)).astype(int))
+    frames = spaced_frames(T, UNREACHABLE_FRAMES)
     miss = _unreachable(motion, frames, _fk_positions(nodes, ch[frames], joint_nodes, factor))
     if miss:
         warnings.warn(f"{path}: {miss}", MocapWarning, stacklevel=2)
