@@ -114,6 +114,34 @@ def test_sure_is_unbiased_for_a_linear_smoother():
     assert sure(f, Y, 1.0, rng=0) == pytest.approx(true_mse, rel=0.15)
 
 
+def test_correlated_probe_sees_noise_shared_between_channels():
+    """Two channels carrying the same noise (a zero-length joint and its parent) and a
+    smoother that averages them: it removes none of that noise, so its divergence
+    tr(J Sigma) / sigma^2 is 2 per frame, where the +-1 probe (white noise assumed) reads
+    1. On white noise the correlated probe reads what the +-1 probe does."""
+    from mocapkit.solvers.mssa import correlated_probe, sure_divergence
+
+    rng = np.random.default_rng(11)
+    T = 4000
+    truth = np.cumsum(np.cumsum(rng.normal(size=(T, 1)), axis=0), axis=0) * 1e-3
+    n = rng.normal(0, 1.0, (T, 1))
+    Y = np.hstack([truth + n, truth + n, truth + rng.normal(0, 1.0, (T, 1))])
+
+    def f(Z):                                  # channels 0 and 1 averaged, 2 kept as is
+        m = 0.5 * (Z[:, :1] + Z[:, 1:2])
+        return np.hstack([m, m, Z[:, 2:]])
+
+    b = correlated_probe(Y, None, 1.0, rng=0)
+    assert b.shape == Y.shape
+    assert np.corrcoef(b[:, 0], b[:, 1])[0, 1] > 0.99 and abs(np.corrcoef(b[:, 0], b[:, 2])[0, 1]) < 0.1
+    d_corr = sure_divergence(f, Y, 1.0, probe=b)
+    d_pm1 = sure_divergence(f, Y, 1.0, rng=0)
+    assert d_corr / T == pytest.approx(3.0, rel=0.1)       # 2 (the shared pair) + 1
+    assert d_pm1 / T == pytest.approx(2.0, rel=0.02)       # 1 + 1: the sharing unseen
+    W = truth + rng.normal(0, 1.0, (T, 3))                 # white: the same reading
+    assert sure_divergence(f, W, 1.0, probe=correlated_probe(W, None, 1.0)) / T == pytest.approx(2.0, rel=0.1)
+
+
 def test_sure_weights_minimise_sure_over_the_simplex():
     """The mix of three linear smoothers: its SURE is the grid minimum over the simplex
     (never above a single smoother or a 50/50 mean), the weights are convex, and its true

@@ -151,7 +151,7 @@ from ..signal import estimate_noise
 from ..solvers import lowrank as _lr
 from ..solvers.gcv_spline import _BISQUARE, ROBUST_MIN_SCALE, cutoff_hz, gcv_smooth, residual_scale
 from ..windows import frame_blocks
-from ..solvers.mssa import mssa_denoise, sure_divergence, sure_weights
+from ..solvers.mssa import correlated_probe, mssa_denoise, sure_divergence, sure_weights
 from .base import Denoiser, get, register
 from .constraints import Integral, Interval, Real
 from .fill_auto import DEFAULT_CANDIDATES
@@ -1037,6 +1037,11 @@ def _end_spikes_kept(X: np.ndarray, M: np.ndarray, cols: np.ndarray, fit: np.nda
     return extra
 
 
+#: SURE of the smoothers with a probe correlated across channels as the noise is
+#: (:func:`mocapkit.solvers.mssa.correlated_probe`); False: the +-1 probe
+CORRELATED_SURE = True
+
+
 def _smooth(Y: np.ndarray, kept: np.ndarray, fit: np.ndarray, sigma: float,
             fps: float, s: np.ndarray | None = None, flagged: np.ndarray | None = None
             ) -> tuple[np.ndarray, str, float, float]:
@@ -1162,7 +1167,8 @@ def _smooth(Y: np.ndarray, kept: np.ndarray, fit: np.ndarray, sigma: float,
     fns = {"gcv-spline": f_gcv, "mssa": f_mssa, "kalman-cv": f_kal}
     outs = {k: (fit if k == "gcv-spline" and s is not None else f(Y)) for k, f in fns.items()}
     # one probe for all: the divergence is linear in f, so a mix's is the mix of theirs
-    div = {k: sure_divergence(f, Y, sigma, mask=kept, fy=outs[k], rng=0) for k, f in fns.items()}
+    probe = correlated_probe(Y, kept, sigma, rng=0) if CORRELATED_SURE else None
+    div = {k: sure_divergence(f, Y, sigma, mask=kept, fy=outs[k], rng=0, probe=probe) for k, f in fns.items()}
     names = list(outs)
     w, _ = sure_weights(Y, [outs[k] for k in names], sigma, [div[k] for k in names], mask=kept)
     out = outs[names[0]] * w[0]

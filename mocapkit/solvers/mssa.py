@@ -222,15 +222,20 @@ def sure(f: Callable[[np.ndarray], np.ndarray], Y: np.ndarray, sigma: float, *,
 
 def sure_divergence(f: Callable[[np.ndarray], np.ndarray], Y: np.ndarray, sigma: float, *,
                     mask: np.ndarray | None = None, eps: float | None = None, rng=0,
-                    fy: np.ndarray | None = None) -> float:
+                    fy: np.ndarray | None = None, probe: np.ndarray | None = None) -> float:
     """The Monte-Carlo divergence ``b^T (f(Y + e b) - f(Y)) / e`` of :func:`sure` (one
     random +-1 probe b on the entries in ``mask``, e = 0.01 sigma unless given). Linear in
     f for a fixed probe: the divergence of a mean of denoisers is the mean of theirs, so
-    :func:`sure_risk` scores such a mean without running it (same ``rng``)."""
+    :func:`sure_risk` scores such a mean without running it (same ``rng``). ``probe``
+    (T, C): this probe instead (e.g. :func:`correlated_probe`, for noise correlated across
+    channels), zeroed outside ``mask``."""
     Y = np.asarray(Y, dtype=float)
     M = np.ones(Y.shape, bool) if mask is None else np.asarray(mask, bool)
-    g = np.random.default_rng(rng)
-    b = np.where(g.random(Y.shape) < 0.5, -1.0, 1.0)
+    if probe is None:
+        g = np.random.default_rng(rng)
+        b = np.where(g.random(Y.shape) < 0.5, -1.0, 1.0)
+    else:
+        b = np.array(probe, dtype=float)
     b *= M
     e = 0.01 * sigma if eps is None else eps
     f0 = f(Y) if fy is None else fy
@@ -243,6 +248,61 @@ def sure_divergence(f: Callable[[np.ndarray], np.ndarray], Y: np.ndarray, sigma:
     fp -= f0
     fp *= b
     return float(np.sum(fp)) / e
+
+
+def correlated_probe(Y: np.ndarray, mask: np.ndarray | None, sigma: float, rng=0) -> np.ndarray | None:
+    """A SURE probe (T, C) whose frames are independent and whose channels are correlated
+    as the noise is: Gaussian with the covariance of the clip's fourth differences (scaled
+    to unit noise gain, each pair of channels over the frames where both are in ``mask``),
+    shrunk towards a multiple of the identity (Ledoit & Wolf 2004), over ``sigma``^2.
+
+    With such a probe the divergence of :func:`sure_divergence` estimates
+    tr(J Sigma) / sigma^2, Sigma the noise covariance across channels within a frame, in
+    place of tr(J): SURE for correlated noise (Eldar 2009). It matters where the noise is
+    shared between channels -- positions read back from a rotation file (BVH, AMC), where a
+    joint's error is in large part its parent's and a zero-length joint's is its parent's
+    exactly: a smoother that mixes channels (MSSA) keeps noise that looks like the
+    signal's correlation, and the +-1 probe, blind to it, rates it best. The shrinkage
+    (intensity from the spread of the products the covariance averages, the Ledoit-Wolf
+    estimate written for pairwise counts) keeps the chance structure of a short clip's
+    covariance -- and the fast motion that leaks into the differences at 30 fps, which
+    lies along the signal's own directions -- from being taken for shared noise (measured
+    2026-12-05, eighth session; RMSE geometric means over the cases: without it, through
+    BVH -9.9 %, AMC -0.7 %, in memory on fast clips +1.9 %; with it -9.3 / -2.3 / +0.8 %).
+    For white noise the probe is ~N(0, I) and SURE the usual one. None when a channel has
+    fewer than 8 fourth differences.
+
+    Example
+    -------
+    >>> import numpy as np
+    >>> rng = np.random.default_rng(0)
+    >>> n = rng.normal(size=(2000, 1))
+    >>> b = correlated_probe(np.hstack([n, n, rng.normal(size=(2000, 1))]), None, 1.0)
+    >>> bool(np.corrcoef(b[:, 0], b[:, 1])[0, 1] > 0.9), b.shape
+    (True, (2000, 3))
+    """
+    Y = np.asarray(Y, dtype=float)
+    M = np.ones(Y.shape, bool) if mask is None else np.asarray(mask, bool)
+    Md = M[4:] & M[3:-1] & M[2:-2] & M[1:-3] & M[:-4]
+    D = np.diff(np.where(M, Y, 0.0), 4, axis=0)
+    D[~Md] = 0.0
+    D /= np.sqrt(70.0) * sigma if sigma > 0 else np.inf     # sum of squared binomial(4, k)
+    W = Md.astype(float)
+    n = W.T @ W                                 # frames behind each pair of channels
+    if not (sigma > 0) or np.diag(n).min() < 8:
+        return None
+    n = np.maximum(n, 1.0)
+    S = (D.T @ D) / n
+    D *= D
+    spread = np.maximum((D.T @ D) / n - S * S, 0.0) / n     # variance of each entry of S
+    C = S.shape[0]
+    mu = float(np.trace(S)) / C
+    dist = float(np.sum((S - mu * np.eye(C)) ** 2))
+    a = 1.0 if dist <= 0 else min(float(spread.sum()), dist) / dist
+    S = (1.0 - a) * S + a * mu * np.eye(C)
+    lam, V = np.linalg.eigh(S)
+    R = V * np.sqrt(np.clip(lam, 0.0, None))   # S = R R^T
+    return np.random.default_rng(rng).standard_normal(Y.shape) @ R.T
 
 
 def sure_risk(Y: np.ndarray, fy: np.ndarray, sigma: float, div: float, *,
