@@ -168,11 +168,15 @@ def render(doc: dict) -> str:
     bvh_g = worst("bvh", ("gauss1", "gauss3"))
     gauss = (f"on Gaussian noise the AMC route stays at {min(amc_g):.2f}-{max(amc_g):.2f} x the oracle in "
              f"its worst clip, where C3D is at most {max(c3d_g):.2f}" if amc_g and c3d_g else "")
+    bvh_e = [r["estimate"] / r["auto"] for r in rows if r["format"] == "bvh" and r["estimate"]
+             and r["condition"] in ("gauss1", "gauss3") and r["auto"] > 0]
     bvh = (f" Written to BVH, each joint's three rotations take the noisy direction from where its parent "
            f"was put: the error is shared between joints and in part low-frequency (module docstring), "
            f"which no smoother takes out and no estimate from the clip's own high frequencies sees; on "
-           f"Gaussian noise auto's worst clip is at {min(bvh_g):.2f}-{max(bvh_g):.2f} x the oracle, and its "
-           f"estimates read low there (table)." if bvh_g else "")
+           f"Gaussian noise auto's worst clip is at {min(bvh_g):.2f}-{max(bvh_g):.2f} x the oracle, and "
+           f"{sum(1 for e in bvh_e if 1 / 1.5 <= e <= 1.5)} of its {len(bvh_e)} estimates are within 1.5x "
+           f"(those that are not read low: {', '.join(f'{e:.2f}' for e in sorted(bvh_e) if e < 1 / 1.5)})."
+           if bvh_g else "")
     out += ["", "Means over clips; `input` is the corrupted file's RMSE where it has no missing sample; "
             "auto and the oracle are scored on the samples auto wrote (`left`: samples of long gaps "
             "no fill validated under 5 cm, left missing); as in the protocol, the cases with `left` "

@@ -1077,7 +1077,8 @@ def _smooth(Y: np.ndarray, kept: np.ndarray, fit: np.ndarray, sigma: float,
     differences (eigenvalues floored at 1 / 10 / 30 % of their mean): 0.89-0.95; SURE for
     noise correlated across channels (the probe drawn from that covariance, so that the
     divergence is tr(J Sigma) / sigma^2): weights move from MSSA to the spline, mean RMSE
-    +1.1 %; truth-optimal convex weights of the three (least squares on the truth, before
+    +1.1 % (a plain covariance; with shrinkage it was kept in the eighth session, below);
+    truth-optimal convex weights of the three (least squares on the truth, before
     the bone hold) gain 3-8 % on the SURE mix, so the weights are not where the AMC route
     loses. MSSA's window doubled: AMC gauss3 / mixed mean RMSE -2 % (worst, in memory
     after the AMC read: 0.88 / 0.87 -> 0.87 / 0.85 at 30 fps, 0.87 / 0.84 -> 0.83 / 0.80
@@ -1103,6 +1104,25 @@ def _smooth(Y: np.ndarray, kept: np.ndarray, fit: np.ndarray, sigma: float,
     memory (held-out, bones under 3.2 cm), where the child's noise is plain positional,
     6 of 10 clips worse, by up to 4.4 % (49_19). Not kept; a smoother in the parent's own
     frame (its rotation taken out) is what this points to.
+
+    SURE's probe is correlated across channels as the noise is (since 2026-12-05, eighth
+    session; :func:`mocapkit.solvers.mssa.correlated_probe`: the covariance of the fourth
+    differences, shrunk towards the identity). Read back from a rotation file the noise is
+    shared between joints -- through BVH a zero-length ``_base`` joint carries its
+    parent's exactly and each joint's error is in large part its parent's -- and the +-1
+    probe, blind to that, rated MSSA, which keeps noise that looks like the signal's
+    correlation, best: the chain was MSSA alone on the BVH cases looked at (held-out 01_01@120
+    gauss1 0.436 cm, the GCV spline alone 0.333, the oracle filter 0.386). Measured against
+    the +-1 probe, same seeds: through BVH (docs/results/auto_files.md) see CHANGELOG for the
+    worst auto / oracle per condition before and after; through AMC worst gauss3@30 0.88 ->
+    0.87, gauss3@120 0.85 -> 0.80, mixed@120 0.82 -> 0.78, mixed@30 0.87 -> 0.85, per case
+    0.92-1.03x; in memory (white noise: the probe ~N(0, I)) mean RMSE per condition +0.0 to
+    +0.6 % on the protocol's clips (per case 0.99-1.03x, hdm05-hop@30 gauss1 +3.0 %, fast
+    motion at 30 fps leaking into the differences) and -0.3 to +0.4 % on the held-out ones
+    (0.99-1.02x); no in-memory target moved, estimates within 1.5x 99 of 114 and 99 of 117
+    as before. Without the shrinkage (the plain covariance), geometric mean RMSE over the
+    cases looked at: through BVH -9.9 %, AMC -0.7 %, fast clips in memory +1.9 %; with it
+    -9.3 / -2.3 / +0.8 %.
 
     Measured on 5 CMU clips x 30/120 fps x Gaussian 1/3 cm (before the bench, see
     docs/results/auto.md for the full run): the mean of GCV and MSSA was best or tied in
