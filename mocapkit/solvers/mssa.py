@@ -283,14 +283,16 @@ def correlated_probe(Y: np.ndarray, mask: np.ndarray | None, sigma: float, rng=0
     """
     Y = np.asarray(Y, dtype=float)
     M = np.ones(Y.shape, bool) if mask is None else np.asarray(mask, bool)
-    Md = M[4:] & M[3:-1] & M[2:-2] & M[1:-3] & M[:-4]
-    D = np.diff(np.where(M, Y, 0.0), 4, axis=0)
-    D[~Md] = 0.0
-    D /= np.sqrt(70.0) * sigma if sigma > 0 else np.inf     # sum of squared binomial(4, k)
+    if not (sigma > 0) or Y.shape[0] < 12:
+        return None
+    Md = M[4:] & M[3:-1] & M[2:-2] & M[1:-3] & M[:-4]      # fourth differences of kept samples
     W = Md.astype(float)
     n = W.T @ W                                 # frames behind each pair of channels
-    if not (sigma > 0) or np.diag(n).min() < 8:
+    if np.diag(n).min() < 8:
         return None
+    D = np.diff(np.where(M, Y, 0.0), 4, axis=0)
+    D[~Md] = 0.0
+    D /= np.sqrt(70.0) * sigma                  # 70: the sum of the squared binomial(4, k)
     n = np.maximum(n, 1.0)
     S = (D.T @ D) / n
     D *= D
