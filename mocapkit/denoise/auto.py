@@ -21,8 +21,10 @@ The chain, decided from the clip's own diagnosis (:mod:`mocapkit.diagnose`):
    by more than the limit, and rejecting it cost up to 1.5 cm RMSE (protocol run of
    docs/results/auto.md: run@30 1.015 -> 2.542), so it is not the default.
 2. **Noise** -- three smoothers on the samples kept, mixed by the convex weights of lowest
-   Monte-Carlo SURE (Ramani et al. 2008, :func:`mocapkit.solvers.mssa.sure_weights`; the
-   noise level from the kept samples' fourth differences,
+   Monte-Carlo SURE (Ramani et al. 2008, :func:`mocapkit.solvers.mssa.sure_weights`; its
+   probe correlated across channels as the noise is, Eldar 2009,
+   :func:`mocapkit.solvers.mssa.correlated_probe`, since noise read back from a rotation
+   file is shared between joints; the noise level from the kept samples' fourth differences,
    :func:`mocapkit.signal.estimate_noise`): a GCV smoothing spline
    (Woltring 1986, smoothing chosen per coordinate), multichannel SSA with optimal
    singular-value shrinkage (Gavish & Donoho 2017; it uses the body's coordination), and a
@@ -1117,9 +1119,8 @@ def _smooth(Y: np.ndarray, kept: np.ndarray, fit: np.ndarray, sigma: float,
     worst auto / oracle gauss1 / gauss3 / mixed / spikes @30 0.96 / 0.85 / 0.79 / 0.65 ->
     0.79 / 0.79 / 0.76 / 0.65, @120 1.05 / 0.81 / 0.69 / 0.46 -> 0.72 / 0.63 / 0.62 / 0.45
     (mean RMSE gauss1@120 0.434 -> 0.315 cm), estimates within 1.5x 48 -> 71 of 80;
-    through AMC worst gauss3@30 0.88 ->
-    0.87, gauss3@120 0.85 -> 0.80, mixed@120 0.82 -> 0.78, mixed@30 0.87 -> 0.85, per case
-    0.92-1.03x; in memory (white noise: the probe ~N(0, I)) mean RMSE per condition +0.0 to
+    through AMC worst gauss3@30 0.88 -> 0.87, gauss3@120 0.85 -> 0.80, mixed@120 0.82 ->
+    0.78, mixed@30 0.87 -> 0.85, per case 0.92-1.03x; in memory (white noise: the probe ~N(0, I)) mean RMSE per condition +0.0 to
     +0.6 % on the protocol's clips (per case 0.99-1.03x, hdm05-hop@30 gauss1 +3.0 %, fast
     motion at 30 fps leaking into the differences) and -0.3 to +0.4 % on the held-out ones
     (0.99-1.02x); no in-memory target moved, estimates within 1.5x 99 of 114 and 99 of 117
