@@ -1039,11 +1039,6 @@ def _end_spikes_kept(X: np.ndarray, M: np.ndarray, cols: np.ndarray, fit: np.nda
     return extra
 
 
-#: SURE of the smoothers with a probe correlated across channels as the noise is
-#: (:func:`mocapkit.solvers.mssa.correlated_probe`); False: the +-1 probe
-CORRELATED_SURE = True
-
-
 def _smooth(Y: np.ndarray, kept: np.ndarray, fit: np.ndarray, sigma: float,
             fps: float, s: np.ndarray | None = None, flagged: np.ndarray | None = None
             ) -> tuple[np.ndarray, str, float, float]:
@@ -1191,7 +1186,8 @@ def _smooth(Y: np.ndarray, kept: np.ndarray, fit: np.ndarray, sigma: float,
     fns = {"gcv-spline": f_gcv, "mssa": f_mssa, "kalman-cv": f_kal}
     outs = {k: (fit if k == "gcv-spline" and s is not None else f(Y)) for k, f in fns.items()}
     # one probe for all: the divergence is linear in f, so a mix's is the mix of theirs
-    probe = correlated_probe(Y, kept, sigma, rng=0) if CORRELATED_SURE else None
+    # the probe correlated across channels as the noise is (None, too few differences: +-1)
+    probe = correlated_probe(Y, kept, sigma, rng=0)
     div = {k: sure_divergence(f, Y, sigma, mask=kept, fy=outs[k], rng=0, probe=probe) for k, f in fns.items()}
     names = list(outs)
     w, _ = sure_weights(Y, [outs[k] for k in names], sigma, [div[k] for k in names], mask=kept)

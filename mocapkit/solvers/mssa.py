@@ -44,6 +44,7 @@ from typing import Callable
 import numpy as np
 
 from ..errors import MocapValueError
+from ..signal.noise import _diff, _gain     # the noise estimator's differences and gain
 
 __all__ = ["mssa_denoise", "shrink", "sure", "sure_divergence", "sure_risk", "sure_weights"]
 
@@ -285,14 +286,13 @@ def correlated_probe(Y: np.ndarray, mask: np.ndarray | None, sigma: float, rng=0
     M = np.ones(Y.shape, bool) if mask is None else np.asarray(mask, bool)
     if not (sigma > 0) or Y.shape[0] < 12:
         return None
-    Md = M[4:] & M[3:-1] & M[2:-2] & M[1:-3] & M[:-4]      # fourth differences of kept samples
+    D, Md = _diff(np.where(M, Y, 0.0), M, 4)   # fourth differences, where all five are kept
     W = Md.astype(float)
     n = W.T @ W                                 # frames behind each pair of channels
     if np.diag(n).min() < 8:
         return None
-    D = np.diff(np.where(M, Y, 0.0), 4, axis=0)
     D[~Md] = 0.0
-    D /= np.sqrt(70.0) * sigma                  # 70: the sum of the squared binomial(4, k)
+    D /= _gain(4) * sigma                       # unit noise gain
     n = np.maximum(n, 1.0)
     S = (D.T @ D) / n
     D *= D
