@@ -17,8 +17,8 @@ file format changes what the corruption is:
   writer's IK points each bone along its noisy direction from where its parent was put,
   so the file's error is shared between joints (a zero-length ``<child>_base`` joint's is
   its parent's exactly) and in part low-frequency (CMU 01_01 at 30 fps with 3 cm of white
-  noise: lag-1 autocorrelation of the error 0.71 at the head, 0.64 at the fingers, about
-  0 at the hips), which no smoother can take out. The hierarchy is the one the writer
+  noise: lag-1 autocorrelation of the error 0.71 at the head, 0.64 at the fingers, 0.03
+  at the left knee), which no smoother can take out. The hierarchy is the one the writer
   builds for the CMU skeleton (41 joints); no missing samples either.
 * **C3D** keeps the positions as they are (and the missing samples missing), and since
   2026-12-05 the joint hierarchy and the bones the AMC fixed (group ``MOCAPKIT``,

@@ -1108,20 +1108,20 @@ def _smooth(Y: np.ndarray, kept: np.ndarray, fit: np.ndarray, sigma: float,
     shared between joints -- through BVH a zero-length ``_base`` joint carries its
     parent's exactly and each joint's error is in large part its parent's -- and the +-1
     probe, blind to that, rated MSSA, which keeps noise that looks like the signal's
-    correlation, best: the chain was MSSA alone on the BVH cases looked at (held-out 01_01@120
-    gauss1 0.436 cm, the GCV spline alone 0.333, the oracle filter 0.386). Measured against
+    correlation, best: MSSA alone in 11 of 12 BVH cases looked at (held-out 01_01@120
+    gauss1, positions as read back and cleaned, before the write: 0.499 cm, MSSA alone
+    0.507, the GCV spline alone 0.400; 0.383 with the correlated probe). Measured against
     the +-1 probe, same seeds: through BVH (docs/results/auto_files.md, 10 held-out clips)
     worst auto / oracle gauss1 / gauss3 / mixed / spikes @30 0.96 / 0.85 / 0.79 / 0.65 ->
     0.79 / 0.79 / 0.76 / 0.65, @120 1.05 / 0.81 / 0.69 / 0.46 -> 0.72 / 0.63 / 0.62 / 0.45
     (mean RMSE gauss1@120 0.434 -> 0.315 cm), estimates within 1.5x 48 -> 71 of 80;
     through AMC worst gauss3@30 0.88 -> 0.87, gauss3@120 0.85 -> 0.80, mixed@120 0.82 ->
-    0.78, mixed@30 0.87 -> 0.85, per case 0.92-1.03x; in memory (white noise: the probe ~N(0, I)) mean RMSE per condition +0.0 to
-    +0.6 % on the protocol's clips (per case 0.99-1.03x, hdm05-hop@30 gauss1 +3.0 %, fast
-    motion at 30 fps leaking into the differences) and -0.3 to +0.4 % on the held-out ones
-    (0.99-1.02x); no in-memory target moved, estimates within 1.5x 99 of 114 and 99 of 117
-    as before. Without the shrinkage (the plain covariance), geometric mean RMSE over the
-    cases looked at: through BVH -9.9 %, AMC -0.7 %, fast clips in memory +1.9 %; with it
-    -9.3 / -2.3 / +0.8 %.
+    0.78, mixed@30 0.87 -> 0.85, per case 0.92-1.03x; in memory (white noise: the probe
+    ~N(0, I)) mean RMSE per condition +0.0 to +0.6 % on the protocol's clips (per case
+    0.99-1.03x, hdm05-hop@30 gauss1 +3.0 %, fast motion at 30 fps leaking into the
+    differences) and -0.3 to +0.4 % on the held-out ones (0.99-1.02x); no in-memory target
+    moved, estimates within 1.5x 99 of 114 and 99 of 117 as before. The shrinkage: see
+    :func:`~mocapkit.solvers.mssa.correlated_probe`.
 
     Measured on 5 CMU clips x 30/120 fps x Gaussian 1/3 cm (before the bench, see
     docs/results/auto.md for the full run): the mean of GCV and MSSA was best or tied in

@@ -72,8 +72,8 @@ direction from where its parent was put, and the radial part of the error passes
 Measured and not kept (2026-12-05, eighth session): least-squares sweeps after the IK
 (top-down, each joint turning its whole subtree by the Kabsch rotation of the subtree's
 joints onto their targets). CMU 01_01 at 30 fps with white noise: written against given
-positions 1.008 -> 0.879 cm (1 cm noise, 3 sweeps), 0.854 after 8; hands 3.1 -> 1.7 cm
-at 3 cm; but the spine converged slowly (head 3.6 cm after 3 sweeps, 3.1 after 40), a
+positions 1.008 -> 0.879 cm (1 cm noise, 3 sweeps), 0.854 after 8; the hands 2.9 -> 1.7 cm
+from the truth at 3 cm; but the spine converged slowly (head 3.6 cm after 3 sweeps, 3.1 after 40), a
 write of 10,000 frames took 0.35 -> 1.8 s (3 sweeps), and through BVH files corrupted
 with 3 cm (held-out 01_01@30) auto and the oracle filter both came out lower (1.68 ->
 1.38 and 2.04 -> 1.64 cm) but their ratio did not fall (0.82 -> 0.84). Clean positions,

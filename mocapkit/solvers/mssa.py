@@ -268,8 +268,9 @@ def correlated_probe(Y: np.ndarray, mask: np.ndarray | None, sigma: float, rng=0
     estimate written for pairwise counts) keeps the chance structure of a short clip's
     covariance -- and the fast motion that leaks into the differences at 30 fps, which
     lies along the signal's own directions -- from being taken for shared noise (measured
-    2026-12-05, eighth session; RMSE geometric means over the cases: without it, through
-    BVH -9.9 %, AMC -0.7 %, in memory on fast clips +1.9 %; with it -9.3 / -2.3 / +0.8 %).
+    2026-12-05, eighth session, geometric mean RMSE against the +-1 probe: through BVH, 18
+    held-out cases, -6.6 % without the shrinkage, -7.3 % with it; through AMC, 14 cases,
+    -0.7 / -2.3 %; in memory on fast clips, 12 cases, +1.9 / +1.0 %).
     For white noise the probe is ~N(0, I) and SURE the usual one. None when a channel has
     fewer than 8 fourth differences.
 
