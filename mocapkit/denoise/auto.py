@@ -1114,7 +1114,7 @@ def _smooth(Y: np.ndarray, kept: np.ndarray, fit: np.ndarray, sigma: float,
     the +-1 probe, same seeds: through BVH (docs/results/auto_files.md, 10 held-out clips)
     worst auto / oracle gauss1 / gauss3 / mixed / spikes @30 0.96 / 0.85 / 0.79 / 0.65 ->
     0.79 / 0.79 / 0.76 / 0.65, @120 1.05 / 0.81 / 0.69 / 0.46 -> 0.72 / 0.63 / 0.62 / 0.45
-    (mean RMSE gauss1@120 0.434 -> 0.315 cm), estimates within 1.5x 48 -> 71 of 80;
+    (mean RMSE gauss1@120 0.434 -> 0.315 cm), estimates within 1.5x 48 -> 70 of 80;
     through AMC worst gauss3@30 0.88 -> 0.87, gauss3@120 0.85 -> 0.80, mixed@120 0.82 ->
     0.78, mixed@30 0.87 -> 0.85, per case 0.92-1.03x; in memory (white noise: the probe
     ~N(0, I)) mean RMSE per condition +0.0 to +0.6 % on the protocol's clips (per case
