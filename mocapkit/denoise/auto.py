@@ -1102,6 +1102,21 @@ def _smooth(Y: np.ndarray, kept: np.ndarray, fit: np.ndarray, sigma: float,
     6 of 10 clips worse, by up to 4.4 % (49_19). Not kept; a smoother in the parent's own
     frame (its rotation taken out) is what this points to.
 
+    Measured and not kept (2026-12-05, ninth session; the held-out clips through AMC at
+    gauss3@30, positions as read back and cleaned, auto / oracle worst 0.87 on 131_08 and
+    131_12): smoothing in each parent's frame, i.e. the file's own local rotations (GCV on
+    the nine entries of each bone's rotation matrix, projected back onto rotations, then
+    forward kinematics): 8.2 cm against auto's 1.34 on 131_08 (a small error at the root or
+    the spine turns everything below it: femur ends 3.5 cm off, hands 8-16 cm); the Euler
+    angles GCV-smoothed after unwrapping, 7.7 cm (noisy IK flips between the two Euler
+    branches of one rotation). Where the error sits: with fingers and thumbs as good as
+    their hands, 131_08 would still be at 0.81 x the oracle. The shipped general
+    ``xiao-sparse`` model as a fourth smoother: alone 0.78-1.12 x the oracle, a 50/50 mean
+    with auto worst 0.87 (49_19: 0.81 -> 0.87), the truth-optimal weight per clip (0.11-0.72)
+    worst 0.80 (05_03, 49_19, 131_12) -- and 07_03, 131_08 and 131_12 are of subjects the
+    shipped models were trained on, so their gains are not the general model's. Neither
+    reaches 0.8 in every clip.
+
     SURE's probe is correlated across channels as the noise is (since 2026-12-05, eighth
     session; :func:`mocapkit.solvers.mssa.correlated_probe`: the covariance of the fourth
     differences, shrunk towards the identity). Read back from a rotation file the noise is
@@ -1338,6 +1353,21 @@ def _hold_bones(motion: Motion, out: np.ndarray, usable: np.ndarray) -> tuple[np
     estimate spread more (RMS log of estimate / true 0.64 -> 0.86; within 1.5x 17 -> 15).
     Bone-holding only matters for AMC/BVH, whose real files have no gaps: their holes are
     rejected spikes.
+
+    Measured and not kept (2026-12-05, ninth session; held-out clips through AMC, 30 fps,
+    geometric mean of RMSE after / before over the ten): also holding the two-bone spans
+    (a joint's grandparent to it, through its parent) that stay steady in the cleaned
+    output -- CMU's clavicles, spine, wrists, fingers and thumbs barely move against their
+    parent, so the span is nearly fixed though the file allows it to move -- at their
+    median there. Chosen where the cleaned span's std is under k x sqrt(2) x auto's
+    estimate: k = 0.75 / 1 / 1.25 gauss3 -2.4 / -3.3 / -2.5 %, gauss1 -2.2 / -1.6 / -0.4 %;
+    positions in memory (white 3 cm noise, absolute threshold 1.6 cm) -1.5 %, 2 of 10
+    clips worse (49_19 +2.2 %). The bound it points to: every span held at its true path
+    -18 %; only the truly steady ones (true std < 0.5 cm) at their true length -11 %, at
+    the cleaned output's median -3.4 % (that median is 0.1-2 cm short at fingers and thumbs:
+    a nearly straight joint's noise only bends it). The noisy spans GCV-smoothed as the
+    target +6.5 %; their squares less the noise's 3 sigma^2 +21 %. Not enough to reach
+    0.8 in the worst AMC clip (131_08 0.87 -> ~0.85), so not kept.
     """
     from ..rigid import fixed_bones, hold_lengths
 
