@@ -404,7 +404,9 @@ class Auto(Denoiser):
             chain.append("fill-auto")
         moved2 = None
         if smooth:
-            out, moved2 = _hold_bones(motion, out, usable)
+            kept_e = np.broadcast_to(np.asarray(est["kept"], float), (out.shape[1],))
+            out, moved2 = _hold_bones(motion, out, usable,
+                                      err=np.sqrt(np.mean(kept_e.reshape(-1, 3) ** 2, axis=1)))
             if moved2 is not None:
                 chain.append("bone lengths held")
                 moved2 *= _off_skeleton_share(X, ~holes, usable, sigma_s)
@@ -1304,10 +1306,13 @@ def _off_skeleton_share(X: np.ndarray, kept: np.ndarray, usable: np.ndarray, sig
     return float(min(sd ** 2 / sigma ** 2, 1.0))
 
 
-def _hold_bones(motion: Motion, out: np.ndarray, usable: np.ndarray) -> tuple[np.ndarray, float | None]:
+def _hold_bones(motion: Motion, out: np.ndarray, usable: np.ndarray,
+                err: np.ndarray | None = None) -> tuple[np.ndarray, float | None]:
     """The smoothed (T, 3J) ``out`` with the bones the file format fixes given their length
     back (:func:`mocapkit.rigid.fixed_bones`, :func:`mocapkit.rigid.hold_lengths`); and
     the mean squared move per written coordinate (cm^2), None when the format fixes no bone.
+    With ``err`` (J,) (the smoothing's estimated error per coordinate, cm), the two-bone
+    spans that stay steady in ``out`` are held too (:func:`mocapkit.rigid.steady_spans`).
 
     Smoothing channel by channel shortens a rotating bone and leaves the noise along it;
     ASF/AMC and BVH fix every bone's length (their writers' IK gives it back on output
@@ -1369,13 +1374,16 @@ def _hold_bones(motion: Motion, out: np.ndarray, usable: np.ndarray) -> tuple[np
     target +6.5 %; their squares less the noise's 3 sigma^2 +21 %. Not enough to reach
     0.8 in the worst AMC clip (131_08 0.87 -> ~0.85), so not kept.
     """
-    from ..rigid import fixed_bones, hold_lengths
+    from ..rigid import fixed_bones, hold_lengths, steady_spans
 
     T = out.shape[0]
     P = out.reshape(T, -1, 3)
     bones, lengths = fixed_bones(motion, P)
     if not len(bones):
         return out, None
+    if err is not None:                  # (a span with a missing sample is not steady)
+        spans, span_len = steady_spans(P, bones, lengths, err)
+        bones, lengths = np.concatenate([bones, spans]), np.concatenate([lengths, span_len])
     held = hold_lengths(P, bones, lengths).reshape(T, -1)
     cols = np.repeat(usable, 3)
     d = (held - out)[:, cols]
