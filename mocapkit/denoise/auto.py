@@ -1359,20 +1359,18 @@ def _hold_bones(motion: Motion, out: np.ndarray, usable: np.ndarray,
     Bone-holding only matters for AMC/BVH, whose real files have no gaps: their holes are
     rejected spikes.
 
-    Measured and not kept (2026-12-05, ninth session; held-out clips through AMC, 30 fps,
-    geometric mean of RMSE after / before over the ten): also holding the two-bone spans
-    (a joint's grandparent to it, through its parent) that stay steady in the cleaned
-    output -- CMU's clavicles, spine, wrists, fingers and thumbs barely move against their
-    parent, so the span is nearly fixed though the file allows it to move -- at their
-    median there. Chosen where the cleaned span's std is under k x sqrt(2) x auto's
-    estimate: k = 0.75 / 1 / 1.25 gauss3 -2.4 / -3.3 / -2.5 %, gauss1 -2.2 / -1.6 / -0.4 %;
-    positions in memory (white 3 cm noise, absolute threshold 1.6 cm) -1.5 %, 2 of 10
-    clips worse (49_19 +2.2 %). The bound it points to: every span held at its true path
-    -18 %; only the truly steady ones (true std < 0.5 cm) at their true length -11 %, at
-    the cleaned output's median -3.4 % (that median is 0.1-2 cm short at fingers and thumbs:
-    a nearly straight joint's noise only bends it). The noisy spans GCV-smoothed as the
-    target +6.5 %; their squares less the noise's 3 sigma^2 +21 %. Not enough to reach
-    0.8 in the worst AMC clip (131_08 0.87 -> ~0.85), so not kept.
+    The steady two-bone spans (2026-12-05, ninth session; :func:`mocapkit.rigid.steady_spans`,
+    held with the bones, then the bones alone). First measured with the span's median in the
+    cleaned output as its length, on top of auto's held output (held-out clips through AMC,
+    30 fps, geometric mean of RMSE after / before over the ten): chosen where the span's std
+    is under k x sqrt(2) x auto's estimate, k = 0.75 / 1 / 1.25: gauss3 -2.4 / -3.3 / -2.5 %,
+    gauss1 -2.2 / -1.6 / -0.4 %; in memory (white 3 cm noise) -1.5 %, 2 of 10 clips worse.
+    The bound: every span held at its true path -18 %; only the truly steady ones (true std
+    < 0.5 cm) at their true length -11 %, at the cleaned median -3.4 % (the median is 0.1-2
+    cm short at fingers and thumbs). The noisy spans GCV-smoothed as the target +6.5 %;
+    their squares less the noise's 3 sigma^2 +21 %. Kept: the length from the de-biased
+    bend (k = 1, the smoothing's own estimate per joint), held in one projection with the
+    bones: numbers in docs/results/auto_files.md and the CHANGELOG.
     """
     from ..rigid import fixed_bones, hold_lengths, steady_spans
 
