@@ -468,26 +468,48 @@ def hold_lengths(P: np.ndarray, pairs: np.ndarray, lengths: np.ndarray, *, sweep
     Q = np.array(P, dtype=float, copy=True)
     pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
     L = np.asarray(lengths, dtype=float).reshape(-1)
+    groups = _disjoint_groups(pairs)
     for _ in range(int(sweeps)):
-        for (a, b), l in zip(pairs, L):
+        for g in groups:
+            # pairs that share no point: moved at once, as one after the other would move them
+            a, b, l = pairs[g, 0], pairs[g, 1], L[g]
             if movable is None:
-                wa = wb = np.full(Q.shape[0], 0.5)
+                wa = wb = np.full((Q.shape[0], len(g)), 0.5)
             else:
                 ma = movable[:, a]
                 wa, wb = ma.astype(float), (movable[:, b] & ~ma).astype(float)
                 if not (wa.any() or wb.any()):
                     continue
-            d = Q[:, a] - Q[:, b]
-            n = np.sqrt(np.einsum("ij,ij->i", d, d))                        # NaN with a missing end
+            d = Q[:, a] - Q[:, b]                                             # (T, G, 3)
+            n = np.sqrt(np.einsum("tgi,tgi->tg", d, d))                       # NaN with a missing end
             with np.errstate(invalid="ignore"):
                 k = np.where(n > 1e-9, (n - l) / np.maximum(n, 1e-9), 0.0)
                 if max_off is not None:
                     lim = np.where(wa > 0, max_off[:, a], max_off[:, b])
                     k = np.where(np.abs(n - l) <= lim, k, 0.0)
-            c = np.where((k != 0.0)[:, None], k[:, None] * d, 0.0)       # 0 with a missing end
-            Q[:, a] -= wa[:, None] * c
-            Q[:, b] += wb[:, None] * c
+            c = np.where((k != 0.0)[..., None], k[..., None] * d, 0.0)        # 0 with a missing end
+            Q[:, a] -= wa[..., None] * c
+            Q[:, b] += wb[..., None] * c
     return Q
+
+
+def _disjoint_groups(pairs: np.ndarray) -> list[np.ndarray]:
+    """The pairs (B, 2) split into groups in which no point appears twice (a greedy edge
+    colouring, in the pairs' order; a skeleton's bones take about as many groups as its
+    most-connected joint has bones): :func:`hold_lengths` moves each group in one array
+    operation instead of one pair at a time (the 30 bones of a CMU skeleton and 20 spans:
+    7 groups instead of 50 steps per sweep)."""
+    colour = np.zeros(len(pairs), np.int64)
+    used: dict[int, set[int]] = {}
+    for i, (a, b) in enumerate(pairs.tolist()):
+        taken = used.setdefault(a, set()) | used.setdefault(b, set())
+        c = 0
+        while c in taken:
+            c += 1
+        colour[i] = c
+        used[a].add(c)
+        used[b].add(c)
+    return [np.flatnonzero(colour == c) for c in range(int(colour.max()) + 1)] if len(pairs) else []
 
 
 def steady_spans(P: np.ndarray, bones: np.ndarray, lengths: np.ndarray, err: np.ndarray,
