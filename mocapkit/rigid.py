@@ -494,21 +494,17 @@ def hold_lengths(P: np.ndarray, pairs: np.ndarray, lengths: np.ndarray, *, sweep
 
 
 def _disjoint_groups(pairs: np.ndarray) -> list[np.ndarray]:
-    """The pairs (B, 2) split into groups in which no point appears twice (a greedy edge
-    colouring, in the pairs' order; a skeleton's bones take about as many groups as its
-    most-connected joint has bones): :func:`hold_lengths` moves each group in one array
-    operation instead of one pair at a time (the 30 bones of a CMU skeleton and 20 spans:
-    7 groups instead of 50 steps per sweep)."""
+    """The pairs (B, 2) split into groups in which no point appears twice, each pair in a
+    later group than every earlier pair it shares a point with: :func:`hold_lengths` moves
+    each group in one array operation, and the result is that of taking the pairs one
+    after the other in their order (pairs with no point in common commute) -- so a
+    skeleton's bones in parent-first order still leave a moving child final after one
+    sweep. The 30 bones of a CMU skeleton take 12 groups instead of 30 steps per sweep."""
     colour = np.zeros(len(pairs), np.int64)
-    used: dict[int, set[int]] = {}
+    last: dict[int, int] = {}
     for i, (a, b) in enumerate(pairs.tolist()):
-        taken = used.setdefault(a, set()) | used.setdefault(b, set())
-        c = 0
-        while c in taken:
-            c += 1
-        colour[i] = c
-        used[a].add(c)
-        used[b].add(c)
+        colour[i] = c = max(last.get(a, -1), last.get(b, -1)) + 1
+        last[a] = last[b] = c
     return [np.flatnonzero(colour == c) for c in range(int(colour.max()) + 1)] if len(pairs) else []
 
 
