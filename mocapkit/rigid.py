@@ -474,7 +474,7 @@ def hold_lengths(P: np.ndarray, pairs: np.ndarray, lengths: np.ndarray, *, sweep
             # pairs that share no point: moved at once, as one after the other would move them
             a, b, l = pairs[g, 0], pairs[g, 1], L[g]
             if movable is None:
-                wa = wb = np.full((Q.shape[0], len(g)), 0.5)
+                wa = wb = np.full(len(g), 0.5)
             else:
                 ma = movable[:, a]
                 wa, wb = ma.astype(float), (movable[:, b] & ~ma).astype(float)
@@ -485,7 +485,7 @@ def hold_lengths(P: np.ndarray, pairs: np.ndarray, lengths: np.ndarray, *, sweep
             with np.errstate(invalid="ignore"):
                 k = np.where(n > 1e-9, (n - l) / np.maximum(n, 1e-9), 0.0)
                 if max_off is not None:
-                    lim = np.where(wa > 0, max_off[:, a], max_off[:, b])
+                    lim = np.where(np.broadcast_to(wa, k.shape) > 0, max_off[:, a], max_off[:, b])
                     k = np.where(np.abs(n - l) <= lim, k, 0.0)
             c = np.where((k != 0.0)[..., None], k[..., None] * d, 0.0)        # 0 with a missing end
             Q[:, a] -= wa[..., None] * c
@@ -499,7 +499,7 @@ def _disjoint_groups(pairs: np.ndarray) -> list[np.ndarray]:
     each group in one array operation, and the result is that of taking the pairs one
     after the other in their order (pairs with no point in common commute) -- so a
     skeleton's bones in parent-first order still leave a moving child final after one
-    sweep. The 30 bones of a CMU skeleton take 12 groups instead of 30 steps per sweep."""
+    sweep. The 30 bones of a CMU skeleton take 13 groups instead of 30 steps per sweep."""
     colour = np.zeros(len(pairs), np.int64)
     last: dict[int, int] = {}
     for i, (a, b) in enumerate(pairs.tolist()):
@@ -529,10 +529,12 @@ def steady_spans(P: np.ndarray, bones: np.ndarray, lengths: np.ndarray, err: np.
     that angle.
 
     Measured (2026-12-05, ninth session; the held-out clips of the ``auto`` protocol at 30
-    fps, auto's cleaned output, every bone held, geometric mean RMSE after / before over
-    ten clips): read back from AMC, gauss3 -4.7 % (each clip 0.94-0.96), gauss1 -1.7 %
-    (0.95-1.003); positions with white 3 cm noise in memory -2.4 % (0.96-0.99). The median
-    as the length: -3.3 / -1.6 % through AMC.
+    fps, geometric mean RMSE after / before over ten clips), the spans projected after
+    auto's output had its bones held: read back from AMC, gauss3 -4.7 % (each clip
+    0.94-0.96), gauss1 -1.7 % (0.95-1.003); positions with white 3 cm noise in memory -2.4 %
+    (0.96-0.99); the cleaned median as the length: -3.3 / -1.6 % through AMC. As auto uses
+    them (one projection with the bones, before those are held alone), end to end through
+    AMC files: see ``auto._hold_bones`` and docs/results/auto_files.md.
 
     P (T, J, 3) cm, complete; bones (B, 2) (child, parent) and lengths (B,) cm, the bones
     the format fixes (:func:`fixed_bones`); err (J,) the cleaned positions' error per
@@ -560,18 +562,18 @@ def steady_spans(P: np.ndarray, bones: np.ndarray, lengths: np.ndarray, err: np.
     b2, b1 = np.array([t[1] for t in trip]), np.array([t[2] for t in trip])
     g = bones[b1, 1]
     p = bones[b2, 1]
-    span = np.linalg.norm(P[:, c] - P[:, g], axis=2)                         # (T, S)
+    pairs = np.stack([c, g], axis=1)
     err = np.asarray(err, dtype=float)
-    steady = np.std(span, axis=0) < k * np.sqrt(err[c] ** 2 + err[g] ** 2)
+    steady = np.std(bone_lengths(P, pairs), axis=0) < k * np.sqrt(err[c] ** 2 + err[g] ** 2)
     if not steady.any():
         return np.zeros((0, 2), np.int64), np.zeros(0)
-    c, p, g, b1, b2 = c[steady], p[steady], g[steady], b1[steady], b2[steady]
+    c, p, g, b1, b2, pairs = c[steady], p[steady], g[steady], b1[steady], b2[steady], pairs[steady]
     u, v = P[:, p] - P[:, g], P[:, c] - P[:, p]                               # (T, S, 3)
     cos = np.einsum("tsi,tsi->ts", u, v) / np.maximum(np.linalg.norm(u, axis=2) * np.linalg.norm(v, axis=2), 1e-12)
     th = np.arccos(np.clip(cos, -1.0, 1.0))
     th0 = np.sqrt(np.maximum(np.mean(th ** 2, axis=0) - 2.0 * np.var(th, axis=0), 0.0))
     l1, l2 = lengths[b1], lengths[b2]
-    return np.stack([c, g], axis=1), np.sqrt(l1 ** 2 + l2 ** 2 + 2.0 * l1 * l2 * np.cos(th0))
+    return pairs, np.sqrt(l1 ** 2 + l2 ** 2 + 2.0 * l1 * l2 * np.cos(th0))
 
 
 def distance_noise(P: np.ndarray, observed: np.ndarray, *, min_distance_cm: float = 3.0,

@@ -1307,12 +1307,12 @@ def _off_skeleton_share(X: np.ndarray, kept: np.ndarray, usable: np.ndarray, sig
 
 
 def _hold_bones(motion: Motion, out: np.ndarray, usable: np.ndarray,
-                err: np.ndarray | None = None) -> tuple[np.ndarray, float | None]:
+                err: np.ndarray) -> tuple[np.ndarray, float | None]:
     """The smoothed (T, 3J) ``out`` with the bones the file format fixes given their length
     back (:func:`mocapkit.rigid.fixed_bones`, :func:`mocapkit.rigid.hold_lengths`); and
     the mean squared move per written coordinate (cm^2), None when the format fixes no bone.
-    With ``err`` (J,) (the smoothing's estimated error per coordinate, cm), the two-bone
-    spans that stay steady in ``out`` are held too (:func:`mocapkit.rigid.steady_spans`).
+    The two-bone spans that stay steady in ``out`` against ``err`` (J,) (the smoothing's
+    estimated error per coordinate, cm) are held too (:func:`mocapkit.rigid.steady_spans`).
 
     Smoothing channel by channel shortens a rotating bone and leaves the noise along it;
     ASF/AMC and BVH fix every bone's length (their writers' IK gives it back on output
@@ -1379,21 +1379,26 @@ def _hold_bones(motion: Motion, out: np.ndarray, usable: np.ndarray,
     bones, lengths = fixed_bones(motion, P)
     if not len(bones):
         return out, None
-    spans = np.zeros((0, 2), np.int64)
-    if err is not None:                  # (a span with a missing sample is not steady)
-        spans, span_len = steady_spans(P, bones, lengths, err)
+    spans, span_len = steady_spans(P, bones, lengths, err)   # (one with a missing sample is not)
     if len(spans):
         # the spans with the bones, then the bones alone: the format fixes those exactly,
-        # and ten sweeps over both leave a bone up to ~0.2 cm off (three more sweeps over
-        # the bones: 0.11 cm on CMU 131_08 at 30 fps with 3 cm noise, six 0.06; the AMC and
-        # BVH writers give the exact lengths back)
-        P = hold_lengths(P, np.concatenate([bones, spans]), np.concatenate([lengths, span_len]))
+        # and the sweeps over both leave a bone up to ~0.2 cm off (six more over the bones:
+        # 0.09 cm on CMU 131_08 at 30 fps with 3 cm noise through AMC; the AMC and BVH
+        # writers give the exact lengths back)
+        P = hold_lengths(P, np.concatenate([bones, spans]), np.concatenate([lengths, span_len]),
+                         sweeps=SPAN_SWEEPS)
     held = hold_lengths(P, bones, lengths, sweeps=6 if len(spans) else 10).reshape(T, -1)
     cols = np.repeat(usable, 3)
     d = (held - out)[:, cols]
     fin = np.isfinite(d)
     return held, float(np.mean(d[fin] ** 2)) if fin.any() else None
 
+
+#: sweeps of :func:`_hold_bones`' projection onto the bones and the steady spans together
+#: (before six over the bones alone): 5 against 10 on the held-out clips at 30 fps, AMC
+#: gauss3 / in-memory gauss1 RMSE +0.3 / -0.04 % (each clip within 0.99-1.01x), and the
+#: spans' cost on a 240-frame clip ~10 -> ~3 % of auto's time (2026-12-05, ninth session)
+SPAN_SWEEPS = 5
 
 #: a written bone further than this (cm) off its fixed length is reported
 #: (``source['auto']['bones_off']``, one CLI line): a fill no validation saw go wrong
