@@ -648,8 +648,8 @@ def distance_noise(P: np.ndarray, observed: np.ndarray, *, min_distance_cm: floa
 def distance_consistency(P: np.ndarray, observed: np.ndarray, *, n_partners: int = 4,
                          max_scale_cm: float = 1.0, floor_cm: float = 1.0,
                          n_ref: int = 1024, min_spread: float = 0.1,
-                         partners: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
-                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                         partners: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None,
+                         per_partner: bool = False) -> tuple[np.ndarray, ...]:
     """Per sample, how many of its point's rigid partners keep their usual distance to it.
 
     A measured sample keeps its distance to every point of its own body segment (a bone's
@@ -676,7 +676,9 @@ def distance_consistency(P: np.ndarray, observed: np.ndarray, *, n_partners: int
 
     P : (T, J, 3) cm; observed : (T, J) bool. Returns (agree, disagree, pinned), (T, J):
     the number (int8) of observed partners at frame t that agree / disagree (0 and 0 at an
-    unobserved sample or a point without partners), and whether the agreeing ones pin it.
+    unobserved sample or a point without partners), and whether the agreeing ones pin it;
+    with ``per_partner`` a fourth, (T, J, K) int8: +1 where partner slot k agrees, -1
+    where it disagrees, 0 where it is not observed or not real (the slots of ``partners``).
     Memory O(T J n_partners + n_ref J^2).
 
     >>> import numpy as np
@@ -696,10 +698,11 @@ def distance_consistency(P: np.ndarray, observed: np.ndarray, *, n_partners: int
     disagree = np.zeros((T, J), np.int8)
     pinned = np.zeros((T, J), bool)
     if J < 2 or T < 3:
-        return agree, disagree, pinned
+        return (agree, disagree, pinned) + ((np.zeros((T, J, 0), np.int8),) if per_partner else ())
     if partners is None:
         partners = rigid_partners(P, obs, n_partners=n_partners, max_scale_cm=max_scale_cm, n_ref=n_ref)
     part, real, mref, scale = partners
+    slots = np.zeros((T,) + part.shape, np.int8) if per_partner else None
     lim = np.maximum(float(floor_cm), 4.685 * np.nan_to_num(scale))
     jj = np.arange(J)
     for sl in frame_blocks(T):                     # blocks of frames: (block, J, K) arrays
@@ -710,10 +713,12 @@ def distance_consistency(P: np.ndarray, observed: np.ndarray, *, n_partners: int
         good = both & ~off
         agree[sl] = good.sum(axis=2)
         disagree[sl] = (both & off).sum(axis=2)
+        if slots is not None:
+            slots[sl] = good.astype(np.int8) - (both & off)
         u = np.where(good[..., None], v / np.maximum(d, 1e-9)[..., None], 0.0)
         spread = np.linalg.eigvalsh(np.einsum("tjki,tjkl->tjil", u, u))[..., 0]
         pinned[sl] = spread >= float(min_spread)
-    return agree, disagree, pinned
+    return (agree, disagree, pinned) + ((slots,) if per_partner else ())
 
 
 def find_clusters(P: np.ndarray, observed: np.ndarray, *, max_std_cm: float = 1.0,

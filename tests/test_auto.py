@@ -452,6 +452,36 @@ def test_auto_spikes_in_fast_motion_by_rigid_partners(clip):
     assert not (spikes & kept).any()                 # every spike replaced
 
 
+
+def test_exact_bones_vouch_for_a_hinge_and_expose_a_leaf_spike(clip):
+    """With exact bones (a skeleton's joints) two agreeing bones vouch for a rejected
+    sample at a hinge, which two distances do not pin (a kick's apex at 30 fps: the knee
+    filled 30 cm off before), and a kept spike on a one-bone joint (a toe) is exposed by
+    its bone, whose other end is vouched for by its own bones."""
+    from dataclasses import replace
+
+    from mocapkit.denoise import auto as auto_mod
+    from mocapkit.diagnose import robust_fit
+
+    m = clip.resample(30.0)
+    names = list(m.skeleton.names)
+    knee, toe = names.index("ltibia"), names.index("ltoes")
+    t0 = 60
+    spiked = m.positions.copy()
+    spiked[t0, toe] += [0.0, 15.0, 0.0]                    # a spike the robust fit keeps
+    noisy = Motion(spiked, m.skeleton, m.fps)
+    X, M = noisy.matrix(), noisy.matrix_mask()
+    fit, info, usable = robust_fit(noisy)
+    cols = np.repeat(usable, 3)
+    rej = np.zeros_like(info.rejected)
+    rej[t0 - 10, 3 * knee:3 * knee + 3] = True               # a measured knee sample rejected
+    info = replace(info, rejected=rej)
+    _, info2, _ = auto_mod._second_look(X, M, cols, fit, info, edge=False, readmit=0)
+    assert not info2.rejected[t0 - 10, 3 * knee]              # vouched for: measured again
+    assert info2.rejected[t0, 3 * toe]                        # the toe's spike rejected
+    assert info2.rejected.sum() == 3                          # and nothing else
+
+
 def _long(clip):
     """The clip forward, backward and forward again: a continuous 1,407-frame motion."""
     from mocapkit.motion import Motion
