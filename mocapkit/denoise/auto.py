@@ -177,7 +177,7 @@ MAX_SPIKE_RUN = 3
 
 #: a rigid partner whose distance varies by at most this (cm; 4.685 x its robust scale) is
 #: an exact bone, and its agreement is tested to this tolerance in :func:`_second_look`
-EXACT_BONE_CM = 0.1
+EXACT_BONE_CM = 0.001
 
 #: frames per piece of a long clip. A clip longer than 1.5 pieces is cleaned piece by
 #: piece (each with :data:`PIECE_OVERLAP_S` of the neighbours' frames each side) and the
@@ -514,14 +514,20 @@ def _second_look(X: np.ndarray, M: np.ndarray, cols: np.ndarray, fit: np.ndarray
     independent directions is measured.
 
     *Exact bones* (partners whose distance varies by at most :data:`EXACT_BONE_CM`: a
-    skeleton's joints in any file format) are tested to that tolerance: two of them agreeing
-    vouch for a rejected sample at a hinge, where two distances do not pin it (the apex of a
-    kick at 30 fps, rejected by the spline's test, was filled 30 cm off), and a kept sample
+    skeleton's joints in any file format) are tested to that tolerance. A rejected sample
+    is measured where two of them agree, or one agrees and every one that does not ends
+    in a sample off all its own exact bones (two or more: a spike) -- at a hinge two
+    distances do not pin a sample, and the apex of a kick at 30 fps, rejected by the
+    spline's test with the spiked joints next to it, was filled 30 cm off. A kept sample
     none of them vouches for is a spike where a partner it is off from is vouched for by
-    another exact bone of its own (a toe's or a finger's single bone). Measured
-    (2026-12-05, tenth session) on the auto protocol's spikes cases, both clip sets:
-    mean RMSE at 30 fps 0.195 -> 0.132 cm (protocol) and 0.103 -> 0.064 (held-out); 9 of
-    the 40 cases better (kick@30 0.326 -> 0.091, 135_09@30 0.108 -> 0.032), none worse.
+    another exact bone of its own (a toe's or a finger's single bone). One bone alone
+    never vouches (a spike keeps one length by chance, below). Measured (2026-12-05,
+    tenth session) on the auto protocol's spikes cases, both clip sets: mean RMSE at 30
+    fps 0.195 -> 0.095 cm (protocol) and 0.103 -> 0.049 (held-out), at 120 fps 0.027 ->
+    0.024 and unchanged; 10 of the 40 cases better (kick@30 0.326 -> 0.035, hdm05-hop@30
+    0.444 -> 0.074, 135_04@30 0.368 -> 0.098), none worse. Estimates within 1.5x: 7 and
+    8 of 10 -> 7 and 7 at 30 fps (hdm05-hop@30: the holes' validated estimate, 0.45 cm,
+    had matched the false rejections' error and now reads 6x the 0.074 left).
 
     *Re-admission* (``readmit`` passes): where the motion is fast the spline, with one s
     per channel, cuts corners by more than the limit and rejects measured samples (and
@@ -565,7 +571,15 @@ def _second_look(X: np.ndarray, M: np.ndarray, cols: np.ndarray, fit: np.ndarray
     if exact.any():
         ag_x, dis_x, _, slot_x = distance_consistency(P0, obs, partners=(part, exact, mref, scale),
                                                       floor_cm=EXACT_BONE_CM, per_partner=True)
-        back |= rej[:, ::3] & confirmed & (ag_x >= 2) & (dis_x == 0)
+        # a disagreement is explained when the partner is off every exact bone of its own
+        # (two or more); one agreement then vouches where a neighbour's spike disputed the
+        # other bone. A single bone never vouches alone: a 15 cm spike keeps one length
+        # within 0.001 cm in ~1 of 10^4 tries, and a clip at 120 fps has ~3,000 of them (a
+        # head spike was let back on duck@120)
+        definite = obs & (ag_x == 0) & (dis_x >= 2)
+        off_def = (slot_x < 0) & definite[:, part]
+        explained = off_def.sum(axis=2)
+        back |= rej[:, ::3] & (ag_x >= 1) & (ag_x + explained >= 2) & (dis_x == explained)
         # ... and a kept sample that no exact bone vouches for, while one it is off from is
         # vouched for by another of its own, is a spike: a toe or a finger tip has a single
         # bone, so the two disputing partners below never exist for it (hdm05-kick@30, 10 %
