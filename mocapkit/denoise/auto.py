@@ -12,7 +12,7 @@ The chain, decided from the clip's own diagnosis (:mod:`mocapkit.diagnose`):
    to all of them are off is rejected (with exact bones -- a skeleton's joints -- also a
    one-bone joint off a partner its own bones vouch for), a rejected sample two exact
    bones vouch for is measured (or one, where the other ends in a spike: spikes@30 mean
-   RMSE 0.195 -> 0.095 cm), and rejected samples are kept again when the interpolating
+   RMSE 0.195 -> 0.102 cm), and rejected samples are kept again when the interpolating
    spline through the kept ones -- of the position, or of the position
    relative to a trusted partner -- predicts them within 4.685 cm (on the protocol's
    spike cases RMSE e.g. run@30 1.015 -> 0.252, martial-arts@30 0.443 -> 0.232; on five
@@ -524,13 +524,16 @@ def _second_look(X: np.ndarray, M: np.ndarray, cols: np.ndarray, fit: np.ndarray
     spline's test with the spiked joints next to it, was filled 30 cm off. A kept sample
     none of them vouches for is a spike where a partner it is off from is vouched for by
     another exact bone of its own (a toe's or a finger's single bone). One bone alone
-    never vouches (a spike keeps one length by chance, below). Measured (2026-12-05,
-    tenth session) on the auto protocol's spikes cases, both clip sets: mean RMSE at 30
-    fps 0.195 -> 0.095 cm (protocol) and 0.103 -> 0.049 (held-out), at 120 fps 0.027 ->
-    0.024 and unchanged; 10 of the 40 cases better (kick@30 0.326 -> 0.035, hdm05-hop@30
-    0.444 -> 0.074, 135_04@30 0.368 -> 0.098), none worse. Estimates within 1.5x: 7 and
-    8 of 10 -> 7 and 7 at 30 fps (hdm05-hop@30: the holes' validated estimate, 0.45 cm,
-    had matched the false rejections' error and now reads 6x the 0.074 left).
+    never vouches (a spike keeps one length by chance, below), nor does anything a rigid
+    partner that is not itself a spike still disputes. Measured (2026-12-05, tenth
+    session) on the auto protocol's spikes cases, both clip sets: mean RMSE at 30 fps
+    0.195 -> 0.102 cm (protocol) and 0.103 -> 0.049 (held-out), at 120 fps 0.027 -> 0.024
+    and unchanged; 10 of the 40 cases better (kick@30 0.326 -> 0.080, hdm05-hop@30 0.444
+    -> 0.074, 135_04@30 0.368 -> 0.098), none worse. Estimates within 1.5x: 7 and 8 of 10
+    -> 7 and 7 at 30 fps (hdm05-hop@30: the holes' validated estimate, 0.45 cm, had
+    matched the false rejections' error and now reads 6x the 0.074 left). Without the
+    rigid partners' dispute: protocol 0.095 (kick@30 0.035), but on the test clip tiled
+    three times a wrist spike was let back (below).
 
     *Re-admission* (``readmit`` passes): where the motion is fast the spline, with one s
     per channel, cuts corners by more than the limit and rejects measured samples (and
@@ -558,31 +561,33 @@ def _second_look(X: np.ndarray, M: np.ndarray, cols: np.ndarray, fit: np.ndarray
     P0, obs = Xc.reshape(T, -1, 3), Mc[:, ::3]
     # distances to the point's rigid partners first: they hold however fast the motion
     partners = rigid_partners(P0, obs)
-    agree, disagree, pinned = distance_consistency(P0, obs, partners=partners)
+    agree, disagree, pinned, slot = distance_consistency(P0, obs, partners=partners, per_partner=True)
     # at least two partners and none against: what the estimate takes as measured; to be
     # re-admitted the partners must also pin the sample (three independent directions)
     confirmed = obs & (agree >= 2) & (disagree == 0)
     back = rej[:, ::3] & confirmed & pinned
     # Exact bones (a skeleton's joints, in whatever file format): two partners whose
     # distance never varies beyond EXACT_BONE_CM vouch for a sample at a hinge too, where
-    # two distances do not pin it (a knee between hip and ankle): a 15 cm spike keeps both
-    # within 0.1 cm in roughly 1 of 10^5 tries, while the peak of a kick at 30 fps -- which
-    # the spline's test rejects with its neighbours -- keeps them exactly
+    # two distances do not pin it (a knee between hip and ankle), while the apex of a kick
+    # at 30 fps -- which the spline's test rejects with its neighbours -- keeps them exactly
     part, real, mref, scale = partners
     exact = real & (_BISQUARE * np.nan_to_num(scale, nan=np.inf) <= EXACT_BONE_CM)
     spike_x = np.zeros_like(obs)
     if exact.any():
         ag_x, dis_x, _, slot_x = distance_consistency(P0, obs, partners=(part, exact, mref, scale),
                                                       floor_cm=EXACT_BONE_CM, per_partner=True)
-        # a disagreement is explained when the partner is off every exact bone of its own
-        # (two or more); one agreement then vouches where a neighbour's spike disputed the
-        # other bone. A single bone never vouches alone: a 15 cm spike keeps one length
-        # within 0.001 cm in ~1 of 10^4 tries, and a clip at 120 fps has ~3,000 of them (a
-        # head spike was let back on duck@120)
+        # One agreeing bone vouches too where every partner that disagrees -- exact, or
+        # rigid to the usual limit -- is off all its own exact bones (two or more: a
+        # spike), and it counts as the second. One bone never vouches alone: a 15 cm spike
+        # keeps a length within 0.001 cm in ~1 of 10^4 tries, and a clip at 120 fps has
+        # ~3,000 (a head spike was let back on duck@120); nor where a rigid partner still
+        # disputes it (a wrist spike kept its 21 cm bone to 0.0004 cm, next to a spiked
+        # hand, and was let back 15 cm off while the thumb and hand disputed it)
         definite = obs & (ag_x == 0) & (dis_x >= 2)
-        off_def = (slot_x < 0) & definite[:, part]
-        explained = off_def.sum(axis=2)
-        back |= rej[:, ::3] & (ag_x >= 1) & (ag_x + explained >= 2) & (dis_x == explained)
+        explained = ((slot_x < 0) & definite[:, part]).sum(axis=2)
+        disputed = ((slot < 0) & ~definite[:, part]).any(axis=2)
+        back |= (rej[:, ::3] & (ag_x >= 1) & (ag_x + explained >= 2) & (dis_x == explained)
+                 & ~disputed)
         # ... and a kept sample that no exact bone vouches for, while one it is off from is
         # vouched for by another of its own, is a spike: a toe or a finger tip has a single
         # bone, so the two disputing partners below never exist for it (hdm05-kick@30, 10 %
