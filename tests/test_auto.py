@@ -452,11 +452,10 @@ def test_auto_spikes_in_fast_motion_by_rigid_partners(clip):
     assert not (spikes & kept).any()                 # every spike replaced
 
 
-
 def test_exact_bones_vouch_for_a_hinge_and_expose_a_leaf_spike(clip):
     """With exact bones (a skeleton's joints) two agreeing bones vouch for a rejected
-    sample at a hinge, which two distances do not pin (a kick's apex at 30 fps: the knee
-    filled 30 cm off before) -- or one, where the other bone's end is off all its own
+    sample at a hinge (here the ankle), which two distances do not pin (a kick's apex at
+    30 fps: filled 30 cm off before) -- or one, where the other bone's end is off all its own
     bones --, and a kept spike on a one-bone joint (a toe) is exposed by its bone, whose
     other end is vouched for by its own bones."""
     from dataclasses import replace
@@ -466,22 +465,22 @@ def test_exact_bones_vouch_for_a_hinge_and_expose_a_leaf_spike(clip):
 
     m = clip.resample(30.0)
     names = list(m.skeleton.names)
-    knee, toe = names.index("ltibia"), names.index("ltoes")
+    ankle, toe = names.index("ltibia"), names.index("ltoes")   # ltibia ends at the ankle
     t0 = 60
     foot, t1 = names.index("lfoot"), 100
     spiked = m.positions.copy()
-    spiked[t0, toe] += [0.0, 15.0, 0.0]                    # a spike the robust fit keeps
-    spiked[t1, foot] += [0.0, 0.0, 15.0]                   # the knee's other bone disputed
+    spiked[t0, toe] += [0.0, 15.0, 0.0]                    # a toe spike, kept below
+    spiked[t1, foot] += [0.0, 0.0, 15.0]                   # the ankle's other bone disputed
     noisy = Motion(spiked, m.skeleton, m.fps)
     X, M = noisy.matrix(), noisy.matrix_mask()
     fit, info, usable = robust_fit(noisy)
     cols = np.repeat(usable, 3)
     rej = np.zeros_like(info.rejected)
-    rej[[t0 - 10, t1], 3 * knee:3 * knee + 3] = True         # measured knee samples rejected
+    rej[[t0 - 10, t1], 3 * ankle:3 * ankle + 3] = True         # measured ankle samples rejected
     info = replace(info, rejected=rej)
     _, info2, _ = auto_mod._second_look(X, M, cols, fit, info, edge=False, readmit=0)
-    assert not info2.rejected[t0 - 10, 3 * knee]              # two bones vouch: measured again
-    assert not info2.rejected[t1, 3 * knee]                   # one bone, the other's end a spike
+    assert not info2.rejected[t0 - 10, 3 * ankle]              # two bones vouch: measured again
+    assert not info2.rejected[t1, 3 * ankle]                   # one bone, the other's end a spike
     assert info2.rejected[t0, 3 * toe]                        # the toe's spike rejected
     assert info2.rejected[t1, 3 * foot]                       # the foot's
     assert info2.rejected.sum() == 6                          # and nothing else
