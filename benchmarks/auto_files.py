@@ -92,7 +92,9 @@ def _rmse(truth: Motion, out: Motion, mask: np.ndarray | None = None) -> float:
     """RMSE (cm) over the samples ``out`` holds (and ``mask`` (T, J) allows), joints
     matched by name."""
     Pt, Po = truth.positions, _by_name(out, truth.skeleton.names)
-    ok = np.isfinite(Po).all(axis=2) & (True if mask is None else mask)
+    ok = np.isfinite(Po).all(axis=2)
+    if mask is not None:
+        ok &= mask
     return float(np.sqrt(np.mean((Po[ok] - Pt[ok]) ** 2)))
 
 

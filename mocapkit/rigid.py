@@ -52,7 +52,7 @@ from .windows import frame_blocks, spaced_frames
 
 __all__ = ["kabsch", "yaw_kabsch", "apply_rigid", "distance_stats", "rigid_partners", "distance_noise",
            "distance_consistency", "find_clusters", "parse_clusters", "rigid_fill", "cluster_template",
-           "fixed_bones", "bone_lengths", "hold_lengths", "kinematic_fill", "REFERENCES"]
+           "fixed_bones", "bone_lengths", "bone_chains", "hold_lengths", "kinematic_fill", "REFERENCES"]
 
 #: reference shapes :func:`rigid_fill` knows (see its docstring)
 REFERENCES = ("ends", "average")
@@ -493,6 +493,22 @@ def hold_lengths(P: np.ndarray, pairs: np.ndarray, lengths: np.ndarray, *, sweep
     return Q
 
 
+def bone_chains(bones: np.ndarray, lengths: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The pairs of consecutive bones, grandparent -> parent -> child: (upper, lower), each
+    (S,) indices into ``bones`` (B, 2) (child, parent), where bone ``lower`` hangs from the
+    joint bone ``upper`` ends at. With ``lengths`` (B,) cm, bones of zero length (a BVH
+    ``_base`` joint's) take no part.
+
+    >>> bone_chains(np.array([[1, 0], [2, 1], [3, 2], [4, 0]]))
+    (array([0, 1]), array([1, 2]))
+    """
+    bones = np.asarray(bones, dtype=np.int64).reshape(-1, 2)
+    ok = np.ones(len(bones), bool) if lengths is None else np.asarray(lengths, float).reshape(-1) > 1e-6
+    up = {int(c): b for b, c in enumerate(bones[:, 0]) if ok[b]}     # a joint's bone to its parent
+    lower = np.array([b for b, p in enumerate(bones[:, 1].tolist()) if ok[b] and p in up], np.int64)
+    return np.array([up[int(bones[b, 1])] for b in lower], np.int64), lower
+
+
 def _disjoint_groups(pairs: np.ndarray) -> list[np.ndarray]:
     """The pairs (B, 2) split into groups in which no point appears twice, each pair in a
     later group than every earlier pair it shares a point with: :func:`hold_lengths` moves
@@ -553,15 +569,10 @@ def steady_spans(P: np.ndarray, bones: np.ndarray, lengths: np.ndarray, err: np.
     """
     bones = np.asarray(bones, dtype=np.int64).reshape(-1, 2)
     lengths = np.asarray(lengths, dtype=float).reshape(-1)
-    up = {int(c): b for b, c in enumerate(bones[:, 0]) if lengths[b] > 1e-6}
-    trip = [(int(c), b, up[int(p)]) for b, (c, p) in enumerate(bones)
-            if lengths[b] > 1e-6 and int(p) in up]
-    if not trip:
+    b1, b2 = bone_chains(bones, lengths)
+    if not len(b2):
         return np.zeros((0, 2), np.int64), np.zeros(0)
-    c = np.array([t[0] for t in trip])
-    b2, b1 = np.array([t[1] for t in trip]), np.array([t[2] for t in trip])
-    g = bones[b1, 1]
-    p = bones[b2, 1]
+    c, p, g = bones[b2, 0], bones[b2, 1], bones[b1, 1]
     pairs = np.stack([c, g], axis=1)
     err = np.asarray(err, dtype=float)
     steady = np.std(bone_lengths(P, pairs), axis=0) < k * np.sqrt(err[c] ** 2 + err[g] ** 2)

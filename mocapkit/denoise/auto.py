@@ -1500,7 +1500,7 @@ def _bone_bound(motion: Motion, out: np.ndarray, usable: np.ndarray,
     117 (the circle: one of them); the 11 estimates it moves all move towards their true
     error, none past it.
     """
-    from ..rigid import bone_lengths, fixed_bones, sphere_circle
+    from ..rigid import bone_chains, bone_lengths, fixed_bones, sphere_circle
 
     T = out.shape[0]
     P = out.reshape(T, -1, 3)
@@ -1524,11 +1524,8 @@ def _bone_bound(motion: Motion, out: np.ndarray, usable: np.ndarray,
     # a fill between a kept parent and a kept child: the truth is on the circle where the
     # two bones' spheres meet, and the distance to that circle is at least either v
     # (pa -> j -> ch: triples of two fixed bones, all frames at once)
-    up = {int(ch): k for k, ch in enumerate(c)}                 # a joint's bone to its parent
-    k1 = np.array([up.get(int(j), -1) for j in p])
-    k2 = np.flatnonzero(k1 >= 0)
+    k1, k2 = bone_chains(bones)
     if len(k2):
-        k1 = k1[k2]
         pa, j, ch = p[k1], p[k2], c[k2]
         rows = filled[:, j] & ~filled[:, pa] & ~filled[:, ch]          # (T, K)
         if rows.any():

@@ -393,7 +393,6 @@ class FillAuto(Denoiser):
         which fallbacks; ``e_all``: the validated errors the estimate charges."""
         from ..signal import estimate_noise
 
-
         Y = np.array(motion.positions)
         names = [n for n, _ in methods]
         noise = estimate_noise(motion.matrix(copy=False), motion.matrix_mask(), pool="all", fallback=0.0)      # cm
