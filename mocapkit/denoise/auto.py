@@ -539,8 +539,10 @@ def _second_look(X: np.ndarray, M: np.ndarray, cols: np.ndarray, fit: np.ndarray
     measured hand on the last frame had been charged 6.9 cm), hdm05-hop@30 6.16 -> 1.90;
     the charge also sets the low-rank step's noise level, so two outputs moved (05_03@30
     0.050 -> 0.056 cm, hdm05-hop@30 0.074 -> 0.072). On 40 new cases (four held-out clips
-    at 30 and 120 fps, 10 % spikes of 15 cm, seeds 100-104): spikes left in the output 15
-    -> 1 of 43,270, mean RMSE 0.090 -> 0.047 cm.
+    at 30 and 120 fps, 10 % spikes of 15 cm, seeds 100-104;
+    docs/results/auto_spike_seeds.md): spikes left in the output 15 -> 1 of 43,270,
+    measured samples replaced 41 -> 19, mean RMSE 0.090 -> 0.047 cm (one case worse,
+    0.044 -> 0.045).
 
     *Re-admission* (``readmit`` passes): where the motion is fast the spline, with one s
     per channel, cuts corners by more than the limit and rejects measured samples (and
