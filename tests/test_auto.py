@@ -486,6 +486,41 @@ def test_exact_bones_vouch_for_a_hinge_and_expose_a_leaf_spike(clip):
     assert info2.rejected.sum() == 6                          # and nothing else
 
 
+def test_two_exact_bones_vouch_whatever_moved_next_to_them(clip):
+    """Two agreeing exact bones vouch for a rejected sample even where a third exact
+    partner disagrees and is no spike: that partner is what moved (a thumb that flicks
+    about the wrist keeps its own bone and breaks its distances to the hand and fingers;
+    CMU 135_02 at 120 fps: three finger samples next to such a thumb were filled 10-12 cm
+    off). A spike keeps two lengths within 0.001 cm by chance in ~1e-9 of tries."""
+    from dataclasses import replace
+
+    from mocapkit.denoise import auto as auto_mod
+    from mocapkit.diagnose import robust_fit
+
+    m = clip.resample(30.0)
+    names = list(m.skeleton.names)
+    wrist, thumb, fingers = (names.index(n) for n in ("lwrist", "lthumb", "lfingers"))
+    t = 70
+    P = m.positions.copy()
+    v = P[t, thumb] - P[t, wrist]                         # the thumb turns 60 deg about the wrist
+    axis = np.cross(v, [0.0, 1.0, 0.0])
+    axis /= np.linalg.norm(axis)
+    c, s = np.cos(np.pi / 3), np.sin(np.pi / 3)
+    P[t, thumb] = P[t, wrist] + v * c + np.cross(axis, v) * s + axis * (axis @ v) * (1 - c)
+    noisy = Motion(P, m.skeleton, m.fps)
+    X, M = noisy.matrix(), noisy.matrix_mask()
+    fit, info, usable = robust_fit(noisy)
+    cols = np.repeat(usable, 3)
+    rej = np.zeros_like(info.rejected)
+    rej[t, 3 * fingers:3 * fingers + 3] = True             # the measured fingers rejected,
+    rej[t, 3 * thumb:3 * thumb + 3] = True                 # and the thumb
+    info = replace(info, rejected=rej)
+    _, info2, _ = auto_mod._second_look(X, M, cols, fit, info, edge=False, readmit=0)
+    assert not info2.rejected[t, 3 * fingers]             # hand and wrist vouch: measured
+    assert info2.rejected[t, 3 * thumb]                   # one bone never vouches alone
+    assert info2.rejected.sum() == 3
+
+
 def _long(clip):
     """The clip forward, backward and forward again: a continuous 1,407-frame motion."""
     from mocapkit.motion import Motion
