@@ -13,7 +13,12 @@ standardised features' Gram matrices (training x training, test x training) kept
 read-outs that need only those are scored: the ridge at fixed penalties 1e-3..1e6
 (dual form, +-1 targets, unpenalised intercept, as the default), the cosine-normalised
 kernel, Gaussian kernels exp(-d^2 / (g median d^2)) at g = 0.25..4, polynomial kernels
-(1 + k / median |f|^2)^p, p = 2, 3, and the nearest neighbour. One BLAS thread; ~8 min.
+(1 + k / median |f|^2)^p, p = 2, 3, and the nearest neighbour; and (eleventh session) the
+ridge on the features centred per subject -- each training row less the mean of its
+subject's rows (augmented copies included), each test clip less the mean of its own
+subject's test clips -- the speaker normalisation of speech recognition, aimed at subject
+2's low throws (recognition.md). It is transductive: a clip is classified with the other
+clips of its performer. One BLAS thread; ~8 min.
 """
 from __future__ import annotations
 
@@ -39,6 +44,8 @@ from mocapkit.datasets import shared_data_dir  # noqa: E402
 
 OUT = ROOT / "docs" / "results" / "recognition_readout.json"
 RIDGE_ALPHAS = (1e-3, 1e0, 1e1, 1e2, 1e3, 1e4, 3e4, 1e5, 1e6)
+#: the read-out on features centred per subject (module docstring)
+SUBJECT_CENTRED = "ridge, centred per subject"
 
 
 def gram(m, X: np.ndarray, a: np.ndarray, b: np.ndarray) -> dict[str, np.ndarray]:
@@ -56,6 +63,13 @@ def gram(m, X: np.ndarray, a: np.ndarray, b: np.ndarray) -> dict[str, np.ndarray
             "rows": np.concatenate([np.arange(len(a)), owner])}
 
 
+def centring(groups: np.ndarray) -> np.ndarray:
+    """The (n, n) matrix I - S that takes from each row the mean of the rows of its group:
+    features F centred per group are (I - S) F, so their Gram matrices follow from F's."""
+    same = groups[:, None] == groups[None, :]
+    return np.eye(len(groups)) - same / same.sum(1, keepdims=True)
+
+
 def ridge_predict(K: np.ndarray, Kt: np.ndarray, ya: np.ndarray, alpha: float) -> np.ndarray:
     """Kernel ridge on +-1 one-hot targets with an unpenalised intercept (the default's read-out)."""
     cls = np.unique(ya)
@@ -66,11 +80,14 @@ def ridge_predict(K: np.ndarray, Kt: np.ndarray, ya: np.ndarray, alpha: float) -
     return cls[np.argmax(Kt @ A + ym, axis=1)]
 
 
-def readouts(G: dict, ya: np.ndarray) -> dict[str, np.ndarray]:
-    """Predictions of every read-out from one fold's Gram matrices."""
+def readouts(G: dict, ya: np.ndarray, ga: np.ndarray, gt: np.ndarray) -> dict[str, np.ndarray]:
+    """Predictions of every read-out from one fold's Gram matrices (labels ya and subjects
+    ga of the training rows, subjects gt of the test clips)."""
     K, Kt, nt = G["K"], G["Kt"], G["nt"]
     n = np.diag(K)
     out = {f"ridge alpha {a:g}": ridge_predict(K, Kt, ya, a) for a in RIDGE_ALPHAS}
+    A, At = centring(ga), centring(gt)
+    out[SUBJECT_CENTRED] = ridge_predict(A @ K @ A, At @ Kt @ A, ya, 1e-3)
     out["cosine kernel"] = ridge_predict(K / np.sqrt(np.outer(n, n)), Kt / np.sqrt(np.outer(nt, n)), ya, 1e-3)
     D2, Dt2 = n[:, None] + n[None, :] - 2 * K, nt[:, None] + n[None, :] - 2 * Kt
     med = float(np.median(D2[D2 > 0]))
@@ -104,7 +121,7 @@ def main() -> int:
         for kind, name, tr, te in RR.inner_folds(y, g):
             m = RocketClassifier(seed=a.seed).fit_series(X[tr], y[tr], keypoints=D["keypoints"])
             G = gram(m, X, tr, te)
-            for ro, pred in readouts(G, y[tr][G["rows"]]).items():
+            for ro, pred in readouts(G, y[tr][G["rows"]], g[tr][G["rows"]], g[te]).items():
                 right.setdefault(ro, {"cross-subject": 0, "half": 0})[kind] += int((pred == y[te]).sum())
             n[kind] += len(te)
             print(kind, name, f"{time.time() - t0:.0f} s", flush=True)
