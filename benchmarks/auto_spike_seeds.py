@@ -18,10 +18,7 @@ import os
 for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_v, "1")
 
-import argparse  # noqa: E402
-import json  # noqa: E402
 import sys  # noqa: E402
-import time  # noqa: E402
 import warnings  # noqa: E402
 from pathlib import Path  # noqa: E402
 
@@ -32,7 +29,7 @@ sys.path.insert(0, str(ROOT))
 
 from mocapkit import corrupt, metrics  # noqa: E402
 from mocapkit.bench.protocols import auto as P  # noqa: E402
-from mocapkit.datasets import shared_data_dir  # noqa: E402
+from _report import run_or_render  # noqa: E402
 from mocapkit.denoise import auto as A  # noqa: E402
 
 OUT = ROOT / "docs" / "results" / "auto_spike_seeds.md"
@@ -94,18 +91,7 @@ def render(doc: dict) -> str:
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__)
-    ap.add_argument("--data")
-    ap.add_argument("--render-only", action="store_true")
-    a = ap.parse_args()
-    js = OUT.with_suffix(".json")
-    if not a.render_only:
-        t0 = time.time()
-        rows = run(Path(a.data) if a.data else shared_data_dir())
-        js.write_text(json.dumps({"seconds": time.time() - t0, "rows": rows}, indent=0))
-    OUT.write_text(render(json.loads(js.read_text())))
-    print(f"wrote {OUT}")
-    return 0
+    return run_or_render(OUT, lambda data, a: {"rows": run(data)}, render, __doc__)
 
 
 if __name__ == "__main__":

@@ -22,8 +22,6 @@ import os
 for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_v, "1")
 
-import argparse  # noqa: E402
-import json  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 import warnings  # noqa: E402
@@ -36,7 +34,7 @@ sys.path.insert(0, str(ROOT))
 
 from mocapkit import corrupt, io, metrics  # noqa: E402
 from mocapkit.bench.protocols.auto import _method  # noqa: E402
-from mocapkit.datasets import shared_data_dir  # noqa: E402
+from _report import run_or_render  # noqa: E402
 
 OUT = ROOT / "docs" / "results" / "auto_markers.md"
 FILES = ("c3d_org/Eb015pr.c3d", "hdm05/HDM_dg_06-03_03_120.c3d", "pyomeca/markers_analogs.c3d",
@@ -117,20 +115,9 @@ def render(doc: dict) -> str:
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--data")
-    ap.add_argument("--max-seconds", type=float, default=8.0)
-    ap.add_argument("--render-only", action="store_true")
-    a = ap.parse_args()
-    js = OUT.with_suffix(".json")
-    if not a.render_only:
-        t0 = time.time()
-        rows = run(Path(a.data) if a.data else shared_data_dir(), a.max_seconds)
-        js.write_text(json.dumps({"max_seconds": a.max_seconds, "seconds": time.time() - t0, "rows": rows},
-                                 indent=0, default=float))
-    OUT.write_text(render(json.loads(js.read_text())))
-    print(f"wrote {OUT}")
-    return 0
+    return run_or_render(OUT, lambda data, a: {"max_seconds": a.max_seconds, "rows": run(data, a.max_seconds)},
+                         render, __doc__.splitlines()[0],
+                         options=[("--max-seconds", {"type": float, "default": 8.0})])
 
 
 if __name__ == "__main__":

@@ -52,7 +52,8 @@ from .windows import frame_blocks, spaced_frames
 
 __all__ = ["kabsch", "yaw_kabsch", "apply_rigid", "distance_stats", "rigid_partners", "distance_noise",
            "distance_consistency", "find_clusters", "parse_clusters", "rigid_fill", "cluster_template",
-           "fixed_bones", "bone_lengths", "bone_chains", "hold_lengths", "kinematic_fill", "REFERENCES"]
+           "fixed_bones", "bone_lengths", "bone_chains", "steady_spans", "hold_lengths", "kinematic_fill",
+           "REFERENCES"]
 
 #: reference shapes :func:`rigid_fill` knows (see its docstring)
 REFERENCES = ("ends", "average")

@@ -1,0 +1,52 @@
+"""The one ``main`` of the benchmark scripts whose Markdown report is rendered from a JSON
+run: run into ``<out>.json`` (with the run's wall seconds), then render ``<out>``;
+``--render-only`` re-renders from the JSON already there.
+
+>>> import tempfile
+>>> from pathlib import Path
+>>> out = Path(tempfile.mkdtemp()) / "demo.md"
+>>> _ = out.with_suffix(".json").write_text('{"seconds": 1.0, "rows": [1, 2]}')
+>>> run_or_render(out, None, lambda doc: f"{len(doc['rows'])} rows\\n", "demo", argv=["--render-only"]) # doctest: +ELLIPSIS
+wrote ...demo.md
+0
+>>> out.read_text()
+'2 rows\\n'
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+from typing import Callable, Sequence
+
+
+def run_or_render(out: Path, run: Callable[[Path, argparse.Namespace], dict] | None,
+                  render: Callable[[dict], str], description: str,
+                  options: Sequence[tuple[str, dict]] = (), argv: Sequence[str] | None = None) -> int:
+    """Parse ``--data DIR``, ``--render-only`` and ``options`` ((flag, add_argument kwargs));
+    unless rendering only, ``run(data, args)`` returns the document (``rows`` and any
+    settings), written with ``seconds`` to ``out``'s .json; ``render(doc)`` writes ``out``."""
+    from mocapkit.datasets import shared_data_dir
+
+    ap = argparse.ArgumentParser(description=description)
+    ap.add_argument("--data")
+    ap.add_argument("--render-only", action="store_true")
+    for flag, kw in options:
+        ap.add_argument(flag, **kw)
+    a = ap.parse_args(argv)
+    js = out.with_suffix(".json")
+    if not a.render_only:
+        if a.data and not Path(a.data).is_dir():       # (shared_data_dir would look elsewhere)
+            raise SystemExit(f"{Path(sys.argv[0]).name}: --data {a.data}: no such folder")
+        data = shared_data_dir(a.data)
+        if data is None:
+            raise SystemExit(f"{Path(sys.argv[0]).name}: ../shared/data not found (--data DIR)")
+        t0 = time.time()
+        doc = run(Path(data), a)
+        rows = doc.pop("rows")
+        js.write_text(json.dumps({**doc, "seconds": time.time() - t0, "rows": rows}, indent=0, default=float))
+    out.write_text(render(json.loads(js.read_text())))
+    print(f"wrote {out}")
+    return 0
