@@ -249,7 +249,8 @@ def bone_lengths(P: np.ndarray, bones: np.ndarray) -> np.ndarray:
     return np.linalg.norm(P[:, bones[:, 0]] - P[:, bones[:, 1]], axis=-1)
 
 
-def fixed_bones(motion, positions: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+def fixed_bones(motion, positions: np.ndarray | None = None, *, zero_length: bool = False
+                ) -> tuple[np.ndarray, np.ndarray]:
     """The bones whose length the motion's file format fixes.
 
     In ASF/AMC and BVH the positions are forward kinematics of rotations, so a bone keeps
@@ -266,6 +267,13 @@ def fixed_bones(motion, positions: np.ndarray | None = None) -> tuple[np.ndarray
     the skeleton's scale -- the median bone's measured length off its declared one by more
     than 0.8-1.25x, as when positions were rescaled (metres, millimetres) without the
     skeleton: the declared lengths then describe other positions.
+
+    ``zero_length``: also the bones of length 0 -- a joint the format puts exactly at its
+    parent (a BVH joint with OFFSET 0 0 0: ten in every CMU BVH conversion, LHipJoint,
+    lowerback, LeftCollar, lhand, LThumb ...; the ``<child>_base`` joints mocapkit's BVH
+    writer adds). Off by default: a zero length gives no direction (a kinematic fill, a
+    bone chain, a scale check cannot use it); holding positions to the format's lengths
+    wants them (:func:`hold_lengths` puts the two ends together).
 
     Returns (pairs (B, 2) int -- child joint, parent joint; lengths (B,) cm), B = 0 when
     none.
@@ -296,16 +304,17 @@ def fixed_bones(motion, positions: np.ndarray | None = None) -> tuple[np.ndarray
         keep = flags[bones[:, 0]] if len(flags) == sk.n_joints else np.zeros(len(bones), bool)
     else:
         keep = np.zeros(len(bones), bool)
-    keep &= lengths > 0
+    keep &= lengths >= 0 if zero_length else lengths > 0
     bones, lengths = bones[keep], lengths[keep]
-    if positions is not None and len(bones):
+    if positions is not None and (lengths > 0).any():
         P = np.asarray(positions, float)
         # a scale check: the median over at most SCALE_CHECK_FRAMES evenly spaced frames
         # (all 10,000 of a long clip cost 24 ms a call, and auto calls it up to three times)
         P = P[spaced_frames(len(P), SCALE_CHECK_FRAMES)]
         with np.errstate(invalid="ignore"), warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)          # a bone never seen: NaN
-            ratio = np.nanmedian(bone_lengths(P, bones), axis=0) / lengths
+            pos = lengths > 0
+            ratio = np.nanmedian(bone_lengths(P, bones[pos]), axis=0) / lengths[pos]
         if not np.isfinite(ratio).any() or not 0.8 <= float(np.nanmedian(ratio)) <= 1.25:
             return bones[:0], lengths[:0]
     return bones, lengths

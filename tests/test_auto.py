@@ -822,3 +822,21 @@ def test_the_bone_floor_uses_the_circle_a_fill_between_two_kept_joints_must_be_o
     assert max(v) < 3.5
     floor = _bone_bound(clip, out, np.ones(clip.n_joints, bool), filled)[0]
     assert floor == pytest.approx(np.sqrt(16.0 / out.size), rel=1e-6)
+
+
+def test_auto_puts_zero_offset_joints_on_their_parents_as_the_file_will(clip, tmp_path):
+    """A BVH joint at OFFSET 0 0 0 (CMU's LHipJoint, LeftCollar ..., the writer's ``_base``
+    joints) is where its parent is in the file. Auto's output holds that and every bone's
+    length (the last, parent-first pass of ``_hold_bones``), so what it returns is what the
+    file will hold; before, the bone sweeps let a child pull its zero-offset parent off (the
+    lower neck's base 2.6 cm off the thorax), and the written file differed from the output."""
+    from mocapkit.rigid import bone_lengths, fixed_bones
+
+    truth = io.read(io.write(clip.slice(0, 240), tmp_path / "c.bvh"))
+    out = get("auto").denoise(_noisy(truth, [("gaussian", {"sigma_cm": 3.0})]))
+    bones, lengths = fixed_bones(out, zero_length=True)
+    assert (lengths == 0).sum() >= 5
+    np.testing.assert_allclose(bone_lengths(out.positions, bones), np.broadcast_to(lengths, (240, len(lengths))),
+                               atol=1e-6)
+    back = io.read(io.write(out, tmp_path / "o.bvh"))
+    assert np.abs(back.positions - out.positions).max() < 1e-3

@@ -249,11 +249,13 @@ def test_ik_after_position_noise(synth_file, tmp_path):
         assert rms_vs_noisy < 1.5 * rms_noise, start
         assert rms_vs_clean < 1.5 * rms_noise, start
         # bone lengths are the hierarchy's, whatever the noise (except Chest, whose
-        # position channels let it follow its noisy target exactly)
+        # position channels let it follow its noisy target: the least-squares polish
+        # trades some of that for its subtree's targets)
         keep = [b for b, (c, _) in enumerate(m.skeleton.bones()) if m.skeleton.names[c] != "Chest"]
         np.testing.assert_allclose(r.bone_lengths()[:, keep], m.bone_lengths()[:, keep], atol=1e-6)
         chest = m.skeleton.index("Chest")
-        assert np.abs(r.positions[:, chest] - noisy.positions[:, chest]).max() < 1e-6
+        off = np.sqrt(((r.positions[:, chest] - noisy.positions[:, chest]) ** 2).sum(1).mean())
+        assert off < 1.5 * rms_vs_noisy, (start, off, rms_vs_noisy)
 
 
 def test_writer_refusals(synth_file, tmp_path):
@@ -270,12 +272,23 @@ def test_writer_refusals(synth_file, tmp_path):
     r = bvh.read(tmp_path / "sub.bvh", units="cm")
     # LeftUpLeg (under the dropped LHipJoint) and Spine turn apart under Hips: each hangs
     # from a zero-offset joint of its own, and the leg is held (Chest had position
-    # channels: its bone, fixed in the new hierarchy, cannot follow)
+    # channels, and Neck is dropped: two of the three bones between joints the motion
+    # keeps cannot follow, 0.4-2.8 cm. The least-squares polish shares that out -- the
+    # spine 1.1-1.3 cm off in a few frames -- and the whole is closer than the closed-form
+    # IK alone, which holds the leg exactly and leaves all of it to the chest and head)
     assert [n for n in r.skeleton.names if not n.endswith("_base")] == list(sub.skeleton.names)
     assert {"LeftUpLeg_base", "Spine_base"} <= set(r.skeleton.names)
     leg = ["Hips", "LeftUpLeg", "LeftLeg", "Spine"]
-    np.testing.assert_allclose(r.positions[:, [r.skeleton.index(n) for n in leg]],
+    names = list(sub.skeleton.names)
+    sq = float(((r.positions[:, [r.skeleton.index(n) for n in names]] - sub.positions) ** 2).sum())
+    from mocapkit.io import _bvh_polish
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(_bvh_polish, "polish", lambda nodes, layout, ch, *a, **k: ch)
+        bvh.write(sub, tmp_path / "sub_closed.bvh", hierarchy="skeleton")
+    rc = bvh.read(tmp_path / "sub_closed.bvh", units="cm")
+    np.testing.assert_allclose(rc.positions[:, [rc.skeleton.index(n) for n in leg]],
                                sub.positions[:, [sub.skeleton.index(n) for n in leg]], atol=1e-5)
+    assert sq < float(((rc.positions[:, [rc.skeleton.index(n) for n in names]] - sub.positions) ** 2).sum())
     with pytest.raises(MocapValueError, match="refusing to overwrite the input"):
         mio.write(m, p, overwrite=True)
     assert not list(tmp_path.glob(".*.tmp"))                        # atomic: no leftovers
@@ -507,3 +520,28 @@ def test_writing_a_skeleton_bvh_holds_amc_or_says_how_far_off(tmp_path):
     P[:, h] = amc.positions[:, h] + (P[:, h] - amc.positions[:, h]) / np.linalg.norm(
         P[:, h] - amc.positions[:, h], axis=1, keepdims=True)
     assert re.search(r"only to .* cm mean, 1\.00 cm at most \(head", bvh._unreachable(amc, frames, P))
+
+
+def test_noisy_positions_are_written_as_the_least_squares_pose(tmp_path, monkeypatch):
+    """White noise on every joint of a CMU clip written to BVH (the hierarchy the writer
+    builds, zero-offset ``_base`` joints included): the polish (:mod:`mocapkit.io._bvh_polish`)
+    fits all of a frame's channels to all of its targets, so the file is nearer the given
+    positions than the closed-form IK alone, which points each bone from where its parent
+    was put and passes the error down the chains -- and nearer the truth than the noise
+    (1 cm: 0.70 against 1.00). Positions the hierarchy holds are written exactly either way."""
+    from mocapkit import corrupt, io
+    from mocapkit.datasets import bundled
+    from mocapkit.io import _bvh_polish
+
+    clean = io.read(bundled("16_15.amc")).slice(2, 122)
+    truth = io.read(io.write(clean, tmp_path / "clean.bvh"))
+    noisy, _ = corrupt.combine(truth, [("gaussian", {"sigma_cm": 1.0})], seed=0)
+
+    def rms(a, b):
+        return float(np.sqrt(np.mean((a.positions - b.positions) ** 2)))
+    polished = io.read(io.write(noisy, tmp_path / "polished.bvh"))
+    assert np.abs(io.read(io.write(truth, tmp_path / "again.bvh")).positions - truth.positions).max() < 1e-4
+    monkeypatch.setattr(_bvh_polish, "polish", lambda nodes, layout, ch, *a, **k: ch)
+    closed = io.read(io.write(noisy, tmp_path / "closed.bvh"))
+    assert rms(polished, noisy) < 0.9 * rms(closed, noisy)
+    assert rms(polished, truth) < 0.8 < rms(closed, truth)

@@ -915,7 +915,9 @@ def _ik_normal_equations(comp: _Compiled, P: np.ndarray, W: np.ndarray, usable: 
     (the tests' dense Jacobian gives the same values to round-off).
 
     P (T, J, 3) joint positions, W (T, D, 3) world dof axes (from :func:`_fk_block`),
-    usable (T, J) target mask, r (T, J, 3) residuals (file units). A rotational dof d
+    usable (T, J) target mask, r (T, J, 3) residuals (file units); ``comp.trans_cols``, where
+    a caller has it (the BVH polish), lists translation columns whose unit direction W holds
+    (``xi = (0, W_d)``). A rotational dof d
     with unit axis w about pivot c moves joint j by ``w x (p_j - c) = m + w x p_j`` with
     the moment ``m = c x w`` (Plücker coordinates ``xi = (w, m)``; a root translation
     along e_a is ``xi = (0, e_a)``; both scaled by pi/180 for degree files), for the
@@ -954,6 +956,10 @@ def _ik_normal_equations(comp: _Compiled, P: np.ndarray, W: np.ndarray, usable: 
     for col, a in comp.fk_trans:
         m[:, :, col] = 0.0
         m[a, :, col] = 1.0
+    tc = getattr(comp, "trans_cols", None)       # translations along W's per-frame direction
+    if tc is not None and len(tc):               # (BVH position channels: the parent's axes)
+        m[:, :, tc] = np.moveaxis(W[:, tc], 2, 0)
+        w[:, :, tc] = 0.0
     H = np.empty((6, T, D))                     # Lam_S xi, S the column's own subtree
     trM = M[0, 0] + M[1, 1] + M[2, 2]
     _cross_planes(s, m, H[:3])

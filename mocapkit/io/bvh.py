@@ -49,7 +49,7 @@ Writing
 -------
 ``write(motion, path, *, hierarchy='auto', units=None)`` keeps the hierarchy and every
 joint's channel order. Rotations are recovered from the positions by per-joint inverse
-kinematics, top-down and vectorised over frames:
+kinematics, top-down and vectorised over frames, then polished per frame:
 
 1. each joint starts from its original local rotation ``L0`` when the motion still
    carries the per-frame channels of its own frames (``source['per_frame']``; kept by
@@ -65,19 +65,29 @@ kinematics, top-down and vectorised over frames:
    solved exactly instead); a leaf keeps ``L0``;
 3. ``L = G_parent^T Q G_parent L0`` is converted back to Euler angles in the joint's own
    channel order (the branch and 360-degree turn nearest to the original value, or
-   unwrapped over time without one).
+   unwrapped over time without one);
+4. a Levenberg-Marquardt polish of every channel of a frame at once
+   (:mod:`mocapkit.io._bvh_polish`, the normal equations of the AMC writer's polish,
+   :func:`mocapkit.io._kinematics._ik_normal_equations`), on the frames steps 1-3 leave
+   further off than the targets' own bone-length mismatch explains (3 x the largest,
+   capped at 0.5 cm) and where most bones are off their length (the median by over 0.01
+   cm: noise; one misfit bone keeps the closed form, which leaves every other joint
+   exact): the least-squares pose of the frame.
 
-Targets off the skeleton (noise) crumple a chain this way: every bone takes its noisy
-direction from where its parent was put, and the radial part of the error passes down.
-Measured and not kept (2026-12-05, eighth session): least-squares sweeps after the IK
-(top-down, each joint turning its whole subtree by the Kabsch rotation of the subtree's
-joints onto their targets). CMU 01_01 at 30 fps with white noise: written against given
-positions 1.008 -> 0.879 cm (1 cm noise, 3 sweeps), 0.854 after 8; the hands 2.9 -> 1.7 cm
-from the truth at 3 cm; but the spine converged slowly (head 3.6 cm after 3 sweeps, 3.1 after 40), a
-write of 10,000 frames took 0.35 -> 1.8 s (3 sweeps), and through BVH files corrupted
-with 3 cm (held-out 01_01@30) auto and the oracle filter both came out lower (1.68 ->
-1.38 and 2.04 -> 1.64 cm) but their ratio did not fall (0.82 -> 0.84). Clean positions,
-and any motion with its bones held (auto's output), are written exactly either way.
+Steps 1-3 alone crumple a chain when the targets are off the skeleton (noise): every bone
+takes its noisy direction from where its parent was put, and the error of every joint above
+passes down. Measured (2026-12-05, twelfth session; held-out CMU clips written through the
+hierarchy the writer builds, white noise on the positions, file against the truth; steps
+1-3 alone -> with the polish): 1 cm noise 1.00 -> 0.70 cm, 3 cm 3.05 -> 2.02 cm, and the
+clip-mean offset of a joint (what no smoother of the file takes out) 1.56 -> 0.68 cm at 3 cm
+on 49_19; writing 960 noisy frames 0.06 -> 1.2-1.7 s (one thread). Through files corrupted
+that way, ``mocapkit denoise`` (auto) comes out 0.95-1.14 -> 0.66-0.80 cm at 3 cm / 120 fps
+(docs/results/auto_files.md). Positions the hierarchy holds (clean data, a motion whose
+bones are held: auto's output) skip the polish and are written exactly; a filter's output
+whose bones are a little short mostly skips it too (kalman-cv on CMU 131_02: the same file,
+same time). An earlier try (eighth session): least-squares sweeps of subtree Kabsch
+rotations, top-down -- the spine converged slowly (the head 3.6 cm off after 3 sweeps, 3.1
+after 40) and a write of 10,000 frames took 0.35 -> 1.8 s.
 
 The IK runs in chunks of :data:`_CHUNK` frames (bounded memory, unwrapping continued
 across chunks) in the (3, 3, T) rotation layout; values are formatted by
@@ -110,6 +120,7 @@ from typing import Any
 
 import numpy as np
 
+from . import _bvh_polish
 from ._numfmt import fixed_rows
 from ._rotations import (axis_angle, euler_from_matrix_t, kabsch, min_rotation,
                          mm_t, normalize, rotate_right_t, wrap_near)
@@ -1193,6 +1204,8 @@ def _ik_chunked(nodes: list[_Node], joint_nodes: list[int], positions: np.ndarra
         targets[:, joint_nodes] = positions[a:b] / factor
         ch[a:b] = _inverse_kinematics(nodes, targets, have, None if ch0 is None else ch0[a:b], plan,
                                       ch[a - 1] if a else None)
+        ch[a:b] = _bvh_polish.polish(nodes, (plan.rot, plan.pos, plan.C), ch[a:b], targets, have,
+                                     above=1e-3 / factor, cap=0.5 / factor, spread=0.01 / factor)
     return ch
 
 
