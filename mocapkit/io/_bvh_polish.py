@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._kinematics import _ik_normal_equations
+from ._kinematics import lm_frames
 from ._rotations import rotate_right_t
 
 __all__ = ["polish"]
@@ -98,6 +98,12 @@ def _fk_axes(nodes, layout, ch: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.transpose(X, (2, 0, 1)), np.transpose(W, (2, 0, 1))
 
 
+def _reorder(res):
+    """(X, W, r, cost) -> (cost, r, X, W), the order :func:`lm_frames` wants."""
+    X, W, r, c = res
+    return c, r, X, W
+
+
 def _mismatch(nodes, targets: np.ndarray, usable: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(T,) per frame the largest and the median difference between a target bone's length
     and the hierarchy's (a node and its parent, both with targets, no position channels:
@@ -165,28 +171,9 @@ def polish(nodes, layout, ch: np.ndarray, targets: np.ndarray, have: np.ndarray,
     worst = np.sqrt(np.max(np.sum(r ** 2, axis=2), axis=1))
     m_max, m_med = _mismatch(nodes, targets, usable)
     live = np.flatnonzero((worst > np.minimum(above + 3.0 * m_max, cap)) & (m_med > spread))
-    C = layout[2]
     for a in range(0, len(live), BLOCK):
         f = live[a:a + BLOCK]
-        D, Xb, Wb, rb, cb = ch[f], X[f], W[f], r[f], cost[f]
-        lam = np.full(len(f), 1e-3)
-        act = np.ones(len(f), bool)
-        U = np.broadcast_to(usable, (len(f), len(usable)))
-        for _ in range(iters):
-            k = np.flatnonzero(act)
-            if not len(k):
-                break
-            A, g = _ik_normal_equations(cols, Xb[k], Wb[k], U[k], rb[k], False)
-            diag = A.reshape(len(k), -1)[:, ::C + 1]
-            diag += lam[k, None] * (diag + 1e-9)
-            step = -np.linalg.solve(A, g[..., None])[..., 0]
-            Xn, Wn, rn, cn = fk(D[k] + step, f[k])
-            ok = cn < cb[k]
-            gain = np.where(ok, (cb[k] - cn) / np.maximum(cb[k], 1e-300), 0.0)
-            acc = k[ok]
-            D[acc] += step[ok]
-            Xb[acc], Wb[acc], rb[acc], cb[acc] = Xn[ok], Wn[ok], rn[ok], cn[ok]
-            lam[k] = np.where(ok, np.maximum(lam[k] / 5, 1e-9), lam[k] * 8)
-            act[k] = np.where(ok, gain > rel_tol, lam[k] < 1e6)
-        ch[f] = D
+        ch[f] = lm_frames(cols, ch[f], X[f], W[f], np.broadcast_to(usable, (len(f), len(usable))), r[f],
+                          cost[f], lambda D, k: _reorder(fk(D, f[k])), iters=iters, angle_rad=False,
+                          rel_tol=rel_tol)
     return ch

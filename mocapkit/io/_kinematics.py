@@ -1023,26 +1023,43 @@ def _ik_refine(comp: _Compiled, X: np.ndarray, dofs: np.ndarray, angle_rad: bool
         D = dofs[idx]
         cost, r, P, Wa = cost_of(D, idx)
         P, Wa = P.copy(), Wa.copy()                                  # updated in place below
-        lam = np.full(len(idx), 1e-3)
-        live = cost > tol
         work = (np.empty((len(idx), nd, nd)), np.empty((len(idx), nd, nd)))    # reused
-        for _ in range(iters):
-            if not live.any():
-                break
-            k = np.flatnonzero(live)
-            # the normal equations of every live frame (cheap without the Jacobian: also
-            # rebuilt, identically, for frames whose last step was rejected), damped in place
-            A, g = _ik_normal_equations(comp, P[k], Wa[k], Wm[idx[k]], r[k], angle_rad, work)
-            diag = A.reshape(len(k), -1)[:, ::nd + 1]                # a view of the diagonals
-            diag += lam[k, None] * (diag + 1e-9)
-            step = -np.linalg.solve(A, g[..., None])[..., 0]
-            newc, newr, newP, newW = cost_of(D[k] + step, idx[k])
-            ok = newc < cost[k]
-            gain = np.where(ok, (cost[k] - newc) / np.maximum(cost[k], 1e-300), 0.0)
-            acc = k[ok]
-            D[acc] += step[ok]
-            cost[acc], r[acc], P[acc], Wa[acc] = newc[ok], newr[ok], newP[ok], newW[ok]
-            lam[k] = np.where(ok, np.maximum(lam[k] / 5, 1e-9), lam[k] * 8)
-            live[k] = np.where(ok, (newc > tol) & (gain > rel_tol), lam[k] < 1e6)
-        dofs[idx] = D
+        dofs[idx] = lm_frames(comp, D, P, Wa, Wm[idx], r, cost, lambda Dt, k: cost_of(Dt, idx[k]),
+                              iters=iters, angle_rad=angle_rad, rel_tol=rel_tol, tol=tol, work=work)
     return dofs
+
+
+def lm_frames(comp, D: np.ndarray, P: np.ndarray, W: np.ndarray, usable: np.ndarray, r: np.ndarray,
+              cost: np.ndarray, evaluate, *, iters: int, angle_rad: bool, rel_tol: float,
+              tol: float = 0.0, work: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+    """Levenberg-Marquardt on a block of frames, each with its own Marquardt damping: the
+    AMC polish (:func:`_ik_refine`) and the BVH writer's (:mod:`mocapkit.io._bvh_polish`).
+
+    D (F, dofs) the start; P (F, J, 3), W (F, dofs, 3), r (F, J, 3) and cost (F,) its FK,
+    world axes, residuals and squared error (updated in place); usable (F, J) the target
+    mask; ``evaluate(D_trial, k)`` -> (cost, r, P, W) of trial dofs for the block's frames
+    ``k``. A step is kept only if it lowers the frame's cost; a frame stops once its cost
+    is under ``tol`` or a step gains less than ``rel_tol`` of it. Returns D (F, dofs).
+    """
+    lam = np.full(len(D), 1e-3)
+    live = cost > tol
+    for _ in range(iters):
+        if not live.any():
+            break
+        k = np.flatnonzero(live)
+        # the normal equations of every live frame (cheap without the Jacobian: also
+        # rebuilt, identically, for frames whose last step was rejected), damped in place
+        A, g = _ik_normal_equations(comp, P[k], W[k], usable[k], r[k], angle_rad, work)
+        nd = A.shape[1]
+        diag = A.reshape(len(k), -1)[:, ::nd + 1]                # a view of the diagonals
+        diag += lam[k, None] * (diag + 1e-9)
+        step = -np.linalg.solve(A, g[..., None])[..., 0]
+        newc, newr, newP, newW = evaluate(D[k] + step, k)
+        ok = newc < cost[k]
+        gain = np.where(ok, (cost[k] - newc) / np.maximum(cost[k], 1e-300), 0.0)
+        acc = k[ok]
+        D[acc] += step[ok]
+        cost[acc], r[acc], P[acc], W[acc] = newc[ok], newr[ok], newP[ok], newW[ok]
+        lam[k] = np.where(ok, np.maximum(lam[k] / 5, 1e-9), lam[k] * 8)
+        live[k] = np.where(ok, (newc > tol) & (gain > rel_tol), lam[k] < 1e6)
+    return D
