@@ -13,13 +13,16 @@ file format changes what the corruption is:
   joints around it too (10 % spiked samples: ~43 % of the samples off by more than 1 cm
   in the file), and Gaussian noise is projected onto the skeleton's poses. AMC cannot hold
   a missing sample, so only the noise conditions go this way.
-* **BVH** (since 2026-12-05, eighth session) stores three rotations per joint: the
-  writer's IK points each bone along its noisy direction from where its parent was put,
-  so the file's error is shared between joints (a zero-length ``<child>_base`` joint's is
-  its parent's exactly) and in part low-frequency (CMU 01_01 at 30 fps with 3 cm of white
-  noise: lag-1 autocorrelation of the error 0.71 at the head, 0.64 at the fingers, 0.03
-  at the left knee), which no smoother can take out. The hierarchy is the one the writer
-  builds for the CMU skeleton (41 joints); no missing samples either.
+* **BVH** (since 2026-12-05, eighth session) stores three rotations per joint. Since the
+  twelfth session the writer fits each frame's channels to all of its targets at once
+  (least squares, :mod:`mocapkit.io._bvh_polish`), as the AMC writer does: noise is
+  projected onto the skeleton's poses (3 cm of white noise -> 2.0 cm in the file). Before,
+  its IK pointed each bone along its noisy direction from where its parent was put: the
+  error passed down the chains (3.05 cm in the file) and was in part a clip-long offset
+  (1.56 cm on 49_19 at 3 cm), which no smoother takes out and no estimate from the clip's
+  own high frequencies sees (auto's estimates read 0.3-0.7x low on gauss3@120). The
+  hierarchy is the one the writer builds for the CMU skeleton (41 joints, ten of them
+  zero-offset ``_base`` joints); no missing samples either.
 * **C3D** keeps the positions as they are (and the missing samples missing), and since
   2026-12-05 the joint hierarchy and the bones the AMC fixed (group ``MOCAPKIT``,
   :mod:`mocapkit.io.c3d`): read back, the clip is joint-centre data of that skeleton, as in
@@ -186,12 +189,11 @@ def render(doc: dict) -> str:
              f"its worst clip, where C3D is at most {max(c3d_g):.2f}" if amc_g and c3d_g else "")
     bvh_e = [r["estimate"] / r["auto"] for r in rows if r["format"] == "bvh" and r["estimate"]
              and r["condition"] in ("gauss1", "gauss3") and r["auto"] > 0]
-    bvh = (f" Written to BVH, each joint's three rotations take the noisy direction from where its parent "
-           f"was put: the error is shared between joints and in part low-frequency (module docstring), "
-           f"which no smoother takes out and no estimate from the clip's own high frequencies sees; on "
-           f"Gaussian noise auto's worst clip is at {min(bvh_g):.2f}-{max(bvh_g):.2f} x the oracle, and "
+    bvh = (f" Written to BVH, the noise is projected onto the skeleton's poses by the writer's "
+           f"least-squares IK, as it is for AMC (module docstring); on Gaussian noise auto's worst clip is "
+           f"at {min(bvh_g):.2f}-{max(bvh_g):.2f} x the oracle, and "
            f"{sum(1 for e in bvh_e if 1 / 1.5 <= e <= 1.5)} of its {len(bvh_e)} estimates are within 1.5x "
-           f"(those that are not read low: {', '.join(f'{e:.2f}' for e in sorted(bvh_e) if e < 1 / 1.5)})."
+           f"(those that are not: {', '.join(f'{e:.2f}' for e in sorted(bvh_e) if not 1 / 1.5 <= e <= 1.5) or 'none'})."
            if bvh_g else "")
     out += ["", "Means over clips; `input` is the corrupted file's RMSE where it has no missing sample; "
             "auto and the oracle are scored on the samples auto wrote (`left`: samples of long gaps "
