@@ -1452,18 +1452,22 @@ def _hold_bones(motion: Motion, out: np.ndarray, usable: np.ndarray,
 
     T = out.shape[0]
     P = out.reshape(T, -1, 3)
-    every, every_len = fixed_bones(motion, P, zero_length=True)
-    if not len(every):
+    # with the zero-length bones: a BVH joint at OFFSET 0 0 0 (CMU's LHipJoint, lowerback,
+    # LeftCollar ...; the writer's ``<child>_base``) is its parent's point in the file, and
+    # left out of the sweeps its own child's bone pulled it off (CMU 49_19 through BVH at
+    # 120 fps, 3 cm noise: the lower neck's base 2.6 cm off the thorax). Held to length 0
+    # (both ends meet), measured against leaving them out (2026-12-05, twelfth session;
+    # held-out 01_01 / 131_08 / 05_07 through BVH files at 30 and 120 fps, sum of six
+    # cases' RMSE as written): gauss3 5.39 -> 4.97 cm, spikes 3.30 -> 3.64 (spikes spread
+    # by the writer's IK over a frame: 6-16 % worse per case). Also measured and not kept:
+    # the bones below such a joint hung from its parent (the spans run through it): gauss3
+    # 5.20, spikes 3.83; with it a last parent-first pass putting each joint at its exact
+    # length from where its parent was put (the output exactly what the file holds): gauss3
+    # 5.20 -> 4.95 without that pass -- it crumples the chain as the writer's closed-form
+    # IK did
+    bones, lengths = fixed_bones(motion, P, zero_length=True)
+    if not len(bones):
         return out, None
-    # a joint at zero offset is its parent's point: the bones below it hang from the parent,
-    # so that the spans run through it too (CMU BVH's collars, lower neck, hands, thumbs;
-    # held-out 05_03 / 07_03 / 131_08 through BVH files, worst auto / oracle gauss1 / gauss3
-    # at 30 fps 0.81 / 0.85 -> 0.78 / 0.82, at 120 fps 0.84 / 0.77 -> 0.78 / 0.74)
-    rep = np.arange(P.shape[1])
-    for c, p in every[every_len == 0]:                   # parents first
-        rep[c] = rep[p]
-    nz = every_len > 0
-    bones, lengths = np.stack([every[nz, 0], rep[every[nz, 1]]], axis=1), every_len[nz]
     spans, span_len = steady_spans(P, bones, lengths, err)   # (one with a missing sample is not)
     if len(spans):
         # the spans with the bones, then the bones alone: the format fixes those exactly,
@@ -1472,16 +1476,7 @@ def _hold_bones(motion: Motion, out: np.ndarray, usable: np.ndarray,
         # writers give the exact lengths back)
         P = hold_lengths(P, np.concatenate([bones, spans]), np.concatenate([lengths, span_len]),
                          sweeps=SPAN_SWEEPS)
-    held = hold_lengths(P, bones, lengths, sweeps=6 if len(spans) else 10)
-    # last, every joint hung from its parent as the BVH writer puts it (one pass, parents
-    # first: a child moves along its bone to its exact length), the zero-length bones
-    # included: a BVH joint at OFFSET 0 0 0 (CMU's LHipJoint, lowerback, LeftCollar ...;
-    # the writer's ``<child>_base``) sits on its parent in the file, but the sweeps above
-    # let its own child pull it off (CMU 49_19 through BVH at 120 fps, 3 cm noise: the
-    # lower neck's base 2.6 cm off the thorax). The positions returned are then those the
-    # file will hold: on that clip 1.67 cm from the truth in memory against 1.09 written
-    # before, 1.09 both now (2026-12-05, twelfth session)
-    held = hold_lengths(held, every, every_len, sweeps=1, movable=np.ones(P.shape[:2], bool)).reshape(T, -1)
+    held = hold_lengths(P, bones, lengths, sweeps=6 if len(spans) else 10).reshape(T, -1)
     cols = np.repeat(usable, 3)
     d = (held - out)[:, cols]
     fin = np.isfinite(d)

@@ -8,7 +8,7 @@ the error of the joints above it too, and the chain crumples: with 3 cm of white
 on CMU 49_19 at 120 fps the written file was 3.06 cm RMS off the truth (the head 3.6),
 and 5 cm off *on average over the clip* at the head -- an error that no smoother of the
 file takes out. The AMC writer fits all of a frame's dofs at once (Levenberg-Marquardt,
-:mod:`mocapkit.io._kinematics`): 2.2 cm from the same noise, unbiased. This module does
+:mod:`mocapkit.io._kinematics`): 2.2 cm from the same noise. This module does
 the same for BVH: Levenberg-Marquardt on every channel of a frame, started from the
 closed-form IK, on the frames that IK leaves off their targets.
 
@@ -21,20 +21,21 @@ Jacobian (file units, degrees): channel c of node k moves each node j of k's sub
 * a position channel along axis a: ``G_parent e_a`` (the translation is in the parent's
   frame).
 
-It is formed densely per block of frames ((frames, channels, 3 x targets)); the normal
-equations ``J J^T`` are batched matrix products.
+Its normal equations ``J J^T``, ``J r`` come without forming J, from per-subtree position
+moments (:func:`mocapkit.io._kinematics._ik_normal_equations`, shared with the AMC
+writer), and the Levenberg-Marquardt loop is the AMC polish's
+(:func:`mocapkit.io._kinematics.lm_frames`).
 """
 from __future__ import annotations
 
 import numpy as np
 
 from ._kinematics import lm_frames
-from ._rotations import rotate_right_t
 
 __all__ = ["polish"]
 
-#: frames per block of the dense Jacobian (memory: block x channels x 3 targets x 8 B,
-#: 256 x 126 x 123 -> 32 MB for the 41-joint CMU hierarchy the writer builds)
+#: frames per block of the polish (memory: a few block x channels^2 arrays of 8 B,
+#: 256 x 126^2 -> 33 MB each for the 41-joint CMU hierarchy the writer builds)
 BLOCK = 256
 
 
@@ -66,42 +67,13 @@ class _Columns:
 
 
 def _fk_axes(nodes, layout, ch: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Node positions (T, N, 3) and every channel's world axis (T, C, 3): a rotation's
-    axis, a position channel's direction (the parent's axis), file units."""
-    rot, pos, C = layout
-    T = ch.shape[0]
-    X = np.empty((len(nodes), 3, T))
-    W = np.zeros((C, 3, T))
-    G: list[np.ndarray | None] = [None] * len(nodes)
-    eye = np.broadcast_to(np.eye(3)[:, :, None], (3, 3, T))
-    for k, n in enumerate(nodes):
-        p = n.parent
-        Gp = G[p] if p >= 0 else None
-        t = np.empty((3, T))
-        t[:] = np.asarray(n.offset, float)[:, None]
-        for ax, c in zip(*pos[k]):
-            t[ax] = ch[:, c]
-            W[c] = eye[:, ax] if Gp is None else Gp[:, ax]
-        if p < 0:
-            X[k] = t
-        else:
-            X[k] = X[p] + (t if Gp is None else Gp[:, 0] * t[0] + Gp[:, 1] * t[1] + Gp[:, 2] * t[2])
-        axes, cols = rot[k]
-        if axes:
-            R = eye.copy() if Gp is None else Gp.copy()
-            for ax, c in zip(axes, cols):
-                W[c] = R[:, ax]              # the axis before its own turn (it keeps it)
-                rotate_right_t(R, ax, np.deg2rad(ch[:, c]))
-            G[k] = R
-        else:
-            G[k] = Gp
+    """Node positions (T, N, 3) and every channel's world axis (T, C, 3), file units
+    (:func:`mocapkit.io.bvh._fk_chunk`)."""
+    from .bvh import _fk_chunk                      # bvh imports this module
+
+    W = np.zeros((layout[2], 3, ch.shape[0]))
+    X, _ = _fk_chunk(nodes, layout, ch, False, chan_axes=W)
     return np.transpose(X, (2, 0, 1)), np.transpose(W, (2, 0, 1))
-
-
-def _reorder(res):
-    """(X, W, r, cost) -> (cost, r, X, W), the order :func:`lm_frames` wants."""
-    X, W, r, c = res
-    return c, r, X, W
 
 
 def _mismatch(nodes, targets: np.ndarray, usable: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -155,11 +127,13 @@ def polish(nodes, layout, ch: np.ndarray, targets: np.ndarray, have: np.ndarray,
     tgt = np.where(usable[None, :, None], targets, 0.0)
 
     def fk(c, frames=slice(None)):
+        """(cost, residuals, positions, axes) of channels ``c`` for ``frames``: as
+        :func:`lm_frames` takes them."""
         X, W = _fk_axes(nodes, layout, c)
         r = (X - tgt[frames]) * usable[None, :, None]
-        return X, W, r, np.sum(r ** 2, axis=(1, 2))
+        return np.sum(r ** 2, axis=(1, 2)), r, X, W
 
-    X, W, r, cost = fk(ch)
+    cost, r, X, W = fk(ch)
     # as the AMC writer (:func:`mocapkit.io._kinematics.inverse_kinematics`): a frame is
     # polished where the closed-form IK leaves a joint further off than the targets' own
     # bone-length mismatch explains (3 x the largest, capped at ``cap``): what no pose can
@@ -174,6 +148,6 @@ def polish(nodes, layout, ch: np.ndarray, targets: np.ndarray, have: np.ndarray,
     for a in range(0, len(live), BLOCK):
         f = live[a:a + BLOCK]
         ch[f] = lm_frames(cols, ch[f], X[f], W[f], np.broadcast_to(usable, (len(f), len(usable))), r[f],
-                          cost[f], lambda D, k: _reorder(fk(D, f[k])), iters=iters, angle_rad=False,
+                          cost[f], lambda D, k: fk(D, f[k]), iters=iters, angle_rad=False,
                           rel_tol=rel_tol)
     return ch

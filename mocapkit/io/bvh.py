@@ -341,12 +341,16 @@ def _translation(node: _Node, axes, cols, ch: np.ndarray | None, T: int) -> np.n
     return t
 
 
-def _fk_chunk(nodes: list[_Node], layout, ch: np.ndarray, want_rot: bool):
+def _fk_chunk(nodes: list[_Node], layout, ch: np.ndarray, want_rot: bool,
+              chan_axes: np.ndarray | None = None):
     """Positions (N, 3, T) and (if asked) global rotations [(3, 3, T) or None = identity].
 
     ``G_k = G_parent R_1 R_2 R_3`` (channel order) is built by rotating the parent's
     columns in place (:func:`rotate_right_t`); a node's rotation is dropped once its last
-    child is done unless ``want_rot``.
+    child is done unless ``want_rot``. ``chan_axes`` (C, 3, T), zeros, receives each
+    channel's world axis for the IK polish's Jacobian (:mod:`mocapkit.io._bvh_polish`): a
+    rotation's axis just before its turn, a position channel's direction (the parent's
+    axis); a childless node's rotations move no node and keep zeros.
     """
     rot, pos, _ = layout
     T = ch.shape[0]
@@ -357,10 +361,12 @@ def _fk_chunk(nodes: list[_Node], layout, ch: np.ndarray, want_rot: bool):
     for k, n in enumerate(nodes):
         t = np.empty((3, T))
         t[:] = np.asarray(n.offset, float)[:, None]
-        for ax, c in zip(*pos[k]):
-            t[ax] = ch[c]
         p = n.parent
         Gp = G[p] if p >= 0 else None
+        for ax, c in zip(*pos[k]):
+            t[ax] = ch[c]
+            if chan_axes is not None:
+                chan_axes[c] = np.eye(3)[:, ax, None] if Gp is None else Gp[:, ax]
         if p < 0:
             X[k] = t
         elif Gp is None:
@@ -371,6 +377,8 @@ def _fk_chunk(nodes: list[_Node], layout, ch: np.ndarray, want_rot: bool):
         if axes and (left[k] or want_rot):
             R = np.broadcast_to(np.eye(3)[:, :, None], (3, 3, T)).copy() if Gp is None else Gp.copy()
             for ax, c in zip(axes, cols):
+                if chan_axes is not None:
+                    chan_axes[c] = R[:, ax]           # the axis before its own turn (it keeps it)
                 rotate_right_t(R, ax, np.deg2rad(ch[c]))
             G[k] = R
         else:
