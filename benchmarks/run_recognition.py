@@ -123,6 +123,12 @@ CANDIDATES = {
     # each half of the convolution output besides the whole-series poolings (when in the
     # action a pattern occurs: a throw's wind-up before its release)
     "+ PPV of each half (temporal pyramid)": {"pooling": ["ppv", "mpv", "mipv", "lspv", "ppv_h1", "ppv_h2"]},
+    # eleventh round (2026-12-05, thirteenth session): a smaller transform, since more
+    # features (10,000 pairs) and more channels per kernel (12) both lowered the inner scores
+    # (the read-out is the near minimum-norm interpolant of ~850 augmented rows)
+    "2,500 pairs per representation": {"n_features": 2500},
+    "up to 5 channels per kernel": {"max_channels": 5},
+    "up to 16 dilations": {"max_dilations": 16},
 }
 # candidate keys that are no RocketClassifier parameter: ``skeleton_weight`` w averages the
 # default's softmax probabilities (1 - w) with the skeleton classifier's (w), a late fusion of
