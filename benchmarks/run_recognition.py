@@ -123,7 +123,7 @@ CANDIDATES = {
     # each half of the convolution output besides the whole-series poolings (when in the
     # action a pattern occurs: a throw's wind-up before its release)
     "+ PPV of each half (temporal pyramid)": {"pooling": ["ppv", "mpv", "mipv", "lspv", "ppv_h1", "ppv_h2"]},
-    # eleventh round (2026-12-05, thirteenth session): a smaller transform, since more
+    # fourteenth round (2026-12-05, thirteenth session; the read-out's rounds are 11-13): a smaller transform, since more
     # features (10,000 pairs) and more channels per kernel (12) both lowered the inner scores
     # (the read-out is the near minimum-norm interpolant of ~850 augmented rows)
     "2,500 pairs per representation": {"n_features": 2500},
@@ -259,7 +259,7 @@ def readout_note() -> str:
     ridge = [k for k in rows if k.startswith("ridge alpha")]
     flat = [k for k in ridge if pc(k) == pc(ridge[0])]
     from run_recognition_readout import SUBJECT_CENTRED as sc
-    others = [k for k in rows if not k.startswith("ridge alpha") and k != sc]
+    others = [k for k in rows if not k.startswith(("ridge alpha", "ridge after NAP")) and k != sc]
     best = max(others, key=lambda k: rows[k]["cross-subject"] + rows[k]["half"])
     return ("Eleventh round, the read-out (`benchmarks/run_recognition_readout.py`, "
             f"recognition_readout.json; transform seed {doc['rows'][0]['seed']}): the default's "
@@ -271,7 +271,32 @@ def readout_note() -> str:
             "is harmless. Every other read-out of the same features is lower -- "
             + ", ".join(f"{k} {pc(k)}" for k in others)
             + f" (best of them: {best}) --, so the linear read-out stays."
-            + _centred_note(rows, ridge[0], sc, doc["n"]["cross-subject"]))
+            + _centred_note(rows, ridge[0], sc, doc["n"]["cross-subject"]) + _nap_note(rows, ridge[0]))
+
+
+def _nap_note(rows: dict, base: str) -> str:
+    """The thirteenth round's sentence: the ridge after nuisance attribute projection
+    (run_recognition_readout.nap) against the plain ridge of the same run."""
+    nap = [k for k in rows if k.startswith("ridge after NAP")]
+    if not nap:
+        return ""
+    same = all(abs(rows[k][c] - rows[base][c]) < 1e-12 for k in nap for c in ("cross-subject", "half"))
+    ks = ", ".join(k.split("=")[-1] for k in nap)
+    scores = ("all " + f"{100 * rows[base]['cross-subject']:.1f} / {100 * rows[base]['half']:.1f}, "
+              "the plain ridge's" if same else
+              "; ".join(f"k = {k.split('=')[-1]}: {100 * rows[k]['cross-subject']:.1f} / "
+                        f"{100 * rows[k]['half']:.1f}" for k in nap))
+    return (" Thirteenth round (thirteenth session), in the same run: the ridge after nuisance attribute "
+            "projection (`nap` in the script: the k leading within-class subject directions of the "
+            "training rows -- the (subject, class) cell means less their class means, how a subject "
+            "performs an action unlike the others -- projected out of every clip's features; not "
+            f"transductive), k = {ks}: {scores}"
+            + (". It cannot do otherwise: at the chosen penalty the ridge is in effect the minimum-norm "
+               "interpolant w = F^T K^-1 Y (centred targets), and for a direction v = F^T b with b a cell "
+               "mean less its class mean, w . v = Y^T b = 0 (the targets are constant within a class): w "
+               "is orthogonal to those directions, so it lies in the projected features' row space and "
+               "interpolates them too -- it is their minimum-norm interpolant, and no prediction changes."
+               if same else "."))
 
 
 def _centred_note(rows: dict, base: str, sc: str, n_cs: int) -> str:
@@ -663,6 +688,10 @@ def main() -> None:
           "output besides the four whole-series poolings (`pooling` with `ppv_h1`, `ppv_h2`: when in the "
           "action a pattern occurs, e.g. a throw's wind-up before its release), -0.7 / -0.7 (two clips each) against the "
           "default at seed 0: not kept.", "", readout_note(), "",
+          "Fourteenth round (thirteenth session): a smaller transform, since 10,000 pairs per "
+          "representation and 12 channels per kernel had both lowered the inner scores -- 2,500 pairs, at "
+          "most 5 channels per kernel, at most 16 dilations (differences above): none reached the rule; the "
+          "default is unchanged.", "",
           "### Views, HYDRA, seeds, test-time augmentation (`benchmarks/run_recognition_explore.py`)", "",
           "Components: `base0` / `base1` = the previous default (joint trajectories, MultiRocket + augmentation "
           "+ ridge; transform seeds 0 / 1000); `arms` = the same on the arm view (elbow and wrist relative to "

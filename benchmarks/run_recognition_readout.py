@@ -18,7 +18,10 @@ ridge on the features centred per subject -- each training row less the mean of 
 subject's rows (augmented copies included), each test clip less the mean of its own
 subject's test clips -- the speaker normalisation of speech recognition, aimed at subject
 2's low throws (recognition.md). It is transductive: a clip is classified with the other
-clips of its performer. One BLAS thread; ~8 min.
+clips of its performer. Thirteenth session: the ridge after nuisance attribute projection
+(:func:`nap`: the leading within-class subject directions of the training rows projected
+out; not transductive). One BLAS thread; ~8 min (``--cache DIR`` keeps each fold's Gram
+matrices, and a rerun with it takes seconds).
 """
 from __future__ import annotations
 
@@ -46,6 +49,8 @@ OUT = ROOT / "docs" / "results" / "recognition_readout.json"
 RIDGE_ALPHAS = (1e-3, 1e0, 1e1, 1e2, 1e3, 1e4, 3e4, 1e5, 1e6)
 #: the read-out on features centred per subject (module docstring)
 SUBJECT_CENTRED = "ridge, centred per subject"
+#: leading within-class subject directions projected out (:func:`nap`)
+NAP_K = (2, 4, 8, 16, 32, 64)
 
 
 def gram(m, X: np.ndarray, a: np.ndarray, b: np.ndarray) -> dict[str, np.ndarray]:
@@ -70,6 +75,33 @@ def centring(groups: np.ndarray) -> np.ndarray:
     return np.eye(len(groups)) - same / same.sum(1, keepdims=True)
 
 
+def nap(K: np.ndarray, Kt: np.ndarray, ya: np.ndarray, ga: np.ndarray, k: int
+        ) -> tuple[np.ndarray, np.ndarray]:
+    """Gram matrices of the features with the ``k`` leading within-class subject directions
+    projected out: nuisance attribute projection (Solomonoff, Campbell & Boardman 2005,
+    speaker recognition), from the training rows only -- not transductive. The directions
+    are the principal axes of the (subject, class) cell means less their class means (ya,
+    ga: labels and subjects of the training rows), i.e. how a subject performs an action
+    differently from the others; with V = F^T B their orthonormal basis (B from the
+    eigenvectors of A K A^T, A the cell-less-class averaging matrix), (I - V V^T) F's Gram
+    matrices are K - K B B^T K and Kt - Kt B B^T K."""
+    _, cell_of = np.unique(np.stack([np.unique(ga, return_inverse=True)[1],
+                                     np.unique(ya, return_inverse=True)[1]], 1), axis=0, return_inverse=True)
+    cell_of = cell_of.reshape(-1)
+    A = np.zeros((cell_of.max() + 1, len(ya)))
+    for i in range(len(A)):
+        cell = cell_of == i
+        cls = ya == ya[cell][0]
+        A[i, cell] += 1.0 / cell.sum()
+        A[i, cls] -= 1.0 / cls.sum()
+    w, E = np.linalg.eigh(A @ K @ A.T)
+    top = np.argsort(w)[::-1][:k]
+    top = top[w[top] > 1e-9 * w.max()]
+    B = A.T @ (E[:, top] / np.sqrt(w[top]))
+    KB = K @ B
+    return K - KB @ KB.T, Kt - (Kt @ B) @ KB.T
+
+
 def ridge_predict(K: np.ndarray, Kt: np.ndarray, ya: np.ndarray, alpha: float) -> np.ndarray:
     """Kernel ridge on +-1 one-hot targets with an unpenalised intercept (the default's read-out)."""
     cls = np.unique(ya)
@@ -88,6 +120,8 @@ def readouts(G: dict, ya: np.ndarray, ga: np.ndarray, gt: np.ndarray) -> dict[st
     out = {f"ridge alpha {a:g}": ridge_predict(K, Kt, ya, a) for a in RIDGE_ALPHAS}
     A, At = centring(ga), centring(gt)
     out[SUBJECT_CENTRED] = ridge_predict(A @ K @ A, At @ Kt @ A, ya, 1e-3)
+    for k in NAP_K:
+        out[f"ridge after NAP k={k}"] = ridge_predict(*nap(K, Kt, ya, ga, k), ya, 1e-3)
     out["cosine kernel"] = ridge_predict(K / np.sqrt(np.outer(n, n)), Kt / np.sqrt(np.outer(nt, n)), ya, 1e-3)
     D2, Dt2 = n[:, None] + n[None, :] - 2 * K, nt[:, None] + n[None, :] - 2 * Kt
     med = float(np.median(D2[D2 > 0]))
@@ -110,6 +144,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--cache", type=Path, help="keep / reuse each fold's Gram matrices here (npz)")
     a = ap.parse_args()
     t0 = time.time()
     ctx = bench.Context(data_dir=shared_data_dir(a.data), progress=False)
@@ -119,8 +154,15 @@ def main() -> int:
     n = {"cross-subject": 0, "half": 0}
     with threadpool_limits(1):
         for kind, name, tr, te in RR.inner_folds(y, g):
-            m = RocketClassifier(seed=a.seed).fit_series(X[tr], y[tr], keypoints=D["keypoints"])
-            G = gram(m, X, tr, te)
+            cache = None if a.cache is None else a.cache / f"gram_seed{a.seed}_{name}.npz"
+            if cache is not None and cache.is_file():
+                G = dict(np.load(cache))
+            else:
+                m = RocketClassifier(seed=a.seed).fit_series(X[tr], y[tr], keypoints=D["keypoints"])
+                G = gram(m, X, tr, te)
+                if cache is not None:
+                    cache.parent.mkdir(parents=True, exist_ok=True)
+                    np.savez(cache, **G)
             for ro, pred in readouts(G, y[tr][G["rows"]], g[tr][G["rows"]], g[te]).items():
                 right.setdefault(ro, {"cross-subject": 0, "half": 0})[kind] += int((pred == y[te]).sum())
             n[kind] += len(te)
