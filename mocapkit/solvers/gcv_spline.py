@@ -179,7 +179,7 @@ def _solve_weighted(Y: np.ndarray, W: np.ndarray, s: np.ndarray, order: int,
     idx = np.flatnonzero(ok)
     # ~8,000 unknowns a call: the per-call cost is gone by then, and a longer system leaves
     # the cache (10,000 frames took 7 % longer in blocks of 16 columns than one by one)
-    for sl in channel_blocks(len(idx), max(1, _SOLVE_BLOCK // T)):
+    for sl in channel_blocks(len(idx), max(1, _SOLVE_BLOCK // max(T, 1))):
         cols = idx[sl]
         Wb = np.asarray(W[:, cols], float).T                        # (c, T)
         ab = s[cols][None, :, None] * P[:, None, :]                 # (m + 1, c, T)
