@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._kinematics import lm_frames
+from ._kinematics import bone_mismatch, lm_frames, polish_gate
 
 __all__ = ["polish"]
 
@@ -76,19 +76,16 @@ def _fk_axes(nodes, layout, ch: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.transpose(X, (2, 0, 1)), np.transpose(W, (2, 0, 1))
 
 
-def _mismatch(nodes, targets: np.ndarray, usable: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(T,) per frame the largest and the median difference between a target bone's length
-    and the hierarchy's (a node and its parent, both with targets, no position channels:
-    the OFFSET's length; 0 where there is none)."""
+def _mismatch(nodes, targets: np.ndarray, usable: np.ndarray) -> np.ndarray:
+    """(T, B) :func:`~mocapkit.io._kinematics.bone_mismatch` of the hierarchy's fixed bones
+    (a node and its parent, both with targets, no position channels: the OFFSET's length)."""
     pairs = [(j, n.parent, float(np.linalg.norm(n.offset))) for j, n in enumerate(nodes)
              if n.parent >= 0 and usable[j] and usable[n.parent]
              and not any(c.lower().endswith("position") for c in (n.channels or ()))]
     if not pairs:
-        return np.zeros(targets.shape[0]), np.zeros(targets.shape[0])
+        return np.zeros((targets.shape[0], 0))
     j, p, L = (np.array(v) for v in zip(*pairs))
-    d = np.abs(np.linalg.norm(targets[:, j] - targets[:, p], axis=2) - L)
-    d = np.where(np.isfinite(d), d, 0.0)
-    return np.max(d, axis=1), np.median(d, axis=1)
+    return bone_mismatch(targets, np.column_stack([j, p]), L)
 
 
 def polish(nodes, layout, ch: np.ndarray, targets: np.ndarray, have: np.ndarray, *,
@@ -143,8 +140,9 @@ def polish(nodes, layout, ch: np.ndarray, targets: np.ndarray, have: np.ndarray,
     # keeps every other joint exact and the misfit where it is, which the least squares
     # would share out over the joints around it
     worst = np.sqrt(np.max(np.sum(r ** 2, axis=2), axis=1))
-    m_max, m_med = _mismatch(nodes, targets, usable)
-    live = np.flatnonzero((worst > np.minimum(above + 3.0 * m_max, cap)) & (m_med > spread))
+    mis = _mismatch(nodes, targets, usable)
+    m_med = np.median(mis, axis=1) if mis.shape[1] else np.zeros(len(worst))
+    live = np.flatnonzero((worst > polish_gate(mis, above, cap)) & (m_med > spread))
     for a in range(0, len(live), BLOCK):
         f = live[a:a + BLOCK]
         ch[f] = lm_frames(cols, ch[f], X[f], W[f], np.broadcast_to(usable, (len(f), len(usable))), r[f],

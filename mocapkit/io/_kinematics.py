@@ -848,12 +848,23 @@ def _ik_pass(comp: _Compiled, target_cm: np.ndarray, f: float, angle_rad: bool,
     return st.out, err.max(axis=1)
 
 
-def _length_mismatch(comp: _Compiled, X: np.ndarray, f: float) -> np.ndarray:
-    """Per frame, the largest difference (cm) between a target bone length and the skeleton's."""
-    par = comp.parent_joint[1:]
-    lengths = np.array([np.linalg.norm(comp.vec[n]) for n in comp.bone_order]) * f
-    d = np.abs(np.linalg.norm(X[:, 1:] - X[:, par], axis=2) - lengths)
-    return np.max(np.where(np.isfinite(d), d, 0.0), axis=1)
+def bone_mismatch(X: np.ndarray, bones: np.ndarray, lengths: np.ndarray) -> np.ndarray:
+    """(T, B) difference between each target bone's length in X (T, J, 3) and the
+    hierarchy's ``lengths`` (B,), bones (B, 2) (child, parent); 0 where an end is missing.
+    What no pose can remove, so the writers' least-squares polish (AMC here, BVH in
+    :mod:`mocapkit.io._bvh_polish`) does not chase it."""
+    from ..rigid import bone_lengths
+
+    d = np.abs(bone_lengths(X, bones) - lengths)
+    return np.where(np.isfinite(d), d, 0.0)
+
+
+def polish_gate(mismatch: np.ndarray, above: float, cap: float, factor: float = 3.0) -> np.ndarray:
+    """(T,) how far off (file units or cm) the closed-form IK may leave a frame's worst joint
+    before the polish refines it: ``min(above + factor * m, cap)``, m the frame's largest
+    bone-length ``mismatch`` (T, B) (:func:`bone_mismatch`)."""
+    m = mismatch.max(axis=1) if mismatch.shape[1] else np.zeros(mismatch.shape[0])
+    return np.minimum(above + factor * m, cap)
 
 
 def require_complete(motion, fmt: str) -> None:
@@ -890,7 +901,9 @@ def inverse_kinematics(comp: _Compiled, target_cm: np.ndarray, f: float, angle_r
     """
     X = np.asarray(target_cm, float)
     out, err = _ik_pass(comp, X, f, angle_rad, start)
-    gate = np.minimum(refine_above_cm + mismatch_factor * _length_mismatch(comp, X, f), refine_cap_cm)
+    bones = np.column_stack([np.arange(1, X.shape[1]), comp.parent_joint[1:]])
+    lengths = np.array([np.linalg.norm(comp.vec[n]) for n in comp.bone_order]) * f
+    gate = polish_gate(bone_mismatch(X, bones, lengths), refine_above_cm, refine_cap_cm, mismatch_factor)
     idx = np.flatnonzero(err > gate) if refine else []
     if len(idx):
         out[idx] = _ik_refine(comp, X[idx] / f, out[idx], angle_rad, int(refine))
