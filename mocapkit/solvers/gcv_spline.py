@@ -190,15 +190,15 @@ def _solve_weighted(Y: np.ndarray, W: np.ndarray, s: np.ndarray, order: int,
             out[:, cols] = x.reshape(len(cols), T).T
         else:                      # a column numerically singular: each on its own
             for c in cols:
-                out[:, c] = _solve_column(Y[:, c], W[:, c], s[c] * P, order)
+                out[:, c] = _solve_column(Y[:, c], W[:, c], s[c], P, order)
     return out
 
 
-def _solve_column(y: np.ndarray, w: np.ndarray, ab: np.ndarray, order: int) -> np.ndarray:
-    """One column of :func:`_solve_weighted`: (w + ab) f = w y, ``ab`` the penalty's upper
+def _solve_column(y: np.ndarray, w: np.ndarray, s: float, P: np.ndarray, order: int) -> np.ndarray:
+    """One column of :func:`_solve_weighted`: (w + s P) f = w y, ``P`` the penalty's upper
     bands (m + 1, T), by banded Cholesky, or by LU with pivoting where the system is
     numerically singular (huge s, few weights)."""
-    ab = ab.copy()
+    ab = s * P
     ab[order] += w
     rhs = (w * y)[:, None]
     _, x, info = dpbsv(ab, rhs)
