@@ -319,7 +319,7 @@ def cmd_denoise(a: argparse.Namespace) -> int:
               f"{m.n_frames / max(dt, 1e-9):.0f} frames/s)")
         if not m.observed.all():
             print(gaps.summary_line(out.source.get("gap_report")))
-        _print_auto(out.source.get("auto"))
+        _print_auto(out.source.get("auto"), out.source.get("gap_report"))
         auto = out.source.get("fill_auto") or (out.source.get("auto") or {}).get("fill_auto")
         if auto and auto.get("estimated_rmse_cm") is not None:
             chose = ", ".join(f"{k} {v}" for k, v in sorted(auto["chosen"].items(), key=lambda kv: -kv[1]))
@@ -340,8 +340,11 @@ def _cm(x: float) -> str:
     return f"{x:.{max(2, 1 - int(np.floor(np.log10(x))))}f}"
 
 
-def _print_auto(src: dict | None) -> None:
-    """One line: what ``auto`` chose and its estimated error."""
+def _print_auto(src: dict | None, report: dict | None = None) -> None:
+    """One line: what ``auto`` chose and its estimated error. ``report``: the gap policy's
+    report of the written result (:func:`mocapkit.gaps.apply_policy`), whose count of
+    samples left missing -- auto's own refusals plus the fills the policy then dropped --
+    is the one printed, so that the two lines agree."""
     if not src:
         return
     d = src.get("diagnosis") or {}
@@ -356,9 +359,11 @@ def _print_auto(src: dict | None) -> None:
     line = f"auto: {chain} ({', '.join(facts)}); estimated error " + (
         f"{_cm(est)} cm RMSE ({src.get('how', '')})" if est is not None else "not available")
     left, lim = src.get("left_missing") or 0, src.get("max_fill_error_cm")
+    if report:
+        left = report.get("left_missing", left)
     if left and lim is not None:
-        line += (f"; {left} missing samples not filled (no fill validated under {lim:g} cm or no "
-                 f"evidence; --param max_fill_error_cm=... to accept more)")
+        line += (f"; {left} missing samples not filled (no fill validated under {lim:g} cm, no "
+                 f"evidence, or implausible; --param max_fill_error_cm=... to accept more)")
     elif left:
         line += f"; {left} missing samples not filled (no fill had evidence)"
     off = src.get("bones_off")

@@ -203,6 +203,36 @@ def test_fill_auto_leaves_gaps_it_cannot_validate_below_threshold():
     assert out.source["fill_auto"]["left_gaps"] == 1
 
 
+def test_fill_auto_does_not_stretch_interpolation_scores_over_a_far_longer_gap():
+    """A marker unseen for 10 s, no stretch of its own to hide and no neighbour seen
+    throughout: the other markers' 20-frame gaps, which interpolation fills well, are no
+    licence to interpolate it (the basket sprint's hand-held Sync marker: 14.7 s filled by
+    linear interpolation on the score of gaps of at most 320 frames). It is left missing;
+    the short gaps are still filled. Cross-marker fills keep the file-wide score at any
+    length (their error does not grow with the gap's)."""
+    from mocapkit.denoise.fill_auto import POOL_REACH_BINS, _pooled
+
+    P = _walker(T=1200, J=8)
+    obs = np.ones(P.shape[:2], bool)
+    obs[100:1100, 0] = False
+    for j in range(1, 8):
+        obs[200 + 100 * j:220 + 100 * j, j] = False
+    m = _markers(P).with_observed(obs)
+    out = denoise.get("fill-auto", candidates=("linear", "spline"), max_error_cm=5.0).denoise(m)
+    assert not out.observed[100:1100, 0].any() and np.isnan(out.positions[100:1100, 0]).all()
+    assert out.observed[:, 1:].all()
+    info = out.source["fill_auto"]
+    assert info["left_gaps"] == 1 and info["unvalidated_gaps"] == 1
+    # the rule itself: a gap with no score of its own, 16 and 64 frames, the pool from 16-frame gaps
+    g = [gaps.Gap(0, 0 + 100 * i, 16 + 100 * i, "interior") for i in range(3)] + \
+        [gaps.Gap(1, 500, 500 + 16 * 2 ** (POOL_REACH_BINS + 1), "interior")]
+    err = np.array([[1.0, 1.0], [1.0, 1.0], [np.nan, np.nan], [np.nan, np.nan]])
+    n = np.array([[16.0, 16.0], [16.0, 16.0], [0, 0], [0, 0]])
+    got = _pooled(err, n, g, 20.0, np.array([True, False]))
+    assert got[2, 0] == got[2, 1] == 1.0              # as long as the validated ones: pooled
+    assert np.isnan(got[3, 0]) and got[3, 1] == 1.0   # 4x longer: interpolation unvalidated
+
+
 def test_the_default_on_marker_files_is_auto_which_hands_clean_gaps_to_fill_auto():
     """auto is the default for marker files too: on a clean capture it keeps the measured
     samples and its fill of gaps of 3 frames and more is fill-auto's; a noisy one it

@@ -21,7 +21,8 @@ file, so (decision, METHODS.md §6 "self-validation"):
    is the **worst** of its rounds (no fill is trusted on its best day), shrunk towards its
    score on all the file's gaps of the same kind and length (:func:`_pooled`: a few
    hidden frames are a noisy judge); a gap without a usable stretch (a marker seen too
-   little) takes that file-wide score alone.
+   little) takes that file-wide score alone (for interpolation only where the file
+   validated gaps at least half as long: a far longer gap is no gap it was judged on).
    A candidate that cannot cover a hidden stretch -- its own evidence is missing there: a
    kinematic fill whose joint's child is in another real gap over those frames, a rigid
    fill whose segment-mates are -- but does cover the real gap is not failed by that
@@ -217,7 +218,14 @@ def _neighbour_hides(P: np.ndarray, obs: np.ndarray, gaps: Sequence[Gap],
     return out
 
 
-def _pooled(err: np.ndarray, n: np.ndarray, gaps: Sequence[Gap], n0: float) -> np.ndarray:
+#: how far (factor-2 length bins) below a gap's own length the file-wide score may come
+#: from for a gap with no validated stretch of its own (:func:`_pooled`): 1 = from gaps at
+#: least half as long
+POOL_REACH_BINS = 1
+
+
+def _pooled(err: np.ndarray, n: np.ndarray, gaps: Sequence[Gap], n0: float,
+            bounded: np.ndarray | None = None) -> np.ndarray:
     """Each candidate's score per gap, shrunk towards the file's experience with gaps like it.
 
     For a gap class (interior / edge) and length bin (factor 2), ``pool`` is a candidate's
@@ -225,15 +233,28 @@ def _pooled(err: np.ndarray, n: np.ndarray, gaps: Sequence[Gap], n0: float) -> n
     its validated gaps when the class has none). A gap's own score, measured on ``n``
     frames, is combined with it as ``sqrt((n e^2 + n0 pool^2) / (n + n0))``: a 2-frame gap
     is judged mostly by how the candidate did on all short gaps of the file, a 500-frame
-    gap by its own stretches. A gap without a score of its own takes ``pool``; inf (the
-    candidate could not fill the stretch) stays inf; a candidate validated nowhere stays
-    NaN.
+    gap by its own stretches. A gap without a score of its own takes ``pool``; for the
+    candidates in ``bounded`` (K,) -- interpolation in time, whose error grows with the
+    gap's length -- only from gaps at least half its length (the pool's bin at most
+    :data:`POOL_REACH_BINS` below its own): how interpolation did on short gaps says
+    nothing of a gap many times longer, and the candidate stays NaN there, unvalidated.
+    Found on kineticstoolkit's basket sprint (2026-12-05): the hand-held Sync marker's
+    14.7 s gap, seen by no stretch of its own and no neighbour, was filled by linear
+    interpolation on linear's score from gaps of at most 320 frames (1.6 cm), and 847 of
+    its 1,760 samples were then dropped by the gap policy as away from the body; it is now
+    left missing. Bounding every candidate so was measured (real_gaps, 40 cases) and not
+    kept: coverage 37 -> 27 %, and where a cross-marker fill judged only by shorter gaps
+    had won a gap an interpolation was validated on, the interpolation took it, worse
+    (HDM05 under markers_analogs' mask 0.81 -> 2.34 cm RMSE, CMU 05_02 0.21 -> 0.39).
+    inf (the candidate could not fill the stretch) stays inf; a candidate validated
+    nowhere stays NaN.
     """
     out = err.copy()
     edge = np.array([g.kind != "interior" for g in gaps])
     lbin = np.floor(np.log2(np.maximum([g.length for g in gaps], 1))).astype(int)
     for k in range(err.shape[1]):
         col, nk = err[:, k], n[:, k]
+        reach = bounded is not None and bool(bounded[k])
         have = np.isfinite(col)
         if not have.any():
             continue
@@ -248,9 +269,11 @@ def _pooled(err: np.ndarray, n: np.ndarray, gaps: Sequence[Gap], n0: float) -> n
             table = {b: np.sqrt(np.sum(nk[m] * col[m] ** 2) / max(np.sum(nk[m]), 1e-12))
                      for b in bins for m in [src & (lbin == b)]}
             for gi in rows:
-                pool = table[bins[np.argmin(np.abs(bins - lbin[gi]))]]
+                b = bins[np.argmin(np.abs(bins - lbin[gi]))]
+                pool = table[b]
                 if np.isnan(col[gi]):
-                    out[gi, k] = pool
+                    if not reach or b >= lbin[gi] - POOL_REACH_BINS:
+                        out[gi, k] = pool
                 elif np.isfinite(col[gi]):
                     out[gi, k] = np.sqrt((nk[gi] * col[gi] ** 2 + n0 * pool ** 2) / (nk[gi] + n0))
     return out
@@ -381,9 +404,10 @@ class FillAuto(Denoiser):
         # relaxed only where some round did validate the candidate: one that covered none
         # of a gap's stretches has no evidence there, and the file-wide score is no licence
         err = np.where(np.isnan(err) & np.isinf(strict), strict, err)
-        err = _pooled(err, cnt, gaps, float(self.prior_frames))
-        strict = _pooled(strict, cnt, gaps, float(self.prior_frames))
-        e_all = _pooled(e_all, cnt, gaps, float(self.prior_frames))
+        bounded = np.array([m.fill_evidence == "interp" for _, m in methods])
+        err = _pooled(err, cnt, gaps, float(self.prior_frames), bounded)
+        strict = _pooled(strict, cnt, gaps, float(self.prior_frames), bounded)
+        e_all = _pooled(e_all, cnt, gaps, float(self.prior_frames), bounded)
         return self._assemble(motion, gaps, methods, fills, err, e_all, strict)
 
     def _assemble(self, motion: Motion, gaps: Sequence[Gap], methods, fills, err: np.ndarray,
@@ -436,6 +460,11 @@ class FillAuto(Denoiser):
                     codes[g.start:g.stop, g.joint][take] = k
                     emap[g.start:g.stop, g.joint][take] = (e_all[gi, k] if np.isfinite(e_all[gi, k])
                                                            else np.nan)
+            if not np.isfinite(seg).any():
+                # the validated fills have no evidence in this gap's frames (no donors) and
+                # no other one validated: left, not counted as the best one's
+                left_gaps += 1
+                continue
             chosen[names[order[0]]] += 1
             Y[g.start:g.stop, g.joint] = seg
         # each filled frame is charged the validated error of the candidate that filled it
