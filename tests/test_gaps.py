@@ -233,6 +233,39 @@ def test_fill_auto_does_not_stretch_interpolation_scores_over_a_far_longer_gap()
     assert np.isnan(got[3, 0]) and got[3, 1] == 1.0   # 4x longer: interpolation unvalidated
 
 
+def test_fills_off_a_rigid_partner_are_left_missing():
+    """The gap policy's rigid check: a fill more than rigid_margin_cm off the distance span
+    a rigid partner measured in its frame keeps is left missing (it is that far off at
+    least); one within it is kept; a pair that bends in a few frames -- steady most of the
+    clip, as a knee of a subject standing still -- is no rigid pair."""
+    rng = np.random.default_rng(0)
+    T = 300
+    plate = rng.normal(0, 5, (4, 3))                          # a 4-marker plate, ~5-10 cm
+    path = np.cumsum(rng.normal(0, 1, (T, 3)), axis=0) + [0, 0, 100]
+    P = path[:, None, :] + plate[None]
+    knee = path + [0, 0, -40.0]
+    knee[140:150] += [0, 30.0, 0]                            # bends in 10 of 300 frames
+    P = np.concatenate([P, knee[:, None]], axis=1)            # (T, 5, 3)
+    obs = np.ones((T, 5), bool)
+    obs[100:110, 0] = False                                   # plate marker 0: a gap
+    obs[200:210, 4] = False                                   # the "knee": a gap
+    fills = P.copy()
+    fills[100:105, 0] += [15.0, 0, 0]                         # 15 cm off: broken
+    fills[105:110, 0] += [0, 5.0, 0]                          # 5 cm off: within the margin
+    fills[200:210, 4] += [0, 0, 25.0]                         # the knee: no rigid partner
+    miss = ~obs
+    flag = gaps.off_rigid_partners(P, obs, miss, 10.0, values=fills, has=np.ones((T, 5), bool))
+    assert flag[100:105, 0].all() and not flag[105:110, 0].any() and not flag[200:210, 4].any()
+    # through a method and the policy: the broken fill is reported, the rest kept
+    m = _markers(P).with_observed(obs)
+    out = gaps.apply_policy(m, Motion(fills, m.skeleton, m.fps), evidence="markers", method="test")
+    assert not out.observed[100:105, 0].any() and out.observed[105:110, 0].all()
+    assert out.source["gap_report"]["left_implausible"] == 5
+    with gaps.use_policy(rigid_margin_cm=None):
+        assert gaps.apply_policy(m, Motion(fills, m.skeleton, m.fps), evidence="markers",
+                                 method="test").observed.all()
+
+
 def test_the_default_on_marker_files_is_auto_which_hands_clean_gaps_to_fill_auto():
     """auto is the default for marker files too: on a clean capture it keeps the measured
     samples and its fill of gaps of 3 frames and more is fill-auto's; a noisy one it
