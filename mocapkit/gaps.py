@@ -292,12 +292,6 @@ def outside_envelope(positions: np.ndarray, observed: np.ndarray, candidate: np.
     return cand & frames & (d > 1.25 * r[None, :] + margin_cm)
 
 
-#: a pair of points is rigid for :func:`off_rigid_partners` when its distance, over every
-#: frame where both are measured (at least :data:`RIGID_MIN_FRAMES`), spans at most this (cm)
-RIGID_MAX_SPAN_CM = 2.0
-RIGID_MIN_FRAMES = 20
-
-
 def off_rigid_partners(positions: np.ndarray, observed: np.ndarray, candidate: np.ndarray,
                        margin_cm: float, *, values: np.ndarray, has: np.ndarray,
                        n_partners: int = 4) -> np.ndarray:
@@ -307,79 +301,45 @@ def off_rigid_partners(positions: np.ndarray, observed: np.ndarray, candidate: n
     *filled* in that frame than on them (of two fills that disagree at least one is off;
     the one off most of its partners goes, on a tie both go).
 
-    Rigid partners (up to ``n_partners`` per point, the steadiest first): points whose
-    distance to it, over *every* frame where both are measured in the input
-    (``positions``, ``observed``), spans at most :data:`RIGID_MAX_SPAN_CM` -- a marker of
-    the same plate or cluster, a bone's other end; "off" is outside that span by more than
-    ``margin_cm``. The whole span, not a robust scale: a subject who stands still most of a
-    clip keeps a knee-to-foot distance steady in most frames (CMU balance: a robust scale
-    of 0.085 cm on a distance that bends from 57 to 50 cm). Spikes in the input widen a
-    pair's span and only switch its check off. ``values`` (T, J, 3), ``has`` (T, J): the
-    method's result (cleaned measured samples and fills), on which the distances are
-    taken. A fill within ``margin_cm`` of its true place is never flagged by a measured
-    partner. Found on kineticstoolkit's basket sprint (2026-12-05): markers of the
-    wheelchair, arm and forearm plates (spans of 0.2-2 cm), each filled on its own while
-    the whole plate was hidden, 20-270 cm off their plate's shape, inside the capture volume
-    and the body's envelope. On the real-occlusion benchmark (docs/results/real_gaps.md,
-    40 cases) auto's gross fills (> 20 cm) went 3.27 -> 2.05 % at coverage 37.1 -> 36.1 %.
-    Measured and not kept (same benchmark): every rigid partner (up to 16) with fills that
-    contradict each other dropped greedily until none do -- coverage 35.4 %, gross 2.07 %;
-    a robust scale (MAD) for rigidity, which dropped exact fills of CMU balance clips.
+    Rigid partners: :func:`mocapkit.rigid.steady_partners` of the input's measured samples
+    (``positions``, ``observed``; up to ``n_partners`` per point whose distance spans at
+    most 2 cm over every frame both are measured -- a marker of the same plate or cluster,
+    a bone's other end); "off" is outside that span by more than ``margin_cm``, tested by
+    :func:`mocapkit.rigid.distance_consistency` on ``values`` (T, J, 3) where ``has``
+    (T, J): the method's result (cleaned measured samples and fills). A fill within
+    ``margin_cm`` of its true place is never flagged by a measured partner. Found on
+    kineticstoolkit's basket sprint (2026-12-05): markers of the wheelchair, arm and
+    forearm plates (spans of 0.2-2 cm), each filled on its own while the whole plate was
+    hidden, 20-270 cm off their plate's shape, inside the capture volume and the body's
+    envelope. On the real-occlusion benchmark (docs/results/real_gaps.md, 40 cases) auto's
+    gross fills (> 20 cm) went 3.27 -> 2.05 % at coverage 37.1 -> 36.1 %. Measured and not
+    kept (same benchmark): every rigid partner (up to 16) with fills that contradict each
+    other dropped greedily until none do -- coverage 35.4 %, gross 2.07 %; a robust scale
+    (MAD, :func:`mocapkit.rigid.rigid_partners`) for rigidity, which dropped exact fills
+    of CMU balance clips.
     """
-    from .rigid import distance_stats
-    from .windows import spaced_frames
+    from .rigid import distance_consistency, steady_partners
 
     P = np.asarray(positions, dtype=float)
     obs = np.asarray(observed, dtype=bool) & np.isfinite(P).all(axis=-1)
     cand = np.asarray(candidate, dtype=bool)
     out = np.zeros_like(cand)
-    T, J = obs.shape
-    if not cand.any() or J < 2:
+    if not cand.any() or P.shape[1] < 2:
         return out
-    # the pairs' spans over every frame, computed only for the pairs that can be rigid: a
-    # span over 1,024 spaced frames is a lower bound of the whole one (pairs seen together
-    # there fewer than 3 times stay in). All pairs on all frames, O(T J^2), took 17 s on
-    # 100,000 frames of 50 markers.
-    ref = spaced_frames(T, 1024)
-    _, _, n_s, lo_s, hi_s = distance_stats(P[ref], obs[ref], return_range=True,
-                                           chunk=max(16, int(2e6 // (J * J))))
-    ia, ib = np.nonzero(np.triu((n_s < 3) | (hi_s - lo_s <= RIGID_MAX_SPAN_CM), 1))
-    n = np.zeros(len(ia), int)
-    lo_p = np.full(len(ia), np.inf)
-    hi_p = np.full(len(ia), -np.inf)
-    for sl in frame_blocks(T, max(16, int(4e6 // max(len(ia), 1)))):
-        d = np.linalg.norm(P[sl][:, ia] - P[sl][:, ib], axis=-1)               # (b, pairs)
-        both = obs[sl][:, ia] & obs[sl][:, ib]
-        n += both.sum(axis=0)
-        lo_p = np.minimum(lo_p, np.where(both, d, np.inf).min(axis=0, initial=np.inf))
-        hi_p = np.maximum(hi_p, np.where(both, d, -np.inf).max(axis=0, initial=-np.inf))
-    ok = (n >= RIGID_MIN_FRAMES) & (hi_p - lo_p <= RIGID_MAX_SPAN_CM)
-    span = np.full((J, J), np.inf)
-    lo = np.full((J, J), np.nan)
-    hi = np.full((J, J), np.nan)
-    for x, y in ((ia, ib), (ib, ia)):
-        span[x[ok], y[ok]] = (hi_p - lo_p)[ok]
-        lo[x, y], hi[x, y] = lo_p, hi_p
-    K = min(int(n_partners), J - 1)
-    part = np.argsort(span, axis=1, kind="stable")[:, :K]                     # (J, K)
-    real = np.isfinite(np.take_along_axis(span, part, axis=1))
+    part, real, lo, hi = steady_partners(P, obs, n_partners=n_partners)
     if not real.any():
         return out
-    dlo = np.take_along_axis(lo, part, axis=1) - float(margin_cm)
-    dhi = np.take_along_axis(hi, part, axis=1) + float(margin_cm)
-    V = np.asarray(values, dtype=float)
-    hv = np.asarray(has, dtype=bool) & np.isfinite(V).all(axis=-1)
-    rows = np.flatnonzero(cand.any(axis=1))
-    for sl in frame_blocks(len(rows)):                    # blocks of the frames with a candidate
-        t = rows[sl]
-        Vt = V[t]
-        d = np.linalg.norm(Vt[:, :, None, :] - Vt[:, part], axis=-1)          # (b, J, K)
-        with np.errstate(invalid="ignore"):
-            off = (d < dlo) | (d > dhi)
-        meas = obs[t][:, part] & hv[t][:, part] & real                        # partner measured
-        filled = ~obs[t][:, part] & hv[t][:, part] & real                     # partner filled
-        good = ((meas | filled) & ~off).sum(axis=2)
-        out[t] = cand[t] & ((meas & off).any(axis=2) | ((filled & off).sum(axis=2) > good))
+    # off the span by more than the margin: |d - mid| > margin + half span, i.e. the
+    # consistency test's bisquare limit 4.685 scale with scale = (margin + half) / 4.685
+    mid, half = (hi + lo) / 2, (hi - lo) / 2
+    rows = np.flatnonzero(cand.any(axis=1))               # only the frames with a candidate
+    slots = distance_consistency(np.asarray(values, dtype=float)[rows], np.asarray(has, bool)[rows],
+                                 partners=(part, real, mid, (float(margin_cm) + half) / 4.685),
+                                 floor_cm=0.0, per_partner=True, pinning=False)[3]   # (rows, J, K)
+    meas = obs[rows][:, part]                                                 # partner measured
+    off = slots < 0
+    good = (slots > 0).sum(axis=2)
+    out[rows] = cand[rows] & ((off & meas).any(axis=2) | ((off & ~meas).sum(axis=2) > good))
     return out
 
 

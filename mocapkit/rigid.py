@@ -50,7 +50,7 @@ from .errors import MocapFormatError, MocapValueError
 from .signal._arrays import nanmedian0
 from .windows import frame_blocks, spaced_frames
 
-__all__ = ["kabsch", "yaw_kabsch", "apply_rigid", "distance_stats", "rigid_partners", "distance_noise",
+__all__ = ["kabsch", "yaw_kabsch", "apply_rigid", "distance_stats", "rigid_partners", "steady_partners", "distance_noise",
            "distance_consistency", "find_clusters", "parse_clusters", "rigid_fill", "cluster_template",
            "fixed_bones", "bone_lengths", "bone_chains", "steady_spans", "hold_lengths", "kinematic_fill",
            "REFERENCES"]
@@ -232,6 +232,67 @@ def rigid_partners(P: np.ndarray, observed: np.ndarray, *, n_partners: int = 4,
     sc = np.take_along_axis(scale, part, axis=1)
     real = np.isfinite(sc)
     return part, real, np.take_along_axis(med, part, axis=1), np.where(real, sc, np.nan)
+
+
+def steady_partners(P: np.ndarray, observed: np.ndarray, *, n_partners: int = 4,
+                    max_span_cm: float = 2.0, min_frames: int = 20
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Each point's rigid partners by the *whole* span of their distance: the points whose
+    distance to it, over every frame where both are observed (at least ``min_frames``),
+    stays within ``max_span_cm`` -- the steadiest ``n_partners`` first.
+
+    Unlike :func:`rigid_partners` (a robust scale, which spikes leave in place) the span
+    takes every frame: a subject who stands still most of a clip keeps a knee-to-foot
+    distance steady in most frames (CMU balance: a robust scale of 0.085 cm on a distance
+    that bends from 57 to 50 cm), and spikes only widen a span, i.e. drop a pair. For a
+    test that must never flag a correct sample (:func:`mocapkit.gaps.off_rigid_partners`).
+    Candidate pairs come from 1,024 spaced frames (a span there is a lower bound of the
+    whole one; pairs seen together there fewer than 3 times stay candidates) and only they
+    are spanned over every frame: O(T x pairs), not the O(T J^2) of all pairs (17 s on
+    100,000 frames of 50 markers that all move as one body, on the loaded 2-core machine).
+
+    P : (T, J, 3) cm; observed : (T, J) bool. Returns (part (J, K) int, steadiest first;
+    real (J, K) bool, False on a slot with no partner; lo, hi (J, K) cm, the distance's
+    range, NaN where not real), K = min(n_partners, J - 1).
+
+    >>> import numpy as np
+    >>> t = np.linspace(0, 1, 50)[:, None]
+    >>> P = np.stack([np.hstack([t * 100, t * 0, t * 0]) + [0, 10 * i, 0] for i in range(3)], 1)
+    >>> P[:10, 2, 2] += 15.0                    # point 2 moves off the others in 10 frames
+    >>> part, real, lo, hi = steady_partners(P, np.ones((50, 3), bool), n_partners=2)
+    >>> part[0][real[0]].tolist(), real[2].tolist()     # 0 and 1 rigid, 2 with neither
+    ([1], [False, False])
+    """
+    P = np.asarray(P, dtype=float)
+    obs = np.asarray(observed, dtype=bool) & np.isfinite(P).all(axis=-1)
+    T, J = obs.shape
+    K = int(max(min(n_partners, J - 1), 0))
+    ref = spaced_frames(T, 1024)
+    _, _, n_s, lo_s, hi_s = distance_stats(P[ref], obs[ref], return_range=True,
+                                           chunk=max(16, int(2e6 // max(J * J, 1))))
+    ia, ib = np.nonzero(np.triu((n_s < 3) | (hi_s - lo_s <= max_span_cm), 1))
+    n = np.zeros(len(ia), np.int64)
+    lo_p = np.full(len(ia), np.inf)
+    hi_p = np.full(len(ia), -np.inf)
+    for sl in frame_blocks(T, max(16, int(4e6 // max(len(ia), 1)))):     # blocks of frames
+        v = P[sl][:, ia] - P[sl][:, ib]
+        d2 = np.einsum("bpi,bpi->bp", v, v)                             # squared: same order
+        both = obs[sl][:, ia] & obs[sl][:, ib]
+        n += both.sum(axis=0)
+        lo_p = np.minimum(lo_p, np.where(both, d2, np.inf).min(axis=0, initial=np.inf))
+        hi_p = np.maximum(hi_p, np.where(both, d2, -np.inf).max(axis=0, initial=-np.inf))
+    lo_p, hi_p = np.sqrt(lo_p), np.sqrt(np.maximum(hi_p, 0.0))       # pairs never seen: inf, 0
+    ok = (n >= min_frames) & (hi_p - lo_p <= max_span_cm)
+    span = np.full((J, J), np.inf)
+    lo = np.full((J, J), np.nan)
+    hi = np.full((J, J), np.nan)
+    for x, y in ((ia, ib), (ib, ia)):
+        span[x[ok], y[ok]] = (hi_p - lo_p)[ok]
+        lo[x, y], hi[x, y] = lo_p, hi_p
+    part = np.argsort(span, axis=1, kind="stable")[:, :K]
+    real = np.isfinite(np.take_along_axis(span, part, axis=1))
+    return (part, real, np.where(real, np.take_along_axis(lo, part, axis=1), np.nan),
+            np.where(real, np.take_along_axis(hi, part, axis=1), np.nan))
 
 
 #: frames :func:`fixed_bones` reads to check that positions are on the skeleton's scale
@@ -677,7 +738,7 @@ def distance_consistency(P: np.ndarray, observed: np.ndarray, *, n_partners: int
                          max_scale_cm: float = 1.0, floor_cm: float = 1.0,
                          n_ref: int = 1024, min_spread: float = 0.1,
                          partners: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None,
-                         per_partner: bool = False) -> tuple[np.ndarray, ...]:
+                         per_partner: bool = False, pinning: bool = True) -> tuple[np.ndarray, ...]:
     """Per sample, how many of its point's rigid partners keep their usual distance to it.
 
     A measured sample keeps its distance to every point of its own body segment (a bone's
@@ -700,7 +761,8 @@ def distance_consistency(P: np.ndarray, observed: np.ndarray, *, n_partners: int
 
     ``partners``: the result of :func:`rigid_partners` on the same P and observed, for a
     caller that needs it too (computed here when None; ``n_partners``, ``max_scale_cm`` and
-    ``n_ref`` are then unused).
+    ``n_ref`` are then unused), or any (part, real, median, scale) of that form.
+    ``pinning=False``: ``pinned`` is not computed (all False; a 3 x 3 eigenproblem per sample).
 
     P : (T, J, 3) cm; observed : (T, J) bool. Returns (agree, disagree, pinned), (T, J):
     the number (int8) of observed partners at frame t that agree / disagree (0 and 0 at an
@@ -725,8 +787,9 @@ def distance_consistency(P: np.ndarray, observed: np.ndarray, *, n_partners: int
     agree = np.zeros((T, J), np.int8)
     disagree = np.zeros((T, J), np.int8)
     pinned = np.zeros((T, J), bool)
-    if J < 2 or T < 3:
-        return (agree, disagree, pinned) + ((np.zeros((T, J, 0), np.int8),) if per_partner else ())
+    if J < 2 or (partners is None and T < 3):           # given partners: any frame count
+        K0 = 0 if partners is None else partners[0].shape[1]
+        return (agree, disagree, pinned) + ((np.zeros((T, J, K0), np.int8),) if per_partner else ())
     if partners is None:
         partners = rigid_partners(P, obs, n_partners=n_partners, max_scale_cm=max_scale_cm, n_ref=n_ref)
     part, real, mref, scale = partners
@@ -743,9 +806,10 @@ def distance_consistency(P: np.ndarray, observed: np.ndarray, *, n_partners: int
         disagree[sl] = (both & off).sum(axis=2)
         if slots is not None:
             slots[sl] = good.astype(np.int8) - (both & off)
-        u = np.where(good[..., None], v / np.maximum(d, 1e-9)[..., None], 0.0)
-        spread = np.linalg.eigvalsh(np.einsum("tjki,tjkl->tjil", u, u))[..., 0]
-        pinned[sl] = spread >= float(min_spread)
+        if pinning:
+            u = np.where(good[..., None], v / np.maximum(d, 1e-9)[..., None], 0.0)
+            spread = np.linalg.eigvalsh(np.einsum("tjki,tjkl->tjil", u, u))[..., 0]
+            pinned[sl] = spread >= float(min_spread)
     return (agree, disagree, pinned) + ((slots,) if per_partner else ())
 
 
