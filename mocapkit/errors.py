@@ -54,6 +54,13 @@ class TrainingMismatchWarning(MocapWarning):
     :func:`mocapkit.denoise.base.check_training_match`)."""
 
 
+class MeasuredKeptWarning(MocapWarning):
+    """A method moved stretches of measured samples far beyond the noise where the capture
+    shows no spike: they were written as measured (see
+    :func:`mocapkit.gaps.moved_without_cause`); the message names the method, how many,
+    the largest move and where."""
+
+
 class ConvergenceWarning(MocapWarning):
     """An iterative solver stopped at its iteration cap before meeting its tolerance.
 

@@ -26,7 +26,14 @@ metres away, so every method runs under one policy (applied by
   straight line across a 10 s gap of a sprinting subject stays inside the capture
   volume but metres away from the runner. And a fill that breaks its rigid partners'
   distances (a marker of the same plate, a bone's other end, measured in that frame) by
-  more than ``rigid_margin_cm``: it is at least that far off.
+  more than ``rigid_margin_cm``: it is at least that far off. And a fill the marker
+  reaches or leaves only by a step faster than ``speed_factor`` times the capture's own
+  speed (:func:`unreachable_fills`): a jump of metres between two frames, or between two
+  fills that take turns.
+* Measured samples are a method's to clean, not to replace: where it moved a stretch of
+  a marker by more than ``move_margin_cm`` (and ten times the noise) that its neighbours
+  show no spike in, the measured samples are kept (:func:`moved_without_cause`) and
+  counted in the report.
 * What is filled is flagged (``Motion.filled``); what is left is reported in
   ``motion.source["gap_report"]`` (see :func:`summary_line`).
 
@@ -54,7 +61,9 @@ from .errors import MocapValueError
 from .windows import frame_blocks
 
 __all__ = ["Gap", "GapPolicy", "DEFAULT_POLICY", "FILL_ALL", "find_gaps", "gap_lengths",
-           "gap_table", "supported", "capture_volume", "outside_volume", "outside_envelope", "off_rigid_partners", "fill", "frame_centroid",
+           "gap_table", "supported", "capture_volume", "outside_volume", "outside_envelope", "off_rigid_partners",
+           "capture_speed", "unreachable_fills", "neighbour_deviation", "moved_without_cause",
+           "fill", "frame_centroid",
            "use_policy", "current_policy", "apply_policy", "summary_line"]
 
 
@@ -88,6 +97,12 @@ class GapPolicy:
     rigid_margin_cm : fills off the distance to their rigid partners measured in the same
         frame by more than this (:func:`off_rigid_partners`) are left missing; None = no
         check.
+    speed_factor : a gap's fill with a step faster than this many times the capture's
+        99.9th-percentile speed (:func:`unreachable_fills`) is left missing; None = no
+        check.
+    move_margin_cm : measured samples a method moved by more than this (and ten times the
+        noise) where their neighbours show no spike are given back as measured
+        (:func:`moved_without_cause`); None = no check.
     restrict : False fills everything (the papers' synthetic protocols).
     """
 
@@ -97,9 +112,15 @@ class GapPolicy:
     volume_margin_cm: float | None = 100.0
     envelope_margin_cm: float | None = 30.0
     rigid_margin_cm: float | None = 10.0
+    speed_factor: float | None = 3.0
+    move_margin_cm: float | None = 5.0
     restrict: bool = True
 
     def __post_init__(self) -> None:
+        if self.move_margin_cm is not None and not (self.move_margin_cm > 0):
+            raise MocapValueError(f"move_margin_cm must be a positive number of cm, got {self.move_margin_cm!r}")
+        if self.speed_factor is not None and not (self.speed_factor > 0):
+            raise MocapValueError(f"speed_factor must be a positive number, got {self.speed_factor!r}")
         if self.max_gap_s is not None and not (self.max_gap_s > 0):
             raise MocapValueError(f"max_gap_s must be a positive number of seconds, got {self.max_gap_s!r}")
         if not self.edge_horizon_s >= 0:
@@ -107,7 +128,8 @@ class GapPolicy:
 
 
 DEFAULT_POLICY = GapPolicy()
-FILL_ALL = GapPolicy(restrict=False, volume_margin_cm=None, envelope_margin_cm=None, rigid_margin_cm=None)
+FILL_ALL = GapPolicy(restrict=False, volume_margin_cm=None, envelope_margin_cm=None, rigid_margin_cm=None,
+                     speed_factor=None, move_margin_cm=None)
 
 _POLICY: contextvars.ContextVar[GapPolicy] = contextvars.ContextVar("mocapkit_gap_policy",
                                                                     default=DEFAULT_POLICY)
@@ -343,6 +365,159 @@ def off_rigid_partners(positions: np.ndarray, observed: np.ndarray, candidate: n
     return out
 
 
+#: slack (cm) of :func:`unreachable_fills` on top of the speed allowance: a step this small
+#: is never judged (noise, a fill's offset at its anchor)
+SPEED_SLACK_CM = 2.0
+
+
+def capture_speed(positions: np.ndarray, observed: np.ndarray, q: float = 99.9) -> float:
+    """The ``q``-th percentile (cm per frame) of the displacement of the measured samples
+    between consecutive frames, pooled over markers; NaN with fewer than 20 such steps."""
+    P = np.asarray(positions, dtype=float)
+    obs = np.asarray(observed, dtype=bool)
+    steps = [np.linalg.norm(np.diff(P[:, j], axis=0), axis=1)[obs[1:, j] & obs[:-1, j]]
+             for j in range(P.shape[1])]                    # per marker: (T, 3) temporaries only
+    s = np.concatenate(steps) if steps else np.zeros(0)
+    s = s[np.isfinite(s)]
+    return float(np.percentile(s, q)) if s.size >= 20 else float("nan")
+
+
+def unreachable_fills(positions: np.ndarray, observed: np.ndarray, candidate: np.ndarray,
+                      factor: float, *, values: np.ndarray, slack_cm: float = SPEED_SLACK_CM) -> np.ndarray:
+    """(T, J) bool: fills marked in ``candidate`` on a path the marker could not have taken
+    at ``factor`` times the capture's speed ``v`` (:func:`capture_speed` of the measured
+    samples, cm per frame).
+
+    Per marker, the samples that are measured or in ``candidate`` are taken in time order
+    (``values`` (T, J, 3): measured samples as the method returned them, the fills); a
+    *run* is a stretch of consecutive fills, with the measured sample before and after it.
+    A step between consecutive samples ``dt`` frames apart that is longer than
+    ``factor v dt + slack_cm`` can not be motion; a run with such a step anywhere -- into
+    it, inside it, out of it -- is dropped whole: of the two samples beside the step at
+    least one is off by about half of it, and which one no test without the truth can
+    say. So a fill that leaves its anchor with an offset, one that arrives 50 cm from
+    where the marker reappears, and two fills that take turns frame by frame two metres
+    apart all go; a fill that joins its ends at a plausible speed stays.
+
+    Found on kineticstoolkit's basket sprint (2026-12-05, 120 fps, ``v`` = 4.2 cm): auto's
+    fill of a forearm marker over a 270-frame gap switched between two candidates 200 cm
+    apart (steps of 210-264 cm between frames), and a wheelchair marker's fill stepped
+    99 cm -- inside the capture volume, the body's envelope and, the whole plate hidden,
+    its rigid partners' majority. On CMU clips the truth's largest step is at most 2.5 x
+    its 99.9th percentile (a thumb that steps in one frame), under the factor 3.
+    """
+    P = np.asarray(values, dtype=float)
+    obs = np.asarray(observed, dtype=bool)
+    cand = np.asarray(candidate, dtype=bool) & ~obs
+    out = np.zeros_like(cand)
+    if not cand.any():
+        return out
+    v = capture_speed(positions, obs)
+    if not np.isfinite(v):
+        return out                                   # too little measured motion to judge
+    for j in np.flatnonzero(cand.any(axis=0)):
+        c = cand[:, j].copy()
+        while True:
+            idx = np.flatnonzero(obs[:, j] | c)
+            fill_ = ~obs[idx, j]
+            step = np.linalg.norm(np.diff(P[idx, j], axis=0), axis=1)
+            broken = ~(step <= factor * v * np.diff(idx) + slack_cm) & (fill_[1:] | fill_[:-1])
+            if not broken.any():
+                break
+            # pieces between the breaks that hold no measured sample go first (a fill's
+            # one-frame jump, a stretch from another candidate); then a break that is left
+            # lies between pieces joined to measured samples: their whole run goes
+            piece = np.r_[0, np.cumsum(broken)]
+            loose = fill_ & ~(np.bincount(piece, weights=~fill_)[piece] > 0)
+            if loose.any():
+                c[idx[loose]] = False
+                continue
+            run = np.cumsum(fill_ & ~np.r_[False, fill_[:-1]])          # run number of each fill
+            bad_runs = np.zeros(run[-1] + 1, bool)
+            i = np.flatnonzero(broken)                                   # step i: entries i, i+1
+            for e in (i, i + 1):
+                bad_runs[run[e[fill_[e]]]] = True
+            c[idx[fill_ & bad_runs[run]]] = False
+            break
+        out[:, j] = cand[:, j] & ~c
+    return out
+
+def neighbour_deviation(positions: np.ndarray, observed: np.ndarray) -> np.ndarray:
+    """(T, J) distance (cm) of each sample from the cubic through its two neighbours on
+    each side, ``(-p[t-2] + 4 p[t-1] + 4 p[t+1] - p[t+2]) / 6`` -- large on a spike or a
+    step, small on motion however fast; NaN where the sample or a neighbour is missing
+    and on the first and last two frames."""
+    P = np.asarray(positions, dtype=float)
+    obs = np.asarray(observed, dtype=bool)
+    T = P.shape[0]
+    d = np.full(obs.shape, np.nan)
+    if T >= 5:
+        with np.errstate(invalid="ignore"):
+            d[2:-2] = np.linalg.norm((-P[:-4] + 4 * P[1:-3] + 4 * P[3:-1] - P[4:]) / 6.0 - P[2:-2], axis=2)
+        d[2:-2][~(obs[:-4] & obs[1:-3] & obs[2:-2] & obs[3:-1] & obs[4:])] = np.nan
+    return d
+
+
+#: a stretch a method moved is explained by a spike or a step of the input when the input
+#: lies at least this share of the largest move off the cubic through its neighbours
+#: somewhere in the stretch or within 2 frames of it (:func:`moved_without_cause`)
+SPIKE_SHARE = 1.0 / 3.0
+
+
+def moved_without_cause(positions: np.ndarray, observed: np.ndarray, result: np.ndarray,
+                        margin_cm: float, noise_cm: float = 0.0) -> np.ndarray:
+    """(T, J) bool: measured samples a method should have left where they were measured.
+
+    ``positions`` (T, J, 3) the input, ``result`` the method's values. A sample is *moved*
+    when ``|result - input|`` exceeds ``max(margin_cm, 10 noise_cm)``. Per marker, a
+    stretch of consecutive moved samples is moved *with cause* when somewhere in it, or
+    within 2 frames of it, the input lies at least :data:`SPIKE_SHARE` of the stretch's
+    largest move off the cubic through its neighbours (:func:`neighbour_deviation`): a
+    spike, the edge of a stretch of wrong samples (a swapped label: a step in and a step
+    out), a sharp turn a filter rounds. A stretch moved where the input is smooth all
+    along -- its neighbours agree with every measurement -- is returned whole, so that
+    giving it back leaves no step larger than the margin at its ends. A stretch with no
+    sample of its own that has four measured neighbours (a spike on the first frame) is
+    not judged.
+
+    Found on the shared marker files (2026-12-05; stretches given back, by ``mocapkit
+    denoise`` with the method named): ``rpca`` had moved the serving arm of
+    kineticstoolkit's tennis serve by up to 85 cm (the input's noise 0.03 cm), ``svt``
+    (not converged) most of ezc3d's BTS by up to 203 cm, ``kalman-cv`` (its defaults) held
+    a forearm marker of the basket sprint 20-28 cm behind its measurements for 20 frames
+    after a long gap. auto, mssa and wavelet move no sample of those files by more than
+    5 cm. A first version judged each sample on its own deviation: a two-frame glitch of
+    a CMU foot (each sample a third of the step off its neighbours' cubic) that slra
+    removed was given back.
+    """
+    P = np.asarray(positions, dtype=float)
+    obs = np.asarray(observed, dtype=bool)
+    Q = np.asarray(result, dtype=float)
+    thr = max(float(margin_cm), 10.0 * float(noise_cm))
+    with np.errstate(invalid="ignore"):
+        d = np.linalg.norm(Q - P, axis=2)
+    moved = obs & (d > thr)
+    if not moved.any():
+        return np.zeros_like(moved)
+    g = neighbour_deviation(P, obs)
+    judged = np.isfinite(g)
+    g = np.where(judged, g, 0.0)
+    T = len(g)
+    gw = g.copy()                               # the largest deviation within 2 frames
+    for k in (1, 2):
+        gw[k:] = np.maximum(gw[k:], g[:-k])
+        gw[:-k] = np.maximum(gw[:-k], g[k:])
+    # stretches of moved samples per marker: columns laid end to end, a gap between them
+    lay = lambda A, fill: np.vstack([A, np.full((1, A.shape[1]), fill)]).T.ravel()   # noqa: E731
+    M = lay(moved, False)
+    first = np.flatnonzero(M & ~np.r_[False, M[:-1]])
+    run = np.cumsum(M & ~np.r_[False, M[:-1]]) - 1                   # stretch of each sample
+    gmax = np.maximum.reduceat(lay(np.where(moved, gw, 0.0), 0.0), first)
+    dmax = np.maximum.reduceat(lay(np.where(moved, d, 0.0), 0.0), first)
+    seen = np.maximum.reduceat(lay(moved & judged, False), first)
+    bad = seen & (gmax < SPIKE_SHARE * dmax)
+    return (M & bad[np.maximum(run, 0)]).reshape(moved.shape[1], T + 1)[:, :T].T
+
 def fill(X, mask=None, /, *, kind: str = "linear", ends: str = "nearest",
          never_observed: float = np.nan) -> np.ndarray:
     """Fill the unobserved samples of a (T, ...) array by interpolation in time (axis 0,
@@ -502,7 +677,20 @@ def apply_policy(inp, out, *, evidence: str, method: str, policy: GapPolicy | No
     if pol.rigid_margin_cm is not None and want.any():
         implausible |= off_rigid_partners(inp.positions, obs_in, want & ok & ~implausible,
                                           pol.rigid_margin_cm, values=P, has=has)
+    if pol.speed_factor is not None and want.any():
+        # last: the chain is judged on the fills the other checks kept
+        implausible |= unreachable_fills(inp.positions, obs_in, want & ok & ~implausible,
+                                         pol.speed_factor, values=P)
     keep = has & ~(unsupported | implausible)
+    back = np.zeros_like(obs_in)
+    if pol.move_margin_cm is not None and obs_in.any():
+        with np.errstate(invalid="ignore"):       # cheap first: is anything moved that far?
+            far = obs_in & (np.linalg.norm(P - inp.positions, axis=2) > pol.move_margin_cm)
+        if far.any():
+            from .signal import estimate_noise
+
+            sigma = estimate_noise(inp.matrix(copy=False), inp.matrix_mask(), pool="all", fallback=0.0)
+            back = moved_without_cause(inp.positions, obs_in, P, pol.move_margin_cm, sigma)
     filled_now = keep & miss
     filled = (inp.filled & obs_in & keep) | filled_now
     if not out.observed[obs_in].all():      # a method must never drop a measured sample
@@ -532,14 +720,29 @@ def apply_policy(inp, out, *, evidence: str, method: str, policy: GapPolicy | No
         "never_observed": [inp.skeleton.names[j] for j in np.flatnonzero(~obs_in.any(axis=0))],
         "max_gap_s": pol.max_gap_s,
         "restricted": pol.restrict,
+        "kept_measured": int(back.sum()),
     }
+    if back.any():
+        moved = np.linalg.norm(P[back] - inp.positions[back], axis=1)
+        t, j = np.argwhere(back)[int(moved.argmax())]
+        report["kept_measured_max_cm"] = float(moved.max())
+        report["kept_measured_worst"] = f"{inp.skeleton.names[j]} frame {t}"
+        import warnings
+
+        from .errors import MeasuredKeptWarning
+        warnings.warn(f"{method} moved {int(back.sum())} measured samples of "
+                      f"{int(back.any(axis=0).sum())} markers by more than {pol.move_margin_cm:g} cm where the "
+                      f"capture shows no spike (up to {moved.max():.0f} cm, {report['kept_measured_worst']}): "
+                      f"they are written as measured (the method does not fit this capture there)",
+                      MeasuredKeptWarning, stacklevel=3)
     src = dict(out.source)
     src.pop("fill_codes", None)
     src["gap_report"] = report
     drop = ~keep & has
-    if drop.any():
+    if drop.any() or back.any():
         P = P.copy()
         P[drop] = np.nan
+        P[back] = inp.positions[back]
         P.setflags(write=False)             # handed over: the Motion shares it
     return type(out)(P, out.skeleton, out.fps, keep, src, filled)     # a Motion (no import: motion uses fill)
 
@@ -561,7 +764,7 @@ def summary_line(report: dict | None) -> str:
                        + (f" or beyond --max-gap {report['max_gap_s']:g} s" if report.get("max_gap_s") else ""))
         if report["left_implausible"]:
             why.append(f"{report['left_implausible']} implausible: outside the capture volume, away from the "
-                       f"body or off a rigid partner's distance")
+                       f"body, off a rigid partner's distance or out of the marker's reach")
         if report["left_by_method"]:
             why.append(f"{report['left_by_method']} the fill could not support")
         s += (f"; left {report['left_missing']} missing ({'; '.join(why)}), "

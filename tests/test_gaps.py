@@ -266,6 +266,66 @@ def test_fills_off_a_rigid_partner_are_left_missing():
                                  method="test").observed.all()
 
 
+def test_fills_out_of_the_markers_reach_are_left_missing():
+    """The gap policy's speed check: fills cut off from the measured samples by steps the
+    capture's own speed can not make (two fills taking turns) are dropped; a run joined to
+    both ends with such a step left in it (a drift that arrives 60 cm off) is dropped
+    whole; a fill that joins its ends smoothly is kept, however long."""
+    rng = np.random.default_rng(1)
+    T = 400
+    P = np.cumsum(rng.normal(0, 0.5, (T, 3, 3)), axis=0) + [0, 0, 100]     # ~1 cm/frame, no rigid pairs
+    obs = np.ones((T, 3), bool)
+    obs[50:80, 0] = obs[150:250, 0] = obs[300:320, 0] = False
+    obs[100:130, 1] = False
+    fills = P.copy()                                          # the true path everywhere ...
+    fills[150:250:2, 0] += [25.0, 0, 0]                       # ... but two fills taking turns 25 cm apart
+    fills[300:320, 0] += np.linspace(0, 60, 20)[:, None]      # drifts, arrives 60 cm off
+    v = gaps.capture_speed(P, obs)
+    assert 0.5 < v < 5
+    flag = gaps.unreachable_fills(P, obs, ~obs, 3.0, values=fills)
+    assert not flag[50:80, 0].any() and not flag[100:130, 1].any()      # smooth: kept
+    assert flag[150:249, 0].all() and flag[300:320, 0].all()           # dropped whole
+    assert not flag[249, 0]                          # the last (true) one joins the data
+    m = _markers(P).with_observed(obs)
+    out = gaps.apply_policy(m, Motion(fills, m.skeleton, m.fps), evidence="markers", method="test")
+    assert out.observed[50:80, 0].all() and not out.observed[150:249, 0].any()
+    assert out.source["gap_report"]["left_implausible"] == 119
+    with gaps.use_policy(speed_factor=None):
+        assert gaps.apply_policy(m, Motion(fills, m.skeleton, m.fps), evidence="markers",
+                                 method="test").observed.all()
+    with pytest.raises(MocapValueError, match="speed_factor"):
+        gaps.GapPolicy(speed_factor=0)
+
+
+def test_measured_samples_moved_without_a_spike_are_written_as_measured():
+    """A method may clean measured samples, not replace them: a stretch moved 20 cm where
+    the capture is smooth is given back (with a warning and a count); a spike it removed,
+    and a 1 cm smoothing, stay as the method wrote them."""
+    from mocapkit.errors import MeasuredKeptWarning
+
+    rng = np.random.default_rng(2)
+    T = 300
+    P = np.cumsum(rng.normal(0, 0.3, (T, 3, 3)), axis=0) + [0, 0, 100]
+    noisy = P.copy()
+    noisy[100, 1] += [15.0, 0, 0]                              # a spike in the input
+    res = P + rng.normal(0, 0.3, P.shape)                       # the method's smoothing
+    res[50:80, 0] += [0, 20.0, 0]                               # moves a smooth stretch
+    obs = np.ones((T, 3), bool)
+    back = gaps.moved_without_cause(noisy, obs, res, 5.0, 0.1)
+    assert back[50:80, 0].all() and back.sum() == 30            # the spike's removal is not
+    dev = gaps.neighbour_deviation(noisy, obs)
+    assert dev[100, 1] > 10 and np.isnan(dev[:2]).all() and np.nanmedian(dev) < 1
+    m = _markers(noisy)
+    with pytest.warns(MeasuredKeptWarning, match="30 measured samples of 1 markers"):
+        out = gaps.apply_policy(m, Motion(res, m.skeleton, m.fps), evidence="markers", method="test")
+    assert np.array_equal(out.positions[50:80, 0], noisy[50:80, 0])
+    assert np.array_equal(out.positions[100, 1], res[100, 1])
+    assert out.source["gap_report"]["kept_measured"] == 30
+    with gaps.use_policy(move_margin_cm=None):
+        out = gaps.apply_policy(m, Motion(res, m.skeleton, m.fps), evidence="markers", method="test")
+    assert np.array_equal(out.positions, res)
+
+
 def test_the_default_on_marker_files_is_auto_which_hands_clean_gaps_to_fill_auto():
     """auto is the default for marker files too: on a clean capture it keeps the measured
     samples and its fill of gaps of 3 frames and more is fill-auto's; a noisy one it

@@ -355,8 +355,15 @@ def test_denoisers_edge_cases():
         # the never-observed joint comes back missing (never (0, 0, 0)); the rest is filled
         assert not out.observed[:, 2].any() and np.isnan(out.positions[:, 2]).all()
         keep = np.arange(31) != 2
-        assert out.observed[:, keep].all() and np.isfinite(out.positions[:, keep]).all()
-        assert out.source["gap_report"]["never_observed"] == [truth.skeleton.names[2]]
+        rep = out.source["gap_report"]
+        assert np.isfinite(out.positions[:, keep][out.observed[:, keep]]).all()
+        if name == "svt":
+            # its fill of the 190-frame gap steps 9 cm into it and 27 cm out of it (9-27 cm
+            # off the truth): the policy's speed check leaves it missing and says so
+            assert not out.observed[100:290, 3].any() and rep["left_implausible"] == 190
+        else:
+            assert out.observed[:, keep].all()
+        assert rep["never_observed"] == [truth.skeleton.names[2]]
     out = denoise.get("slra", segment=60, overlap=20).denoise(
         m.with_observed(np.ones_like(obs) & (np.arange(31) != 2)))
     assert np.isfinite(out.positions[:, np.arange(31) != 2]).all()
