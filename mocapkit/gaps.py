@@ -477,18 +477,23 @@ def moved_without_cause(positions: np.ndarray, observed: np.ndarray, result: np.
     out), a sharp turn a filter rounds. A stretch moved where the input is smooth all
     along -- its neighbours agree with every measurement -- is returned whole, so that
     giving it back leaves no step larger than the margin at its ends. A stretch with no
-    sample of its own that has four measured neighbours (a spike on the first frame) is
-    not judged.
+    sample of its own that has four measured neighbours (samples between gaps, the first
+    frame) is moved without cause when the method took its ends farther (by more than
+    the threshold) from the marker's measured samples before and after it than the
+    measurements were: a spike's removal brings a sample towards its neighbours.
 
     Found on the shared marker files (2026-12-05; stretches given back, by ``mocapkit
     denoise`` with the method named): ``rpca`` had moved the serving arm of
-    kineticstoolkit's tennis serve by up to 85 cm (the input's noise 0.03 cm), ``svt``
-    (not converged) most of ezc3d's BTS by up to 203 cm, ``kalman-cv`` (its defaults) held
-    a forearm marker of the basket sprint 20-28 cm behind its measurements for 20 frames
-    after a long gap. auto, mssa and wavelet move no sample of those files by more than
+    kineticstoolkit's tennis serve by up to 85 cm (1,353 samples of 23 markers; the
+    input's noise 0.03 cm), ``svt`` (not converged) 6,976 samples of ezc3d's BTS by up to
+    210 cm, ``kalman-cv`` (its defaults) held a forearm marker of the basket sprint 20-28
+    cm behind its measurements for 20 frames after a long gap (818 samples of 3 markers,
+    up to 110 cm). auto, mssa and wavelet move no sample of those files by more than
     5 cm. A first version judged each sample on its own deviation: a two-frame glitch of
     a CMU foot (each sample a third of the step off its neighbours' cubic) that slra
-    removed was given back.
+    removed was given back. Left: a sample measured alone between long gaps (a plate seen
+    for one frame) that a method moves towards one neighbour and away from the other is
+    not judged (trnn moves such wheelchair markers of the basket sprint by up to 239 cm).
     """
     P = np.asarray(positions, dtype=float)
     obs = np.asarray(observed, dtype=bool)
@@ -516,6 +521,25 @@ def moved_without_cause(positions: np.ndarray, observed: np.ndarray, result: np.
     dmax = np.maximum.reduceat(lay(np.where(moved, d, 0.0), 0.0), first)
     seen = np.maximum.reduceat(lay(moved & judged, False), first)
     bad = seen & (gmax < SPIKE_SHARE * dmax)
+    if not seen.all():
+        # a stretch without four measured neighbours anywhere (samples between gaps, the
+        # first frame): moved without cause when the method took it farther from the
+        # marker's measured samples before and after it than the measurement was -- a
+        # spike's removal brings a sample towards its neighbours' path, never away
+        j, t0 = np.divmod(first, T + 1)
+        t1 = t0 + np.bincount(run[M], minlength=len(first)) - 1
+        tt = np.arange(T)[:, None]
+        last = np.maximum.accumulate(np.where(obs, tt, -1), axis=0)
+        nxt = np.minimum.accumulate(np.where(obs, tt, T)[::-1], axis=0)[::-1]
+        p = np.where(t0 > 0, last[np.maximum(t0 - 1, 0), j], -1)
+        n = np.where(t1 < T - 1, nxt[np.minimum(t1 + 1, T - 1), j], T)
+
+        def away(a, b):                                   # Q[a] farther than P[a] from P[b]
+            bb = np.clip(b, 0, T - 1)
+            grow = np.linalg.norm(Q[a, j] - P[bb, j], axis=1) - np.linalg.norm(P[a, j] - P[bb, j], axis=1)
+            return (b < 0) | (b >= T) | (grow > thr)
+
+        bad |= ~seen & ((p >= 0) | (n < T)) & away(t0, p) & away(t1, n)
     return (M & bad[np.maximum(run, 0)]).reshape(moved.shape[1], T + 1)[:, :T].T
 
 def fill(X, mask=None, /, *, kind: str = "linear", ends: str = "nearest",

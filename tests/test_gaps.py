@@ -313,6 +313,15 @@ def test_measured_samples_moved_without_a_spike_are_written_as_measured():
     obs = np.ones((T, 3), bool)
     back = gaps.moved_without_cause(noisy, obs, res, 5.0, 0.1)
     assert back[50:80, 0].all() and back.sum() == 30            # the spike's removal is not
+    # samples without four measured neighbours: one between gaps thrown 30 cm away from
+    # both its measured neighbours goes back; a spike on frame 0 pulled to the path stays
+    obs2 = obs.copy()
+    obs2[195:200, 2] = obs2[201:206, 2] = False
+    res2, noisy2 = res.copy(), noisy.copy()
+    res2[200, 2] += [0, 0, 30.0]
+    noisy2[0, 2] += [15.0, 0, 0]                               # the method removed it (res = P)
+    back2 = gaps.moved_without_cause(noisy2, obs2, res2, 5.0, 0.1)
+    assert back2[200, 2] and not back2[0, 2]
     dev = gaps.neighbour_deviation(noisy, obs)
     assert dev[100, 1] > 10 and np.isnan(dev[:2]).all() and np.nanmedian(dev) < 1
     m = _markers(noisy)
