@@ -51,6 +51,7 @@ class FileResult:
     seconds: float = 0.0
     output_sha256: str = ""
     input_stamp: list = field(default_factory=list)   # [size, mtime_ns] of the input
+    note: str = ""               # "ok": what the gap policy filled and left, the warnings
 
 
 @dataclass
@@ -179,7 +180,11 @@ DEFAULT = "default"
 def process_one(in_path: str, out_path: str, method: str, params: dict[str, Any],
                 model: str | None) -> dict[str, Any]:
     """Read, clean and write one file. Runs in a worker process; never raises for bad input."""
+    import warnings
+
     from . import denoise, io
+    from .errors import MocapWarning
+    from .gaps import summary_line
 
     t0 = time.perf_counter()
     try:
@@ -200,10 +205,17 @@ def process_one(in_path: str, out_path: str, method: str, params: dict[str, Any]
                 if den is None:
                     raise MocapError(f"method {method!r}: no shipped model fits this file's joint "
                                      f"set; give --model")
-        out = den.denoise(m)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", MocapWarning)    # a worker has no terminal: keep them
+            out = den.denoise(m)
         io.write(out, out_path, overwrite=True, **opts)
+        # what a user reads in the CLI's lines, in the log and manifest: what was left
+        # missing or given back as measured, and why
+        notes = [summary_line(out.source.get("gap_report"))] if not m.observed.all() else []
+        notes += [f"warning: {w.message}" for w in caught if issubclass(w.category, MocapWarning)]
         return {"status": "ok", "frames": m.n_frames, "seconds": time.perf_counter() - t0,
-                "output_sha256": sha256(Path(out_path)), "extra": [str(p) for p in written[1:]]}
+                "output_sha256": sha256(Path(out_path)), "extra": [str(p) for p in written[1:]],
+                "note": "; ".join(notes)}
     except MocapError as e:
         return {"status": "failed", "reason": str(e), "seconds": time.perf_counter() - t0}
     except Exception as e:  # a bug in a method must not stop a library run; report it plainly
@@ -549,7 +561,8 @@ class _Run:
         self.stop.protect += 1
         try:
             fr = FileResult(rel, res["status"], res.get("reason", ""), res.get("frames", 0),
-                            res.get("seconds", 0.0), res.get("output_sha256", ""), self.stamps[rel])
+                            res.get("seconds", 0.0), res.get("output_sha256", ""), self.stamps[rel],
+                            res.get("note", ""))
             out = self.outs[rel]
             if fr.status != "ok":
                 for tmp in _temp_files(out):    # a worker that died mid-write
@@ -562,7 +575,7 @@ class _Run:
             self.files[rel] = asdict(fr)
             self.pending.discard(rel)
             self.done.add(rel)
-            line = f"{fr.status:<7} {rel}  {fr.frames} frames {fr.seconds:.2f} s {fr.reason}".rstrip()
+            line = f"{fr.status:<7} {rel}  {fr.frames} frames {fr.seconds:.2f} s {fr.reason or fr.note}".rstrip()
             self.log_lines.append(line)
             if self.log:
                 self.log(line)

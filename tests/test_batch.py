@@ -243,3 +243,21 @@ def test_batch_ctrl_c_stops_workers_manifest_matches_disk(slow_library, tmp_path
         assert io.read(out / rel).n_frames == 240
     leftovers = sorted(p.name for p in out.rglob(".*") if p.name != MANIFEST)
     assert leftovers == [], leftovers                          # no temp files, no lock
+
+
+def test_batch_notes_what_the_policy_gave_back(library, tmp_path, capsys):
+    """A worker has no terminal: what the CLI prints as warnings (one iteration of rpca
+    moves the walk by tens of cm; the gap policy writes the measured samples back) goes
+    into the file's note, the manifest and the batch log."""
+    out = tmp_path / "out"
+    s = run_batch(library, out, method="rpca", params={"max_iter": 1}, workers=1, progress=False)
+    ok = [r for r in s.results if r.status == "ok"]
+    assert len(ok) == 2
+    for r in ok:
+        assert "not converged" in r.note and "written as measured" in r.note
+    files = json.loads((out / MANIFEST).read_text())["files"]
+    assert all("written as measured" in files[r.input]["note"] for r in ok)
+    assert "written as measured" in (out / "batch.log").read_text()
+    out2 = tmp_path / "out2"
+    assert main(["batch", str(library), str(out2), "--method", "rpca", "--param", "max_iter=1", "-q"]) == 1
+    assert "2 file(s) with warnings" in capsys.readouterr().out

@@ -125,8 +125,8 @@ def test_reporting_does_not_change_results(clip):
     np.testing.assert_array_equal(A0, A1)
     assert (info.residual[info.converged] < 1e-5).all()
     with gaps.use_policy(move_margin_cm=None):
-        # (the default policy gives back 9 measured samples slra moves 9-15 cm at its
-        # segment boundaries, frames 50 / 100 / 150, where the walk is smooth)
+        # (the default policy gives back the 3 measured samples slra moves 10-15 cm at
+        # its segment boundary at frames 98-100, where the walk is smooth)
         out = denoise.get("slra", segment=50, tol=1e-5, missing="free").denoise(m)
     np.testing.assert_array_equal(out.matrix(), A0)
     B0, _ = lr.rpca_ialm(X, mask=M, max_iter=3)
