@@ -705,8 +705,22 @@ def apply_policy(inp, out, *, evidence: str, method: str, policy: GapPolicy | No
     """
     pol = policy or current_policy()
     obs_in = inp.observed
-    P = out.positions                       # read-only; copied below only if samples are dropped
+    P = out.positions                       # read-only; copied below only if samples change
     has = out.observed.copy()
+    # first the measured samples: the fills are judged against what will be written
+    back = np.zeros_like(obs_in)
+    if pol.move_margin_cm is not None and obs_in.any():
+        with np.errstate(invalid="ignore"):       # cheap first: is anything moved that far?
+            far = obs_in & (np.linalg.norm(P - inp.positions, axis=2) > pol.move_margin_cm)
+        if far.any():
+            from .signal import estimate_noise
+
+            sigma = estimate_noise(inp.matrix(copy=False), inp.matrix_mask(), pool="all", fallback=0.0)
+            back = moved_without_cause(inp.positions, obs_in, P, pol.move_margin_cm, sigma)
+    moved = np.linalg.norm(P[back] - inp.positions[back], axis=1) if back.any() else None
+    if back.any():
+        P = P.copy()
+        P[back] = inp.positions[back]
     miss = ~obs_in
     want = miss & has
     # gap lengths are (T, J) int arrays: only built when something is missing
@@ -727,15 +741,6 @@ def apply_policy(inp, out, *, evidence: str, method: str, policy: GapPolicy | No
         implausible |= unreachable_fills(inp.positions, obs_in, want & ok & ~implausible,
                                          pol.speed_factor, values=P)
     keep = has & ~(unsupported | implausible)
-    back = np.zeros_like(obs_in)
-    if pol.move_margin_cm is not None and obs_in.any():
-        with np.errstate(invalid="ignore"):       # cheap first: is anything moved that far?
-            far = obs_in & (np.linalg.norm(P - inp.positions, axis=2) > pol.move_margin_cm)
-        if far.any():
-            from .signal import estimate_noise
-
-            sigma = estimate_noise(inp.matrix(copy=False), inp.matrix_mask(), pool="all", fallback=0.0)
-            back = moved_without_cause(inp.positions, obs_in, P, pol.move_margin_cm, sigma)
     filled_now = keep & miss
     filled = (inp.filled & obs_in & keep) | filled_now
     if not out.observed[obs_in].all():      # a method must never drop a measured sample
@@ -767,8 +772,7 @@ def apply_policy(inp, out, *, evidence: str, method: str, policy: GapPolicy | No
         "restricted": pol.restrict,
         "kept_measured": int(back.sum()),
     }
-    if back.any():
-        moved = np.linalg.norm(P[back] - inp.positions[back], axis=1)
+    if moved is not None:
         t, j = np.argwhere(back)[int(moved.argmax())]
         report["kept_measured_max_cm"] = float(moved.max())
         report["kept_measured_worst"] = f"{inp.skeleton.names[j]} frame {t}"
@@ -785,9 +789,8 @@ def apply_policy(inp, out, *, evidence: str, method: str, policy: GapPolicy | No
     src["gap_report"] = report
     drop = ~keep & has
     if drop.any() or back.any():
-        P = P.copy()
+        P = P.copy() if not back.any() else P       # (already a copy when samples came back)
         P[drop] = np.nan
-        P[back] = inp.positions[back]
         P.setflags(write=False)             # handed over: the Motion shares it
     return type(out)(P, out.skeleton, out.fps, keep, src, filled)     # a Motion (no import: motion uses fill)
 
