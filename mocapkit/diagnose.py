@@ -64,7 +64,9 @@ class Diagnosis:
         """Human-readable report, one fact per line."""
         dur = self.n_frames / self.fps
         out = [f"frames: {self.n_frames} at {self.fps:g} fps ({dur:.1f} s), {self.n_points} points",
-               f"noise: {self.noise_cm:.3f} cm RMS (GCV estimate on the samples kept)",
+               (f"noise: {self.noise_cm:.3f} cm RMS (GCV estimate on the samples kept)"
+                if np.isfinite(self.noise_cm) else
+                "noise: not measurable (too few frames or measured samples for the GCV estimate)"),
                f"spikes: {self.n_spikes} samples ({100 * self.spike_rate:.2f} % of observed)"
                + ("  -> outlier removal advised" if self.spiky else "")]
         if self.n_gaps:

@@ -264,6 +264,8 @@ def test_diagnose_reports_noise_spikes_and_gaps(clip):
     assert "noise" in text and "spikes" in text and "gaps" in text
     clean = diagnose(clip)
     assert clean.noise_cm < 0.25 and not clean.spiky and clean.n_gaps == 0
+    two = "\n".join(diagnose(clip.slice(0, 2)).lines())      # ezc3d's FP_Type3 has 2 frames
+    assert "noise: not measurable" in two and "nan" not in two
 
 
 def test_auto_does_no_harm_on_a_clean_clip(clip):
