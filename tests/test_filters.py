@@ -259,12 +259,13 @@ def test_filters_on_real_clip(shared_data):
     noisy = clean.with_positions(clean.positions + noise).with_observed(obs)
     for name in FILTERS:
         out = denoise.get(name).denoise(noisy)
-        # everything filled but what the policy's speed check drops: the truth's left wrist
-        # and hand jump 85 cm between frames 1 and 2 (an artefact of the AMC), and a fill
-        # of frame 1 between them is at least 40 cm off (gaps.unreachable_fills)
+        # everything filled but what the policy's speed check drops: the truth's left arm
+        # jumps 85 cm between frames 1 and 2 (an artefact of the AMC), and a fill of frame
+        # 1 between them is at least 40 cm off (gaps.unreachable_fills); hampel moves a
+        # measured sample next to it, given back, and the fills beside that one go too
         left = ~out.observed
-        assert left.sum() == out.source["gap_report"]["left_implausible"] <= 4
-        assert not left[3:].any() and np.isfinite(out.positions[out.observed]).all()
+        assert left.sum() == out.source["gap_report"]["left_implausible"] <= 8
+        assert not left[10:].any() and np.isfinite(out.positions[out.observed]).all()
         err = float(np.sqrt(np.mean((out.positions - clean.positions)[out.observed] ** 2)))
         if name in ("gaussian", "butterworth", "savgol"):
             assert err < 1.6, f"{name}: {err:.2f} cm"        # smoothing beats the 2 cm noise

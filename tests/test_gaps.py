@@ -430,5 +430,26 @@ def test_real_capture_writes_no_jump_and_no_moved_arm(shared_data, method):
     if method == "auto":
         assert rep["kept_measured"] == 0
         assert np.array_equal(out.positions[m.observed], m.positions[m.observed])
+        # the estimate covers what is written: rescored over the fills the policy kept
+        src = out.source["auto"]
+        assert rep["left_implausible"] > 0 and "estimate_map" not in src
+        assert src["estimated_rmse_cm"] != src["estimated_rmse_cm_before_policy"]
     if method == "rpca":                 # 1,747 measured samples given back (2026-12-05)
         assert rep["kept_measured"] > 1000
+
+
+def test_fill_auto_estimate_is_rescored_over_what_is_written():
+    """fill-auto's estimate is the RMS of the validated error of each written fill: fills
+    the gap policy then drops are no longer charged."""
+    from mocapkit.denoise.fill_auto import rescored
+
+    emap = np.full((10, 2), np.nan)
+    emap[2:6, 0] = 1.0
+    emap[6:8, 1] = 4.0                         # a worse fill the policy drops
+    rep = {"estimated_rmse_cm": float(np.sqrt(np.mean(emap[np.isfinite(emap)] ** 2))),
+           "error_map": emap}
+    written = np.ones((10, 2), bool)
+    assert rescored(rep, written) is rep                     # nothing dropped: unchanged
+    written[6:8, 1] = False
+    got = rescored(rep, written)
+    assert got["estimated_rmse_cm"] == 1.0 and got["estimated_rmse_cm_before_policy"] == rep["estimated_rmse_cm"]

@@ -337,7 +337,12 @@ def test_bundle_save_load_roundtrip_and_denoiser(source, tmp_path):
     noisy, _ = corrupt.missing(corrupt.gaussian(mo, sigma_cm=1.0, seed=0)[0], ratio=0.2, seed=0)
     with pytest.warns(TrainingMismatchWarning, match="moves the observed markers"):   # 5 steps: garbage
         out = m.denoise(noisy)
-    assert out.skeleton == mo.skeleton and out.positions.shape == mo.positions.shape and out.observed.all()
+    assert out.skeleton == mo.skeleton and out.positions.shape == mo.positions.shape
+    # a 5-step network moves measured samples far on a smooth clip: the gap policy gives
+    # them back, and the fills it then can not join to them are left missing, reported
+    rep = out.source["gap_report"]
+    assert out.observed[noisy.observed].all() and rep["kept_measured"] > 0
+    assert (~out.observed).sum() == rep["left_missing"]
     keep = [n for n in C.CMU_21 if n != "rtibia"]
     with pytest.raises(MocapValueError, match="lacks 1 of the 21 joints this model needs: rtibia"):
         m.denoise(mo.select(keep))

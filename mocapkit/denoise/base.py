@@ -181,7 +181,7 @@ def _guard(fn):
             if self.keeps_observed:         # bit-identical measured samples, whatever the shift
                 Q[motion.observed] = motion.positions[motion.observed]
             raw = raw.with_positions(Q, raw.observed)
-        out = apply_policy(motion, raw, evidence=self.fill_evidence, method=self.name)
+        out = self._after_policy(apply_policy(motion, raw, evidence=self.fill_evidence, method=self.name))
         return out.with_source(**self.last_report_) if self.last_report_ else out
 
     denoise._gap_policy_guard = True
@@ -236,6 +236,11 @@ class Denoiser:
 
     #: RMSE (cm) within which a clean real clip must come back (property tests)
     clean_tolerance_cm: ClassVar[float] = 1.0
+
+    def _after_policy(self, out: Motion) -> Motion:
+        """Hook: the result after the gap policy (``source['gap_report']``), for a method
+        whose report depends on what is written (auto's and fill-auto's error estimates)."""
+        return out
 
     @classmethod
     def quick_params(cls) -> dict[str, Any]:

@@ -279,6 +279,23 @@ def _pooled(err: np.ndarray, n: np.ndarray, gaps: Sequence[Gap], n0: float,
     return out
 
 
+def rescored(report: dict, written: np.ndarray) -> dict:
+    """``report`` (``source['fill_auto']``) with its estimate over the fills ``written``
+    (T, J) -- after the gap policy, which may leave some of them missing -- from its
+    ``error_map``; the estimate before it as ``estimated_rmse_cm_before_policy``."""
+    emap = report.get("error_map")
+    if emap is None or report.get("estimated_rmse_cm") is None:
+        return report
+    have = np.isfinite(emap)
+    kept = have & written
+    if kept.sum() == have.sum():
+        return report
+    out = dict(report)
+    out["estimated_rmse_cm_before_policy"] = report["estimated_rmse_cm"]
+    out["estimated_rmse_cm"] = float(np.sqrt(np.mean(emap[kept] ** 2))) if kept.any() else None
+    return out
+
+
 @register
 class FillAuto(Denoiser):
     """Per-gap choice of fill, self-validated on the file (module docstring).
@@ -332,6 +349,11 @@ class FillAuto(Denoiser):
 
         with blas_limit():          # many small decompositions: one thread is fastest
             return self._denoise(motion)
+
+    def _after_policy(self, out: Motion) -> Motion:
+        """The estimate over the fills the gap policy kept (:func:`rescored`)."""
+        fa = out.source.get("fill_auto")
+        return out if fa is None else out.with_source(fill_auto=rescored(fa, out.observed))
 
     def _denoise(self, motion: Motion) -> Motion:
         obs = motion.observed
