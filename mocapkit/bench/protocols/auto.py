@@ -135,11 +135,9 @@ def truth_glitches(truth: Motion) -> np.ndarray:
     """(T, J) True on the glitch samples of ``truth`` (:data:`GLITCH_CM`, the nearest frame
     rate's threshold) and their neighbours in time: a step or a one-frame jump of the ground
     truth, which no fill can know and which then rules a case's error."""
-    P = truth.positions
-    T = P.shape[0]
-    d = np.zeros(P.shape[:2])
-    if T >= 5:
-        d[2:-2] = np.linalg.norm((-P[:-4] + 4 * P[1:-3] + 4 * P[3:-1] - P[4:]) / 6.0 - P[2:-2], axis=2)
+    from ...gaps import neighbour_deviation
+
+    d = neighbour_deviation(truth.positions, np.ones(truth.positions.shape[:2], bool))
     thr = GLITCH_CM[min(GLITCH_CM, key=lambda f: abs(f - truth.fps))]
     g = np.nan_to_num(d) > thr
     out = g.copy()
