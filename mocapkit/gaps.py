@@ -52,12 +52,13 @@ from __future__ import annotations
 
 import contextlib
 import contextvars
+import warnings
 from dataclasses import dataclass, replace
 from typing import Iterator, NamedTuple
 
 import numpy as np
 
-from .errors import MocapValueError
+from .errors import MeasuredKeptWarning, MocapValueError
 from .windows import frame_blocks
 
 __all__ = ["Gap", "GapPolicy", "DEFAULT_POLICY", "FILL_ALL", "find_gaps", "gap_lengths",
@@ -442,6 +443,7 @@ def unreachable_fills(positions: np.ndarray, observed: np.ndarray, candidate: np
         out[:, j] = cand[:, j] & ~c
     return out
 
+
 def neighbour_deviation(positions: np.ndarray, observed: np.ndarray) -> np.ndarray:
     """(T, J) distance (cm) of each sample from the cubic through its two neighbours on
     each side, ``(-p[t-2] + 4 p[t-1] + 4 p[t+1] - p[t+2]) / 6`` -- large on a spike or a
@@ -474,19 +476,19 @@ def moved_without_cause(positions: np.ndarray, observed: np.ndarray, result: np.
     stretch of consecutive moved samples is moved *with cause* when somewhere in it, or
     within 2 frames of it, the input lies at least :data:`SPIKE_SHARE` of the stretch's
     largest move off the cubic through its neighbours (:func:`neighbour_deviation`), and
-    more than twice as far as the method's result does in that frame (a whole-body jump
-    between two takes, kept in both, is no cause): the method smoothed away
-    a spike, a bump of a few frames, the edge of a stretch of wrong samples (a swapped
-    label: a step in and a step out), a sharp turn. A stretch moved where the input is
-    as smooth as the result -- its neighbours agree with every measurement, or the method
-    put a bump of its own there -- is returned whole, so that
-    giving it back leaves no step larger than the margin at its ends. A stretch with no
-    sample of its own that has four measured neighbours, where not both the input and
-    the result are rough (samples between gaps, the first frame, the last frame before a
-    whole-body jump), is
-    moved without cause when the method took its ends farther (by more than
-    the threshold) from the marker's measured samples before and after it than the
-    measurements were: a spike's removal brings a sample towards its neighbours.
+    more than twice as far as the method's result does in that frame: the method smoothed
+    away a spike, a bump of a few frames, the edge of a stretch of wrong samples (a
+    swapped label: a step in and a step out), a sharp turn. A stretch moved where the
+    input is as smooth as the result -- its neighbours agree with every measurement, or
+    the method put a bump of its own there -- is returned whole, so that giving it back
+    leaves no step larger than the margin at its ends.
+
+    A stretch with no sample of its own that has four measured neighbours -- or where
+    input and result are both rough: a whole-body jump between two takes, kept in both,
+    whose sides' cubic is no reference -- (samples between gaps, the first frame, the last
+    frame of a take) is moved without cause when the method took its ends farther, by
+    more than the threshold, from the marker's measured samples before and after it than
+    the measurements were: a spike's removal brings a sample towards its neighbours.
 
     Found on the shared marker files (2026-12-05; stretches given back, by ``mocapkit
     denoise`` with the method named): ``rpca`` had moved the serving arm of
@@ -495,14 +497,15 @@ def moved_without_cause(positions: np.ndarray, observed: np.ndarray, result: np.
     210 cm, ``kalman-cv`` (its defaults) held a forearm marker of the basket sprint 20-28
     cm behind its measurements for 20 frames after a long gap (818 samples of 3 markers,
     up to 110 cm). auto, mssa and wavelet move no sample of those files by more than
-    5 cm. A first version judged each sample on its own deviation: a two-frame glitch of
-    a CMU foot (each sample a third of the step off its neighbours' cubic) that slra
-    removed was given back. A second took a third of the move and no comparison with the
-    result: 3-frame bumps that a spike in a BVH joint angle leaves on the joints below it
-    (12.7 cm high, the input 4.1 cm off its neighbours' cubic) that auto removed were
-    given back (auto_files: 6 of 237 cases moved, 4 of them worse by 2-5 %). Left: a sample measured alone between long gaps (a plate seen
-    for one frame) that a method moves towards one neighbour and away from the other is
-    not judged (trnn moves such wheelchair markers of the basket sprint by up to 239 cm).
+    5 cm. Measured and not kept: each sample judged on its own deviation (a two-frame
+    glitch of a CMU foot, each sample a third of the step off its neighbours' cubic,
+    that slra removed was given back); a third of the move and no comparison with the
+    result (3-frame bumps that a spike in a BVH joint angle leaves on the joints below
+    it, 12.7 cm high with the input 4.1 cm off its neighbours' cubic, that auto removed
+    were given back: auto_files 6 of 237 cases moved, 4 of them worse by 2-5 %). Left: a
+    sample measured alone between long gaps (a plate seen for one frame) that a method
+    moves towards one neighbour and away from the other is not judged (trnn moves such
+    wheelchair markers of the basket sprint by up to 239 cm).
     """
     P = np.asarray(positions, dtype=float)
     obs = np.asarray(observed, dtype=bool)
@@ -776,9 +779,6 @@ def apply_policy(inp, out, *, evidence: str, method: str, policy: GapPolicy | No
         t, j = np.argwhere(back)[int(moved.argmax())]
         report["kept_measured_max_cm"] = float(moved.max())
         report["kept_measured_worst"] = f"{inp.skeleton.names[j]} frame {t}"
-        import warnings
-
-        from .errors import MeasuredKeptWarning
         warnings.warn(f"{method} moved {int(back.sum())} measured samples of "
                       f"{int(back.any(axis=0).sum())} markers by more than {pol.move_margin_cm:g} cm where the "
                       f"capture shows no spike (up to {moved.max():.0f} cm, {report['kept_measured_worst']}): "
