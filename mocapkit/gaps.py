@@ -488,7 +488,9 @@ def moved_without_cause(positions: np.ndarray, observed: np.ndarray, result: np.
     whose sides' cubic is no reference -- (samples between gaps, the first frame, the last
     frame of a take) is moved without cause when the method took its ends farther, by
     more than the threshold, from the marker's measured samples before and after it than
-    the measurements were: a spike's removal brings a sample towards its neighbours.
+    the measurements were: a spike's removal brings a sample towards its neighbours; or
+    when, in a frame of it, the measurement keeps its distance to a rigid partner
+    measured there and the result breaks it (:func:`_breaks_partners`).
 
     Found on the shared marker files (2026-12-05; stretches given back, by ``mocapkit
     denoise`` with the method named): ``rpca`` had moved the serving arm of
@@ -503,9 +505,8 @@ def moved_without_cause(positions: np.ndarray, observed: np.ndarray, result: np.
     result (3-frame bumps that a spike in a BVH joint angle leaves on the joints below
     it, 12.7 cm high with the input 4.1 cm off its neighbours' cubic, that auto removed
     were given back: auto_files 6 of 237 cases moved, 4 of them worse by 2-5 %). Left: a
-    sample measured alone between long gaps (a plate seen for one frame) that a method
-    moves towards one neighbour and away from the other is not judged (trnn moves such
-    wheelchair markers of the basket sprint by up to 239 cm).
+    sample measured alone between long gaps, with no rigid partner measured beside it,
+    that a method moves towards one neighbour and away from the other is not judged.
     """
     P = np.asarray(positions, dtype=float)
     obs = np.asarray(observed, dtype=bool)
@@ -564,7 +565,39 @@ def moved_without_cause(positions: np.ndarray, observed: np.ndarray, result: np.
             return (b < 0) | (b >= T) | (grow > thr)
 
         bad |= ~seen & ((p >= 0) | (n < T)) & away(t0, p) & away(t1, n)
+        rest = np.flatnonzero(~seen & ~bad)
+        if len(rest):
+            bad[rest] = _breaks_partners(P, obs, Q, j[rest], t0[rest], t1[rest], thr)
     return (M & bad[np.maximum(run, 0)]).reshape(moved.shape[1], T + 1)[:, :T].T
+
+def _breaks_partners(P: np.ndarray, obs: np.ndarray, Q: np.ndarray, joints: np.ndarray,
+                     t0: np.ndarray, t1: np.ndarray, margin_cm: float) -> np.ndarray:
+    """(n,) bool, per stretch (marker ``joints[i]``, frames ``t0[i]..t1[i]``): somewhere in
+    it the measurement keeps the distance to a rigid partner measured in that frame
+    (:func:`mocapkit.rigid.steady_partners`, within ``margin_cm`` of its span) and the
+    result ``Q`` breaks it by more than ``margin_cm`` -- a coherent glimpse of a plate
+    that the method moved off its own partners. For :func:`moved_without_cause`: samples
+    measured alone between long gaps (kineticstoolkit's basket sprint: a wheelchair plate
+    seen for one frame, moved 2 m by trnn), which no neighbour in time can judge."""
+    from .rigid import steady_partners
+
+    part, real, lo, hi = steady_partners(P, obs)
+    out = np.zeros(len(joints), bool)
+    for i, (j, a, b) in enumerate(zip(joints, t0, t1)):
+        ks = part[j][real[j]]
+        if not len(ks):
+            continue
+        fr = np.arange(a, b + 1)
+        seen = obs[fr][:, ks]                                       # (frames, K)
+        d_in = np.linalg.norm(P[fr, j][:, None] - P[fr][:, ks], axis=2)
+        d_out = np.linalg.norm(Q[fr, j][:, None] - P[fr][:, ks], axis=2)
+        l, h = lo[j][real[j]], hi[j][real[j]]
+        with np.errstate(invalid="ignore"):
+            keeps = (d_in >= l - margin_cm) & (d_in <= h + margin_cm)
+            breaks = (d_out < l - margin_cm) | (d_out > h + margin_cm)
+        out[i] = bool((seen & keeps & breaks).any())
+    return out
+
 
 def fill(X, mask=None, /, *, kind: str = "linear", ends: str = "nearest",
          never_observed: float = np.nan) -> np.ndarray:

@@ -453,3 +453,20 @@ def test_fill_auto_estimate_is_rescored_over_what_is_written():
     written[6:8, 1] = False
     got = rescored(rep, written)
     assert got["estimated_rmse_cm"] == 1.0 and got["estimated_rmse_cm_before_policy"] == rep["estimated_rmse_cm"]
+
+
+def test_a_plate_seen_for_one_frame_keeps_its_shape():
+    """A marker measured alone between long gaps that a method moves towards its next
+    measurement (no neighbour in time can judge it) is given back when it kept the
+    distance to a rigid partner measured in that frame and the method's value breaks it."""
+    T = 300
+    path = np.arange(T)[:, None] * np.array([1.0, 0, 0]) + [0, 0, 100]        # 1 cm / frame
+    P = path[:, None, :] + np.array([[0, 0, 0], [8.0, 0, 0], [0, 6.0, 0]])   # a plate
+    obs = np.ones((T, 3), bool)
+    obs[100:150, 0] = obs[151:200, 0] = False                 # marker 0 seen once, frame 150
+    res = P.copy()
+    res[150, 0] += [24.0, 0, 0]            # half way to its next measurement, off its plate
+    assert gaps.moved_without_cause(P, obs, res, 5.0)[150, 0]
+    ok = P.copy()
+    ok[150, 0] += [0, 0, 15.0]                                 # the input itself off its plate
+    assert not gaps.moved_without_cause(ok, obs, P, 5.0)[150, 0]
