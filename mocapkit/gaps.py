@@ -763,19 +763,27 @@ def apply_policy(inp, out, *, evidence: str, method: str, policy: GapPolicy | No
     ok = supported(obs_in, inp.fps, evidence, pol) if miss.any() else np.ones_like(miss)
     unsupported = want & ~ok
     implausible = np.zeros_like(want)
+    why: dict[str, int] = {}                # fills dropped, by the check that dropped them
+
+    def drop(reason: str, flags: np.ndarray) -> None:
+        nonlocal implausible
+        why[reason] = int((flags & ~implausible).sum())
+        implausible = implausible | flags
+
     if pol.volume_margin_cm is not None and want.any():
         lo, hi = capture_volume(inp.positions, obs_in)
-        implausible = want & ok & outside_volume(P, lo, hi, pol.volume_margin_cm)
+        drop("outside the capture volume", want & ok & outside_volume(P, lo, hi, pol.volume_margin_cm))
     if pol.envelope_margin_cm is not None and want.any():
-        implausible |= outside_envelope(inp.positions, obs_in, want & ok & ~implausible,
-                                        pol.envelope_margin_cm, pol.min_markers, fills=P)
+        drop("away from the body", outside_envelope(inp.positions, obs_in, want & ok & ~implausible,
+                                                    pol.envelope_margin_cm, pol.min_markers, fills=P))
     if pol.rigid_margin_cm is not None and want.any():
-        implausible |= off_rigid_partners(inp.positions, obs_in, want & ok & ~implausible,
-                                          pol.rigid_margin_cm, values=P, has=has)
+        drop("off a rigid partner's distance",
+             off_rigid_partners(inp.positions, obs_in, want & ok & ~implausible, pol.rigid_margin_cm,
+                                values=P, has=has))
     if pol.speed_factor is not None and want.any():
         # last: the chain is judged on the fills the other checks kept
-        implausible |= unreachable_fills(inp.positions, obs_in, want & ok & ~implausible,
-                                         pol.speed_factor, values=P)
+        drop("out of the marker's reach", unreachable_fills(inp.positions, obs_in, want & ok & ~implausible,
+                                                            pol.speed_factor, values=P))
     keep = has & ~(unsupported | implausible)
     filled_now = keep & miss
     filled = (inp.filled & obs_in & keep) | filled_now
@@ -800,6 +808,7 @@ def apply_policy(inp, out, *, evidence: str, method: str, policy: GapPolicy | No
         "left_missing": int(left.sum()),
         "left_unsupported": int((unsupported | (miss & ~has & ~ok)).sum()),
         "left_implausible": int(implausible.sum()),
+        "left_implausible_by": {k: v for k, v in why.items() if v},
         "left_by_method": int((miss & ~has & ok).sum()),
         "longest_filled_s": float(length[filled_now].max() / inp.fps) if filled_now.any() else 0.0,
         "longest_left_s": float(length[left].max() / inp.fps) if left.any() else 0.0,
@@ -844,8 +853,11 @@ def summary_line(report: dict | None) -> str:
             why.append(f"{report['left_unsupported']} without evidence"
                        + (f" or beyond --max-gap {report['max_gap_s']:g} s" if report.get("max_gap_s") else ""))
         if report["left_implausible"]:
-            why.append(f"{report['left_implausible']} implausible: outside the capture volume, away from the "
-                       f"body, off a rigid partner's distance or out of the marker's reach")
+            by = report.get("left_implausible_by") or {}
+            why.append(f"{report['left_implausible']} implausible: "
+                       + (", ".join(f"{v} {k}" for k, v in sorted(by.items(), key=lambda kv: -kv[1])) if by else
+                          "outside the capture volume, away from the body, off a rigid partner's distance "
+                          "or out of the marker's reach"))
         if report["left_by_method"]:
             why.append(f"{report['left_by_method']} the fill could not support")
         s += (f"; left {report['left_missing']} missing ({'; '.join(why)}), "

@@ -292,6 +292,8 @@ def test_fills_out_of_the_markers_reach_are_left_missing():
     out = gaps.apply_policy(m, Motion(fills, m.skeleton, m.fps), evidence="markers", method="test")
     assert out.observed[50:80, 0].all() and not out.observed[150:249, 0].any()
     assert out.source["gap_report"]["left_implausible"] == 119
+    assert out.source["gap_report"]["left_implausible_by"] == {"out of the marker's reach": 119}
+    assert "119 implausible: 119 out of the marker's reach" in gaps.summary_line(out.source["gap_report"])
     with gaps.use_policy(speed_factor=None):
         assert gaps.apply_policy(m, Motion(fills, m.skeleton, m.fps), evidence="markers",
                                  method="test").observed.all()
