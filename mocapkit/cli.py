@@ -308,7 +308,7 @@ def cmd_denoise(a: argparse.Namespace) -> int:
     else:
         method = _method(a.method or "auto", parse_params(a.param), a.model, m, a.quiet)
     opts, _ = _plan_output(m, a.output, a.force, (a.input, a.model))
-    with gaps.use_policy(max_gap_s=a.max_gap), \
+    with gaps.use_policy(max_gap_s=a.max_gap, **({"move_margin_cm": None} if a.keep_moves else {})), \
             stage(f"denoising {m.n_frames} frames with {method.name}", enable=not a.quiet):
         t0 = time.perf_counter()
         out = method.denoise(m)
@@ -749,6 +749,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="fill no gap longer than this (as Vicon/QTM's maximum gap); longer gaps stay "
                         "missing and are reported. Default: no limit (gaps are still filled only from "
                         "evidence: never extrapolated)")
+    s.add_argument("--keep-moves", action="store_true",
+                   help="write the method's values for every measured sample, even where it moved a "
+                        "stretch by more than 5 cm with no spike to remove (by default those are written "
+                        "as measured, with a warning)")
     common(s)
     s.set_defaults(func=cmd_denoise)
 

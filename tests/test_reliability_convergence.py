@@ -215,4 +215,11 @@ def test_cli_shows_one_line_warning(tmp_path, capsys):
     assert len(lines) == 2, err
     assert lines[0].startswith("mocapkit denoise: warning: rpca: not converged after 1 iterations")
     assert lines[1].startswith("mocapkit denoise: warning: rpca moved ") and "written as measured" in lines[1]
+    # --keep-moves: the method's values as they are (the solver's warning only)
+    with warnings.catch_warnings():
+        warnings.simplefilter("default", ConvergenceWarning)
+        rc = cli.main(["denoise", str(src), str(tmp_path / "raw.bvh"), "--method", "rpca",
+                       "--param", "max_iter=1", "--keep-moves", "-q"])
+    err = capsys.readouterr().err
+    assert rc == 0 and "written as measured" not in err and "not converged" in err
     assert "Traceback" not in err and ".py:" not in err
