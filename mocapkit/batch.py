@@ -187,8 +187,11 @@ def process_one(in_path: str, out_path: str, method: str, params: dict[str, Any]
     from .gaps import summary_line
 
     t0 = time.perf_counter()
+    caught: list = []
     try:
-        m = io.read(in_path)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", MocapWarning)    # kept for the note, shown below
+            m = io.read(in_path)
         opts, written = plan_motion_write(m, out_path, inputs=(in_path,), overwrite=True)
         if model:
             den = denoise.base.Denoiser.load(model)
@@ -205,14 +208,17 @@ def process_one(in_path: str, out_path: str, method: str, params: dict[str, Any]
                 if den is None:
                     raise MocapError(f"method {method!r}: no shipped model fits this file's joint "
                                      f"set; give --model")
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always", MocapWarning)    # a worker has no terminal: keep them
+        with warnings.catch_warnings(record=True) as more:
+            warnings.simplefilter("always", MocapWarning)
             out = den.denoise(m)
+        caught += more
         io.write(out, out_path, overwrite=True, **opts)
         # what a user reads in the CLI's lines, in the log and manifest: what was left
-        # missing or given back as measured, and why
+        # missing or given back as measured, and why; the warnings also shown as they came
         notes = [summary_line(out.source.get("gap_report"))] if not m.observed.all() else []
         notes += [f"warning: {w.message}" for w in caught if issubclass(w.category, MocapWarning)]
+        for w in caught:
+            warnings.showwarning(w.message, w.category, w.filename, w.lineno)
         return {"status": "ok", "frames": m.n_frames, "seconds": time.perf_counter() - t0,
                 "output_sha256": sha256(Path(out_path)), "extra": [str(p) for p in written[1:]],
                 "note": "; ".join(notes)}

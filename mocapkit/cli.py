@@ -563,8 +563,8 @@ def cmd_batch(a: argparse.Namespace) -> int:
             print(f"FAILED {r.input}: {r.reason}")
     warned = [r for r in summ.results if r.status == "ok" and "warning: " in r.note]
     if warned:
-        print(f"{len(warned)} file(s) with warnings (measured samples given back, solvers not "
-              f"converged): see their lines in the log")
+        print(f"{len(warned)} file(s) with warnings (a header at odds with its data, a solver not "
+              f"converged, measured samples given back, ...): see their lines in the log")
     print(f"{summ.ok} ok, {summ.failed} failed, {summ.skipped} already done; "
           f"{summ.frames} frames in {summ.seconds:.1f} s ({summ.files_per_s:.2f} files/s, "
           f"{summ.frames_per_s:.0f} frames/s); log: {Path(a.out_dir) / 'batch.log'}")
