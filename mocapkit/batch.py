@@ -178,13 +178,15 @@ DEFAULT = "default"
 
 
 def process_one(in_path: str, out_path: str, method: str, params: dict[str, Any],
-                model: str | None) -> dict[str, Any]:
-    """Read, clean and write one file. Runs in a worker process; never raises for bad input."""
+                model: str | None, policy: dict[str, Any] | None = None) -> dict[str, Any]:
+    """Read, clean and write one file. Runs in a worker process; never raises for bad input.
+    ``policy``: changes to the gap policy (:func:`mocapkit.gaps.use_policy`), e.g.
+    ``{"max_gap_s": 0.5}``."""
     import warnings
 
     from . import denoise, io
     from .errors import MocapWarning
-    from .gaps import summary_line
+    from .gaps import summary_line, use_policy
 
     t0 = time.perf_counter()
     caught: list = []
@@ -208,7 +210,7 @@ def process_one(in_path: str, out_path: str, method: str, params: dict[str, Any]
                 if den is None:
                     raise MocapError(f"method {method!r}: no shipped model fits this file's joint "
                                      f"set; give --model")
-        with warnings.catch_warnings(record=True) as more:
+        with warnings.catch_warnings(record=True) as more, use_policy(**(policy or {})):
             warnings.simplefilter("always", MocapWarning)
             out = den.denoise(m)
         caught += more
@@ -229,9 +231,12 @@ def process_one(in_path: str, out_path: str, method: str, params: dict[str, Any]
                 "seconds": time.perf_counter() - t0}
 
 
-def _settings_key(method: str, params: dict[str, Any], model: str | None) -> str:
-    return json.dumps({"method": method, "params": params,
-                       "model": sha256(Path(model)) if model else None}, sort_keys=True, default=str)
+def _settings_key(method: str, params: dict[str, Any], model: str | None,
+                  policy: dict[str, Any] | None = None) -> str:
+    key = {"method": method, "params": params, "model": sha256(Path(model)) if model else None}
+    if policy:                              # (absent when default: earlier manifests stay valid)
+        key["policy"] = policy
+    return json.dumps(key, sort_keys=True, default=str)
 
 
 # -- one batch per output folder --------------------------------------------------------------
@@ -358,7 +363,8 @@ class BatchLock:
 
 
 # -- local worker processes ----------------------------------------------------------------------
-def _worker_loop(conn, method: str, params: dict[str, Any], model: str | None) -> None:
+def _worker_loop(conn, method: str, params: dict[str, Any], model: str | None,
+                 policy: dict[str, Any] | None = None) -> None:
     """A local worker: receive ``(rel, in, out)``, send back ``(rel, result)``; ``None`` ends."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)     # the parent stops the workers itself
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
@@ -368,7 +374,7 @@ def _worker_loop(conn, method: str, params: dict[str, Any], model: str | None) -
             if task is None:
                 return
             rel, i, o = task
-            conn.send((rel, process_one(i, o, method, params, model)))
+            conn.send((rel, process_one(i, o, method, params, model, policy)))
     except (EOFError, OSError, KeyboardInterrupt):
         return
 
@@ -424,7 +430,8 @@ class _Stop:
 def run_batch(in_dir: str | os.PathLike, out_dir: str | os.PathLike, *, method: str,
               params: dict[str, Any] | None = None, model: str | None = None, workers: int = 1,
               scheduler: str | None = None, patterns: Iterable[str] = DEFAULT_PATTERNS,
-              progress: bool = True, log: Callable[[str], None] | None = None) -> Summary:
+              progress: bool = True, log: Callable[[str], None] | None = None,
+              policy: dict[str, Any] | None = None) -> Summary:
     """Clean every supported file under ``in_dir`` into the mirrored tree ``out_dir``.
 
     Returns a :class:`Summary`; also writes ``out_dir/batch.log`` (one line per file) and
@@ -486,7 +493,7 @@ def run_batch(in_dir: str | os.PathLike, out_dir: str | os.PathLike, *, method: 
         raise MocapValueError(f"{out_dir}: cannot create the output folder ({e.strerror})") from None
     with BatchLock(dst):
         return _run_locked(src, dst, inputs, method=method, params=params, model=model, workers=workers,
-                           scheduler=scheduler, progress=progress, log=log)
+                           scheduler=scheduler, progress=progress, log=log, policy=policy)
 
 
 def _read_manifest(path: Path) -> dict[str, Any]:
@@ -620,9 +627,9 @@ class _Run:
 
 def _run_locked(src: Path, dst: Path, inputs: list[Path], *, method: str, params: dict[str, Any],
                 model: str | None, workers: int, scheduler: str | None, progress: bool,
-                log: Callable[[str], None] | None) -> Summary:
+                log: Callable[[str], None] | None, policy: dict[str, Any] | None = None) -> Summary:
     manifest = _read_manifest(dst / MANIFEST)
-    key = _settings_key(method, params, model)
+    key = _settings_key(method, params, model, policy)
     old_files = manifest.get("files", {}) if isinstance(manifest.get("files"), dict) else {}
     same_settings = manifest.get("settings") == key
     # files an earlier batch wrote here (any settings): the only existing files it may replace
@@ -649,13 +656,13 @@ def _run_locked(src: Path, dst: Path, inputs: list[Path], *, method: str, params
             stop.protect -= 1
             stop.check()
             if scheduler:
-                _run_dask(scheduler, todo, method, params, model, run.record, stop)
+                _run_dask(scheduler, todo, method, params, model, run.record, stop, policy)
             elif workers <= 1:
                 for r, i, o, s in todo:
                     stop.check()
-                    run.record(r, process_one(i, o, method, params, model))
+                    run.record(r, process_one(i, o, method, params, model, policy))
             else:
-                _run_local(workers, todo, method, params, model, run.record, stop, procs)
+                _run_local(workers, todo, method, params, model, run.record, stop, procs, policy)
         except KeyboardInterrupt:
             interrupted = True
         finally:
@@ -695,7 +702,8 @@ def _reconcile(todo, done, prestate, outs, files, stamps, results, pending, ours
             pending.discard(rel)            # nothing written: not ours to vouch for
 
 
-def _run_local(workers, todo, method, params, model, record, stop: _Stop, procs: list) -> None:
+def _run_local(workers, todo, method, params, model, record, stop: _Stop, procs: list,
+               policy: dict[str, Any] | None = None) -> None:
     """``workers`` processes fed one file at a time over pipes (no queue threads to join),
     so a stop can kill them at once; a worker that dies fails its file and is replaced."""
     import multiprocessing as mp
@@ -707,7 +715,7 @@ def _run_local(workers, todo, method, params, model, record, stop: _Stop, procs:
 
     def start() -> dict[str, Any]:
         parent, child = ctx.Pipe()
-        p = ctx.Process(target=_worker_loop, args=(child, method, params, model), daemon=True)
+        p = ctx.Process(target=_worker_loop, args=(child, method, params, model, policy), daemon=True)
         p.start()
         child.close()
         procs.append(p)
@@ -755,11 +763,12 @@ def _run_local(workers, todo, method, params, model, record, stop: _Stop, procs:
                     feed(start())
 
 
-def _run_dask(scheduler, todo, method, params, model, record, stop: _Stop) -> None:
+def _run_dask(scheduler, todo, method, params, model, record, stop: _Stop,
+              policy: dict[str, Any] | None = None) -> None:
     from dask.distributed import Client, as_completed as dask_completed
 
     with Client(scheduler) as client:
-        futs = {client.submit(process_one, i, o, method, params, model, pure=False): r
+        futs = {client.submit(process_one, i, o, method, params, model, policy, pure=False): r
                 for r, i, o, _ in todo}
         try:
             for fut in dask_completed(futs):

@@ -548,10 +548,12 @@ def cmd_batch(a: argparse.Namespace) -> int:
             params = {**denoise.DEFAULT_PARAMS, **params}
         params = method_params(name, params)
     try:
+        policy = {**({"max_gap_s": a.max_gap} if a.max_gap else {}),
+                  **({"move_margin_cm": None} if a.keep_moves else {})}
         summ = run_batch(a.in_dir, a.out_dir, method=name,
                          params=params, model=a.model, workers=a.workers,
                          scheduler=a.scheduler, patterns=a.include or DEFAULT_PATTERNS,
-                         progress=not a.quiet)
+                         progress=not a.quiet, policy=policy or None)
     except BatchInterrupted as e:
         s = e.summary
         print(f"mocapkit batch: interrupted: {s.ok} ok, {s.failed} failed, {s.remaining} not done; "
@@ -697,6 +699,18 @@ def cmd_classify(a: argparse.Namespace) -> int:
 
 
 # -- parser ----------------------------------------------------------------------------------
+def _policy_options(s: argparse.ArgumentParser) -> None:
+    """The gap policy's switches, for ``denoise`` and ``batch`` alike."""
+    s.add_argument("--max-gap", type=_positive_seconds, metavar="SECONDS",
+                   help="fill no gap longer than this (as Vicon/QTM's maximum gap); longer gaps stay "
+                        "missing and are reported. Default: no limit (gaps are still filled only from "
+                        "evidence: never extrapolated)")
+    s.add_argument("--keep-moves", action="store_true",
+                   help="write the method's values for every measured sample, even where it moved a "
+                        "stretch by more than 5 cm with no spike to remove (by default those are written "
+                        "as measured, with a warning)")
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="mocapkit",
@@ -745,14 +759,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--method", help="method name (mocapkit methods lists them)")
     s.add_argument("--param", action="append", metavar="NAME=VALUE", help="method parameter (repeatable)")
     s.add_argument("--model", help="trained model file for data-driven methods")
-    s.add_argument("--max-gap", type=_positive_seconds, metavar="SECONDS",
-                   help="fill no gap longer than this (as Vicon/QTM's maximum gap); longer gaps stay "
-                        "missing and are reported. Default: no limit (gaps are still filled only from "
-                        "evidence: never extrapolated)")
-    s.add_argument("--keep-moves", action="store_true",
-                   help="write the method's values for every measured sample, even where it moved a "
-                        "stretch by more than 5 cm with no spike to remove (by default those are written "
-                        "as measured, with a warning)")
+    _policy_options(s)
     common(s)
     s.set_defaults(func=cmd_denoise)
 
@@ -804,6 +811,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--model", help="trained model for data-driven methods")
     s.add_argument("--workers", type=int, default=1, help="local worker processes (default 1)")
     s.add_argument("--scheduler", help="Dask scheduler address tcp://host:port (runs on that cluster)")
+    _policy_options(s)
     s.add_argument("--include", action="append", metavar="GLOB",
                    help="file patterns (default: *.bvh *.amc *.c3d *.trc *skeleton*.txt)")
     s.add_argument("-q", "--quiet", action="store_true")

@@ -261,3 +261,11 @@ def test_batch_notes_what_the_policy_gave_back(library, tmp_path, capsys):
     out2 = tmp_path / "out2"
     assert main(["batch", str(library), str(out2), "--method", "rpca", "--param", "max_iter=1", "-q"]) == 1
     assert "2 file(s) with warnings" in capsys.readouterr().out
+    # the gap policy's switches as for denoise: --keep-moves writes rpca's values; other
+    # settings, so the outputs are redone, and the note has no sample given back
+    assert main(["batch", str(library), str(out2), "--method", "rpca", "--param", "max_iter=1",
+                 "--keep-moves", "-q"]) == 1
+    files = json.loads((out2 / MANIFEST).read_text())["files"]
+    ok2 = [e for e in files.values() if e["status"] == "ok"]
+    assert len(ok2) == 2 and not any("written as measured" in e["note"] for e in ok2)
+    assert all("not converged" in e["note"] for e in ok2)
