@@ -488,9 +488,12 @@ def moved_without_cause(positions: np.ndarray, observed: np.ndarray, result: np.
     whose sides' cubic is no reference -- (samples between gaps, the first frame, the last
     frame of a take) is moved without cause when the method took its ends farther, by
     more than the threshold, from the marker's measured samples before and after it than
-    the measurements were: a spike's removal brings a sample towards its neighbours; or
-    when, in a frame of it, the measurement keeps its distance to a rigid partner
-    measured there and the result breaks it (:func:`_breaks_partners`).
+    the measurements were: a spike's removal brings a sample towards its neighbours; or,
+    for samples without four measured neighbours only, when in a frame of it the
+    measurement keeps its distance to a rigid partner measured there and the result
+    breaks it (:func:`_breaks_partners`) -- not where input and result are both rough:
+    a tracker that throws a limb throws its partners with it (MSR-Action3D's Kinect: a
+    wrist and hand 30 cm off together, which auto had put back, were given back).
 
     Found on the shared marker files (2026-12-05; stretches given back, by ``mocapkit
     denoise`` with the method named): ``rpca`` had moved the serving arm of
@@ -522,8 +525,9 @@ def moved_without_cause(positions: np.ndarray, observed: np.ndarray, result: np.
     # a moved sample says something when the cubic test works on the input, unless
     # input and result are both rough there (a whole-body jump between two takes, kept
     # in both: a sample's neighbours straddle it and their cubic is no reference)
+    has_g = np.isfinite(g)
     with np.errstate(invalid="ignore"):
-        judged = np.isfinite(g) & ~((g >= SPIKE_SHARE * d) & ~(gq < SPIKE_SHARE * d))
+        judged = has_g & ~((g >= SPIKE_SHARE * d) & ~(gq < SPIKE_SHARE * d))
     g, gq = np.nan_to_num(g, nan=0.0), np.nan_to_num(gq, nan=0.0)
     T = len(g)
 
@@ -565,7 +569,11 @@ def moved_without_cause(positions: np.ndarray, observed: np.ndarray, result: np.
             return (b < 0) | (b >= T) | (grow > thr)
 
         bad |= ~seen & ((p >= 0) | (n < T)) & away(t0, p) & away(t1, n)
-        rest = np.flatnonzero(~seen & ~bad)
+        # only samples without four measured neighbours: where input and result are both
+        # rough, a limb the tracker threw as a whole keeps its partners' distances (MSR
+        # Kinect: a wrist and hand 30 cm off together, which auto had put back)
+        alone = ~np.maximum.reduceat(lay(moved & has_g, False), first)
+        rest = np.flatnonzero(~seen & ~bad & alone)
         if len(rest):
             bad[rest] = _breaks_partners(P, obs, Q, j[rest], t0[rest], t1[rest], thr)
     return (M & bad[np.maximum(run, 0)]).reshape(moved.shape[1], T + 1)[:, :T].T
