@@ -189,7 +189,6 @@ def process_one(in_path: str, out_path: str, method: str, params: dict[str, Any]
     from .gaps import summary_line, use_policy
 
     t0 = time.perf_counter()
-    caught: list = []
     try:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", MocapWarning)    # kept for the note, shown below

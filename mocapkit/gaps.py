@@ -541,46 +541,50 @@ def moved_without_cause(positions: np.ndarray, observed: np.ndarray, result: np.
     # the input's deviation where it is more than twice the result's, frame by frame
     # (a whole-body jump kept in both is no cause), the largest within 2 frames
     gw = window_max(np.where(g > 2.0 * gq, g, 0.0))
-    # stretches of moved samples per marker: columns laid end to end, a gap between them
-    lay = lambda A, fill: np.vstack([A, np.full((1, A.shape[1]), fill)]).T.ravel()   # noqa: E731
-    M = lay(moved, False)
-    first = np.flatnonzero(M & ~np.r_[False, M[:-1]])
-    run = np.cumsum(M & ~np.r_[False, M[:-1]]) - 1                   # stretch of each sample
-    gmax = np.maximum.reduceat(lay(np.where(moved, gw, 0.0), 0.0), first)
-    dmax = np.maximum.reduceat(lay(np.where(moved, d, 0.0), 0.0), first)
-    seen = np.maximum.reduceat(lay(moved & judged, False), first)
+    # stretches of moved samples (marker, first frame, stop); per-stretch maxima over the
+    # (J, T + 1) layout, a column's stretches never reaching into the next one
+    js, t0, stop = _runs(moved)
+    first = js * (T + 1) + t0
+    lay = lambda A: np.vstack([A, np.zeros((1, A.shape[1]), A.dtype)]).T.ravel()   # noqa: E731
+    gmax = np.maximum.reduceat(lay(np.where(moved, gw, 0.0)), first)
+    dmax = np.maximum.reduceat(lay(np.where(moved, d, 0.0)), first)
+    seen = np.maximum.reduceat(lay(moved & judged), first)
     bad = seen & (gmax < SPIKE_SHARE * dmax)
     if not seen.all():
         # a stretch without four measured neighbours anywhere (samples between gaps, the
         # first frame): moved without cause when the method took it farther from the
         # marker's measured samples before and after it than the measurement was -- a
         # spike's removal brings a sample towards its neighbours' path, never away
-        j, t0 = np.divmod(first, T + 1)
-        t1 = t0 + np.bincount(run[M], minlength=len(first)) - 1
+        t1 = stop - 1
         tt = np.arange(T)[:, None]
         last = np.maximum.accumulate(np.where(obs, tt, -1), axis=0)
         nxt = np.minimum.accumulate(np.where(obs, tt, T)[::-1], axis=0)[::-1]
-        p = np.where(t0 > 0, last[np.maximum(t0 - 1, 0), j], -1)
-        n = np.where(t1 < T - 1, nxt[np.minimum(t1 + 1, T - 1), j], T)
+        p = np.where(t0 > 0, last[np.maximum(t0 - 1, 0), js], -1)
+        n = np.where(t1 < T - 1, nxt[np.minimum(t1 + 1, T - 1), js], T)
 
         def away(a, b):                                   # Q[a] farther than P[a] from P[b]
             bb = np.clip(b, 0, T - 1)
-            grow = np.linalg.norm(Q[a, j] - P[bb, j], axis=1) - np.linalg.norm(P[a, j] - P[bb, j], axis=1)
+            grow = np.linalg.norm(Q[a, js] - P[bb, js], axis=1) - np.linalg.norm(P[a, js] - P[bb, js], axis=1)
             return (b < 0) | (b >= T) | (grow > thr)
 
         bad |= ~seen & ((p >= 0) | (n < T)) & away(t0, p) & away(t1, n)
         # only samples without four measured neighbours: where input and result are both
         # rough, a limb the tracker threw as a whole keeps its partners' distances (MSR
         # Kinect: a wrist and hand 30 cm off together, which auto had put back)
-        alone = ~np.maximum.reduceat(lay(moved & has_g, False), first)
+        alone = ~np.maximum.reduceat(lay(moved & has_g), first)
         rest = np.flatnonzero(~seen & ~bad & alone)
         if len(rest):
-            bad[rest] = _breaks_partners(P, obs, Q, j[rest], t0[rest], t1[rest], thr)
-    return (M & bad[np.maximum(run, 0)]).reshape(moved.shape[1], T + 1)[:, :T].T
+            bad[rest] = _breaks_partners(P, obs, Q, js[rest], t0[rest], stop[rest], thr)
+    # the bad stretches back to samples: +1 at a start, -1 at a stop, summed along time
+    mark = np.zeros((T + 1, moved.shape[1]), np.int8)
+    np.add.at(mark, (t0[bad], js[bad]), 1)
+    np.add.at(mark, (stop[bad], js[bad]), -1)
+    return np.cumsum(mark, axis=0)[:T] > 0
+
 
 def _breaks_partners(P: np.ndarray, obs: np.ndarray, Q: np.ndarray, joints: np.ndarray,
-                     t0: np.ndarray, t1: np.ndarray, margin_cm: float) -> np.ndarray:
-    """(n,) bool, per stretch (marker ``joints[i]``, frames ``t0[i]..t1[i]``): somewhere in
+                     t0: np.ndarray, stop: np.ndarray, margin_cm: float) -> np.ndarray:
+    """(n,) bool, per stretch (marker ``joints[i]``, frames ``t0[i]:stop[i]``): somewhere in
     it the measurement keeps the distance to a rigid partner measured in that frame
     (:func:`mocapkit.rigid.steady_partners`, within ``margin_cm`` of its span) and the
     result ``Q`` breaks it by more than ``margin_cm`` -- a coherent glimpse of a plate
@@ -590,22 +594,19 @@ def _breaks_partners(P: np.ndarray, obs: np.ndarray, Q: np.ndarray, joints: np.n
     from .rigid import steady_partners
 
     part, real, lo, hi = steady_partners(P, obs)
-    out = np.zeros(len(joints), bool)
-    for i, (j, a, b) in enumerate(zip(joints, t0, t1)):
-        ks = part[j][real[j]]
-        if not len(ks):
-            continue
-        fr = np.arange(a, b + 1)
-        seen = obs[fr][:, ks]                                       # (frames, K)
-        d_in = np.linalg.norm(P[fr, j][:, None] - P[fr][:, ks], axis=2)
-        d_out = np.linalg.norm(Q[fr, j][:, None] - P[fr][:, ks], axis=2)
-        l, h = lo[j][real[j]], hi[j][real[j]]
-        with np.errstate(invalid="ignore"):
-            keeps = (d_in >= l - margin_cm) & (d_in <= h + margin_cm)
-            breaks = (d_out < l - margin_cm) | (d_out > h + margin_cm)
-        out[i] = bool((seen & keeps & breaks).any())
-    return out
-
+    # every (stretch, frame) at once: the stretch of each, its marker and frame
+    sid = np.repeat(np.arange(len(joints)), stop - t0)
+    fr = t0[sid] + np.arange(len(sid)) - np.repeat(np.cumsum(stop - t0) - (stop - t0), stop - t0)
+    j = joints[sid]
+    ks = part[j]                                                    # (N, K)
+    seen = real[j] & obs[fr[:, None], ks]
+    d_in = np.linalg.norm(P[fr, j][:, None] - P[fr[:, None], ks], axis=2)
+    d_out = np.linalg.norm(Q[fr, j][:, None] - P[fr[:, None], ks], axis=2)
+    with np.errstate(invalid="ignore"):                             # NaN bounds: no partner
+        keeps = (d_in >= lo[j] - margin_cm) & (d_in <= hi[j] + margin_cm)
+        breaks = (d_out < lo[j] - margin_cm) | (d_out > hi[j] + margin_cm)
+    hit = (seen & keeps & breaks).any(axis=1)
+    return np.bincount(sid, weights=hit, minlength=len(joints)) > 0
 
 def fill(X, mask=None, /, *, kind: str = "linear", ends: str = "nearest",
          never_observed: float = np.nan) -> np.ndarray:
@@ -773,25 +774,25 @@ def apply_policy(inp, out, *, evidence: str, method: str, policy: GapPolicy | No
     implausible = np.zeros_like(want)
     why: dict[str, int] = {}                # fills dropped, by the check that dropped them
 
-    def drop(reason: str, flags: np.ndarray) -> None:
+    def reject(reason: str, flags: np.ndarray) -> None:
         nonlocal implausible
         why[reason] = int((flags & ~implausible).sum())
         implausible = implausible | flags
 
     if pol.volume_margin_cm is not None and want.any():
         lo, hi = capture_volume(inp.positions, obs_in)
-        drop("outside the capture volume", want & ok & outside_volume(P, lo, hi, pol.volume_margin_cm))
+        reject("outside the capture volume", want & ok & outside_volume(P, lo, hi, pol.volume_margin_cm))
     if pol.envelope_margin_cm is not None and want.any():
-        drop("away from the body", outside_envelope(inp.positions, obs_in, want & ok & ~implausible,
-                                                    pol.envelope_margin_cm, pol.min_markers, fills=P))
+        reject("away from the body", outside_envelope(inp.positions, obs_in, want & ok & ~implausible,
+                                                      pol.envelope_margin_cm, pol.min_markers, fills=P))
     if pol.rigid_margin_cm is not None and want.any():
-        drop("off a rigid partner's distance",
+        reject("off a rigid partner's distance",
              off_rigid_partners(inp.positions, obs_in, want & ok & ~implausible, pol.rigid_margin_cm,
                                 values=P, has=has))
     if pol.speed_factor is not None and want.any():
         # last: the chain is judged on the fills the other checks kept
-        drop("out of the marker's reach", unreachable_fills(inp.positions, obs_in, want & ok & ~implausible,
-                                                            pol.speed_factor, values=P))
+        reject("out of the marker's reach", unreachable_fills(inp.positions, obs_in, want & ok & ~implausible,
+                                                              pol.speed_factor, values=P))
     keep = has & ~(unsupported | implausible)
     filled_now = keep & miss
     filled = (inp.filled & obs_in & keep) | filled_now

@@ -454,7 +454,7 @@ def test_fill_auto_estimate_is_rescored_over_what_is_written():
     assert rescored(rep, written) is rep                     # nothing dropped: unchanged
     written[6:8, 1] = False
     got = rescored(rep, written)
-    assert got["estimated_rmse_cm"] == 1.0 and got["estimated_rmse_cm_before_policy"] == rep["estimated_rmse_cm"]
+    assert got["estimated_rmse_cm"] == pytest.approx(1.0) and got["estimated_rmse_cm_before_policy"] == rep["estimated_rmse_cm"]
 
 
 def test_a_plate_seen_for_one_frame_keeps_its_shape():

@@ -251,10 +251,11 @@ class Auto(Denoiser):
         """The estimate over what is written: the gap policy may leave fills missing (off a
         rigid partner, out of the marker's reach) that the estimate charged. Scaled by the
         RMS of the per-sample estimates (``estimate_map``) over the written samples against
-        all of them, so the estimate's own corrections (bones held, the bones' floor) keep
-        their share. Found on the basket sprint (2026-12-05): the policy dropped 5,508 of
-        auto's 22,561 fills, and the estimate still counted them."""
-        from .fill_auto import rescored
+        all of them (:func:`~mocapkit.denoise.fill_auto.over_written`), so the estimate's
+        own corrections (bones held, the bones' floor) keep their share. Found on the basket
+        sprint (2026-12-05): the policy left 6,522 of auto's fills missing as implausible
+        (5,508 of them out of the marker's reach), and the estimate still counted them."""
+        from .fill_auto import over_written, rescored
 
         src = dict(out.source.get("auto") or {})
         emap = src.pop("estimate_map", None)
@@ -263,12 +264,10 @@ class Auto(Denoiser):
         rep = out.source.get("gap_report") or {}
         est = src.get("estimated_rmse_cm")
         if emap is not None and est is not None and rep.get("left_implausible"):
-            fin = np.isfinite(emap)
-            kept = fin & out.observed
-            if kept.any() and fin.any():
+            new = over_written(est, emap, out.observed)
+            if new is not None:
                 src["estimated_rmse_cm_before_policy"] = est
-                src["estimated_rmse_cm"] = float(est * np.sqrt(np.mean(emap[kept], dtype=float)
-                                                               / np.mean(emap[fin], dtype=float)))
+                src["estimated_rmse_cm"] = new
         return out.with_source(auto=src)
 
     def _denoise_pieces(self, motion: Motion, jumps: list[int] = ()) -> Motion:

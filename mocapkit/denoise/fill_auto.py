@@ -279,20 +279,32 @@ def _pooled(err: np.ndarray, n: np.ndarray, gaps: Sequence[Gap], n0: float,
     return out
 
 
+def over_written(estimate: float, sq_map: np.ndarray, written: np.ndarray) -> float | None:
+    """``estimate`` (cm), an RMS over the samples where ``sq_map`` (T, J; squared per-sample
+    estimates, NaN where none) is finite, rescaled to the samples ``written`` (T, J) after
+    the gap policy: ``estimate * sqrt(mean(sq[written]) / mean(sq))``. Corrections the
+    estimate made on top of the map keep their share. None when nothing is written."""
+    have = np.isfinite(sq_map)
+    kept = have & written
+    if not kept.any():
+        return None
+    return float(estimate * np.sqrt(np.mean(sq_map[kept], dtype=float) / np.mean(sq_map[have], dtype=float)))
+
+
 def rescored(report: dict, written: np.ndarray) -> dict:
     """``report`` (``source['fill_auto']``) with its estimate over the fills ``written``
     (T, J) -- after the gap policy, which may leave some of them missing -- from its
-    ``error_map``; the estimate before it as ``estimated_rmse_cm_before_policy``."""
+    ``error_map`` (:func:`over_written`); the estimate before it as
+    ``estimated_rmse_cm_before_policy``."""
     emap = report.get("error_map")
     if emap is None or report.get("estimated_rmse_cm") is None:
         return report
     have = np.isfinite(emap)
-    kept = have & written
-    if kept.sum() == have.sum():
+    if (have & written).sum() == have.sum():
         return report
     out = dict(report)
     out["estimated_rmse_cm_before_policy"] = report["estimated_rmse_cm"]
-    out["estimated_rmse_cm"] = float(np.sqrt(np.mean(emap[kept] ** 2))) if kept.any() else None
+    out["estimated_rmse_cm"] = over_written(report["estimated_rmse_cm"], emap ** 2, written)
     return out
 
 
