@@ -561,3 +561,89 @@ def test_vendor_files_qualisys_and_optotrak(shared_data):
         o = io.read(shared_data / "markers/ezc3d/Optotrak.c3d")
     assert (o.n_frames, o.n_joints, o.fps) == (29, 54, 30.0)
     assert o.source["c3d"]["header_frames"] == 1149
+
+
+# ------------------------------------------------------------------------------------
+# writing back: the source file's analog channels, events and parameters are kept
+# ------------------------------------------------------------------------------------
+def _with_analogs(path: Path, T: int = 30, ratio: int = 10, first: int = 40) -> Path:
+    """A marker file as a lab exports one: 3 points, 2 analog channels (force plate) at
+    ``ratio`` samples per frame, events, a subject, and a first frame other than 0."""
+    rng = np.random.default_rng(5)
+    c = ezc3d.c3d()
+    c["parameters"]["POINT"]["RATE"]["value"] = [100.0]
+    c["parameters"]["POINT"]["LABELS"]["value"] = ("A", "B", "C")
+    c["parameters"]["POINT"]["UNITS"]["value"] = ["mm"]
+    c["parameters"]["ANALOG"]["RATE"]["value"] = [100.0 * ratio]
+    c["parameters"]["ANALOG"]["LABELS"]["value"] = ("Fz1", "Fz2")
+    c["parameters"]["ANALOG"]["UNITS"]["value"] = ("N", "N")
+    pts = np.ones((4, 3, T))
+    pts[:3] = rng.uniform(-500, 500, (3, 3, T))
+    c["data"]["points"] = pts
+    c["data"]["meta_points"]["residuals"] = np.full((1, 3, T), 0.5)
+    c["data"]["meta_points"]["camera_masks"] = np.zeros((7, 3, T), dtype=bool)
+    c["data"]["analogs"] = rng.normal(0, 100, (1, 2, T * ratio))
+    c["header"]["points"]["first_frame"] = first
+    c.add_parameter("EVENT", "LABELS", ["Foot Strike", "Foot Off"])
+    c.add_parameter("EVENT", "TIMES", np.array([[0.0, 0.0], [0.55, 0.61]]))
+    c.add_parameter("SUBJECTS", "NAMES", ["P01"])
+    c.write(str(path))
+    return path
+
+
+def test_write_keeps_the_sources_analogs_events_and_first_frame(tmp_path):
+    src = _with_analogs(tmp_path / "lab.c3d")
+    m = io.read(src)
+    out = io.write(m.with_positions(m.positions + 1.0), tmp_path / "clean.c3d")
+    a, b = ezc3d.c3d(str(src)), ezc3d.c3d(str(out))
+    np.testing.assert_array_equal(b["data"]["analogs"], a["data"]["analogs"])
+    assert list(b["parameters"]["ANALOG"]["LABELS"]["value"]) == ["Fz1", "Fz2"]
+    assert list(b["parameters"]["EVENT"]["LABELS"]["value"]) == ["Foot Strike", "Foot Off"]
+    np.testing.assert_allclose(b["parameters"]["EVENT"]["TIMES"]["value"][1], [0.55, 0.61])
+    assert list(b["parameters"]["SUBJECTS"]["NAMES"]["value"]) == ["P01"]
+    assert b["header"]["points"]["first_frame"] == 40
+    back = io.read(out)                          # the points are the new ones
+    np.testing.assert_allclose(back.positions, m.positions + 1.0, atol=1e-3)
+    np.testing.assert_array_equal(back.source["per_frame"]["frame"], np.arange(40, 70))
+
+
+def test_write_of_a_slice_cuts_the_analogs_and_moves_the_first_frame(tmp_path):
+    src = _with_analogs(tmp_path / "lab.c3d")
+    out = io.write(io.read(src).slice(7, 19), tmp_path / "part.c3d")
+    a, b = ezc3d.c3d(str(src)), ezc3d.c3d(str(out))
+    np.testing.assert_array_equal(b["data"]["analogs"], a["data"]["analogs"][..., 70:190])
+    assert b["header"]["points"]["first_frame"] == 47 and b["data"]["points"].shape[2] == 12
+    back = io.read(out)
+    np.testing.assert_array_equal(back.source["per_frame"]["frame"], np.arange(47, 59))
+
+
+def test_write_says_what_it_cannot_keep(tmp_path):
+    """A resampled motion (or one whose joints changed) has no place in the source's
+    analog samples: written with the points only, and one warning says so."""
+    m = io.read(_with_analogs(tmp_path / "lab.c3d"))
+    for changed in (m.resample(50.0), m.select(["A", "B"])):
+        with pytest.warns(MocapWarning, match="without the source file's data other than the points "
+                                              r"\(its 2 analog channels"):
+            out = io.write(changed, tmp_path / "x.c3d", overwrite=True)
+        assert ezc3d.c3d(str(out))["data"]["analogs"].shape[1] == 0
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")               # a motion not read from a C3D: nothing to say
+        io.write(Motion(np.zeros((4, 1, 3)), Skeleton(("p",), np.array([-1]), np.zeros((1, 3))), 30.0),
+                 tmp_path / "plain.c3d")
+
+
+def test_real_files_keep_their_force_plates_through_denoise(shared_data, tmp_path):
+    """c3d.org's Eb015pr lists 48 point labels for 26 points and 32 analog labels for 16
+    channels (integer storage); Qualisys starts at frame 704: the cleaned files keep every
+    analog sample, the force-plate parameters and the first frame."""
+    from mocapkit.cli import main
+
+    for rel in ("markers/c3d_org/Eb015pr.c3d", "markers/ezc3d/Qualisys.c3d"):
+        src = shared_data / rel
+        out = tmp_path / Path(rel).name
+        assert main(["denoise", str(src), str(out), "--method", "gaussian", "-q"]) == 0
+        a, b = ezc3d.c3d(str(src)), ezc3d.c3d(str(out))
+        np.testing.assert_allclose(b["data"]["analogs"], a["data"]["analogs"], rtol=1e-6, atol=1e-6)
+        assert b["header"]["points"]["first_frame"] == a["header"]["points"]["first_frame"]
+        np.testing.assert_array_equal(b["parameters"]["FORCE_PLATFORM"]["CHANNEL"]["value"],
+                                      a["parameters"]["FORCE_PLATFORM"]["CHANNEL"]["value"])

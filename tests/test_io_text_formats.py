@@ -526,3 +526,23 @@ def test_bad_sidecar_is_a_format_error_naming_it(tmp_path, mutate, line, msg):
     assert ei.value.path == str(side) and ei.value.line == line
     assert re.search(msg, ei.value.message), ei.value.message
     assert mio.read(out, sidecar=False).n_frames == 12
+
+
+def test_trc_write_keeps_the_files_frame_numbers_and_original_fields(tmp_path):
+    """A cleaned TRC lines up with the capture it came from: Frame# and the Orig* header
+    fields of the source file, also for a slice; a resampled motion describes itself."""
+    lines = trc_text(units="mm")[0].splitlines()
+    lines[2] = "\t".join(["50", "200", "3", "3", "mm", "200", "101", "900"])
+    for t in range(3):                                                  # frames 101..103
+        row = lines[6 + t].split("\t")
+        row[0] = str(101 + t)
+        lines[6 + t] = "\t".join(row)
+    p = tmp_path / "a.trc"
+    p.write_text("\n".join(lines) + "\n")
+    m = trc.read(p)
+    out = mio.write(m.slice(1, 3), tmp_path / "b.trc") or tmp_path / "b.trc"
+    head = out.read_text().splitlines()
+    assert head[2].split("\t") == ["50", "200", "2", "3", "mm", "200", "101", "900"]
+    np.testing.assert_array_equal(trc.read(out).source["per_frame"]["frame"], [102, 103])
+    trc.write(m.resample(25.0), tmp_path / "c.trc")
+    assert (tmp_path / "c.trc").read_text().splitlines()[2].split("\t")[5:] == ["25", "1", "2"]

@@ -30,7 +30,11 @@ points), ``fps = POINT:RATE`` and positions in **cm**:
   sample (mocapkit 0.1, several exporters) are read with ``filled`` all False;
   ``source['c3d']['residuals']`` says which case it was.
 * **Analogs** are not read into the Motion; their channel count and rate are kept in
-  ``source['c3d']``. An analog-only file (no 3D points) is refused with a clear error.
+  ``source['c3d']`` (and the writer copies them back, see Writing). An analog-only file
+  (no 3D points) is refused with a clear error.
+* **Frame numbers**: ``source['per_frame']['frame']`` holds the file's own frame number of
+  each frame (the header's first frame, 0-based as ezc3d counts, onwards); it follows
+  :meth:`~mocapkit.motion.Motion.slice`.
 * **Header vs data**: the frames the data hold are read (ezc3d stops at the last complete
   frame). A header frame count that disagrees (a truncated file, or vendors such as
   Optotrak whose header announces 1149 frames for 29) gives one
@@ -65,7 +69,21 @@ the writer sets ``POINT:SCALE = -step`` (the C3D input's own step when its resid
 else 0.01 mm, coarser only when the kept residuals exceed 255 steps), rounds residuals to it, and writes a measured sample without
 a known positive residual (e.g. from a TRC input) as **one step** (0.01 mm), never 0,
 since 0 means "computed". So the occlusion mask and the filled flags survive a round
-trip. Analog data are not written.
+trip.
+
+**Nothing else of the source is lost.** A motion read from a C3D file, with the file's
+points in its order and at its rate (cleaned, filled, or a slice of it), is written into a
+copy of that file (:func:`_source_copy`): its analog channels (force plates, EMG), events,
+subject, force-plate and every other parameter group, and its first frame, are kept; only
+the points, their residuals, ``POINT:UNITS`` / ``SCALE`` and the labels' lists (cut to one
+entry per point or channel, as ezc3d requires) change. A slice keeps the analog samples
+of its frames and moves the header's first frame (and ``TRIAL:ACTUAL_START_FIELD`` /
+``END_FIELD``) with it, so events still fall on their frames. Until 2026-12-05 the writer
+started from an empty file: a lab's force plates and events were gone from every cleaned
+file (38 analog channels of pyomeca's Vicon export, 69 of the Qualisys file, and the
+first frames 704, 1165, 2924 of three shared files). A motion whose frames or joints are
+no longer the source's (resampled, joints selected) is written with its points only and
+one :class:`~mocapkit.errors.MocapWarning` says what was left out and why.
 """
 from __future__ import annotations
 
@@ -295,9 +313,12 @@ def read(path: str | os.PathLike, *, units: str | float | None = None, zero_miss
                          "none (every valid sample has residual 0: nothing read as filled)"}
     if fixed is not None:
         meta["fixed_bones"] = fixed
+    # the file's frame numbers (0-based, as ezc3d counts): they follow Motion.slice, so the
+    # writer knows which analog samples, events and first frame belong to what it writes
+    first = meta["first_frame"]
     src = {"path": str(path), "format": "c3d",
            "units": {"file": ulabel, "cm_per_unit": factor, "how": how}, "c3d": meta,
-           "per_frame": {"residuals": res_t}}
+           "per_frame": {"residuals": res_t, "frame": np.arange(first, first + T)}}
     if warn or sk_warn:
         src["warnings"] = warn + sk_warn
     for w in warn:
@@ -454,6 +475,16 @@ def write(motion: Motion, path: str | os.PathLike, *, units: str | float | None 
     else the joint names. Units: ``units=`` if given, else the source file's unit (C3D
     input), else ``mm``. Residuals: -1 missing (NaN coordinates), 0 filled
     (``motion.filled``), the measured residual otherwise (see :func:`_residuals_out`).
+    Everything else of a source C3D file (analog channels, events, parameters, first
+    frame) is kept when the motion still has its points and frames (:func:`_source_copy`);
+    otherwise a :class:`~mocapkit.errors.MocapWarning` says it was left out.
+
+    >>> import tempfile, warnings
+    >>> from mocapkit import io
+    >>> m = io.read("../shared/data/markers/pyomeca/markers_analogs.c3d")  # doctest: +SKIP
+    >>> out = io.write(m, tempfile.mkdtemp() + "/clean.c3d")              # doctest: +SKIP
+    >>> io.read(out).source["c3d"]["analog_channels"]                     # doctest: +SKIP
+    38
     """
     import ezc3d
 
@@ -481,29 +512,124 @@ def write(motion: Motion, path: str | os.PathLike, *, units: str | float | None 
     pts = np.ones((4, J, T))
     pts[:3] = np.transpose(xyz, (2, 1, 0))
     res, step = _residuals_out(motion, factor)
-    c = ezc3d.c3d()
-    c["parameters"]["POINT"]["RATE"]["value"] = [float(motion.fps)]
-    c["parameters"]["POINT"]["LABELS"]["value"] = tuple(labels)
-    c["parameters"]["POINT"]["UNITS"]["value"] = [ulabel]
-    c["parameters"]["POINT"]["SCALE"]["value"] = [-step]          # negative: float storage
-    c["data"]["points"] = pts
-    c["data"]["meta_points"]["residuals"] = res.T[None, :, :]
-    c["data"]["meta_points"]["camera_masks"] = np.zeros((7, J, T), dtype=bool)
     parents = np.asarray(motion.skeleton.parents, dtype=int)
-    if (parents >= 0).any() and J <= 255:         # a C3D parameter dimension is one byte
-        from ..rigid import fixed_bones
 
-        fixed = np.zeros(J, int)
-        fixed[fixed_bones(motion)[0][:, 0]] = 1
-        c.add_parameter(SKELETON_GROUP, "PARENTS", parents.tolist())
-        c.add_parameter(SKELETON_GROUP, "OFFSETS", np.asarray(motion.skeleton.offsets, float).T / factor)
-        c.add_parameter(SKELETON_GROUP, "FIXED_BONES", fixed.tolist())
+    def with_points(c):
+        """``c`` with this motion's points, residuals, rate, unit and hierarchy."""
+        c["parameters"]["POINT"]["RATE"]["value"] = [float(motion.fps)]
+        c["parameters"]["POINT"]["UNITS"]["value"] = [ulabel]
+        c["parameters"]["POINT"]["SCALE"]["value"] = [-step]          # negative: float storage
+        c["data"]["points"] = pts
+        c["data"]["meta_points"]["residuals"] = res.T[None, :, :]
+        if (parents >= 0).any() and J <= 255:         # a C3D parameter dimension is one byte
+            from ..rigid import fixed_bones
+
+            fixed = np.zeros(J, int)
+            fixed[fixed_bones(motion)[0][:, 0]] = 1
+            # (add_parameter replaces a copied source's own values)
+            c.add_parameter(SKELETON_GROUP, "PARENTS", parents.tolist())
+            c.add_parameter(SKELETON_GROUP, "OFFSETS", np.asarray(motion.skeleton.offsets, float).T / factor)
+            c.add_parameter(SKELETON_GROUP, "FIXED_BONES", fixed.tolist())
+        return c
+
+    copy, why_not = _source_copy(motion, labels, T)
 
     def _write(tmp: str) -> None:
+        nonlocal why_not
+        if copy is not None:
+            try:
+                with_points(copy).write(tmp)
+                return
+            except (RuntimeError, ValueError) as e:   # ezc3d's checks of the copied parameters
+                why_not = (f"written without the source file's data other than the points: ezc3d "
+                           f"could not write them back ({str(e).splitlines()[0][:160]})")
+        c = ezc3d.c3d()
+        c["parameters"]["POINT"]["LABELS"]["value"] = tuple(labels)
+        c["data"]["meta_points"]["camera_masks"] = np.zeros((7, J, T), dtype=bool)
         try:
-            c.write(tmp)
+            with_points(c).write(tmp)
         except (RuntimeError, OSError, ValueError) as e:
             raise MocapFormatError(p, f"ezc3d could not write the file: {e}") from None
+        if why_not:
+            warnings.warn(f"{p}: {why_not}", MocapWarning, stacklevel=4)
 
     atomic_write_path(p, _write, suffix=".c3d")
     return p
+
+
+def _source_copy(motion: Motion, labels: list[str], T: int) -> tuple[Any, str | None]:
+    """The motion's source C3D file as an ezc3d object, its analog channels, events,
+    force-plate and other parameters kept, cut to the frames the motion holds, ready for
+    :func:`write` to put the points in; or (None, why) when it cannot be used -- why is
+    None when there is nothing to keep (the motion did not come from a C3D file).
+
+    Used when the motion has the source's points in the source's order and at its rate,
+    and knows which frames of the file it holds (``source['per_frame']['frame']``,
+    contiguous: :meth:`Motion.slice` keeps it, :meth:`Motion.resample` and
+    :meth:`Motion.select` drop it). A slice moves the header's first frame with it (and
+    ``TRIAL:ACTUAL_START_FIELD`` / ``END_FIELD`` where the file has them), so the
+    events' times, which C3D counts from the capture's start, still fall on their frames.
+    """
+    import ezc3d
+
+    src = motion.source
+    meta = src.get("c3d") if src.get("format") == "c3d" else None
+    if meta is None or not src.get("path"):
+        return None, None
+    lost = (f"its {meta.get('analog_channels', 0)} analog channels, events and other parameters"
+            if meta.get("analog_channels") else "its events and other parameters")
+    frames = src.get("per_frame", {}).get("frame")
+
+    def refuse(why: str) -> tuple[None, str]:
+        return None, f"written without the source file's data other than the points ({lost}): {why}"
+
+    if frames is None or np.shape(frames) != (T,) or (T > 1 and not np.all(np.diff(frames) == 1)):
+        return refuse("the motion's frames are not a stretch of the source's (resampled, or joints "
+                      "selected)")
+    if not np.isclose(float(motion.fps), float(meta.get("rate", np.nan))):
+        return refuse(f"the motion is at {motion.fps:g} fps, the source at {meta.get('rate')} fps")
+    if _unique_names([str(x) for x in meta.get("labels", [])], len(meta.get("labels", []))) != \
+            list(motion.skeleton.names):
+        return refuse("the motion's joints are not the source's points")
+    path = Path(src["path"])
+    try:
+        _header(path)
+        c = ezc3d.c3d(str(path), extract_forceplat_data=False)
+    except (MocapFormatError, RuntimeError, OSError, ValueError, IndexError, MemoryError):
+        return refuse(f"{path} can no longer be read")
+    data, params = c["data"], c["parameters"]
+    T0, N = int(np.shape(data["points"])[2]), int(np.shape(data["points"])[1])
+    first = int(c["header"]["points"]["first_frame"])
+    i0 = int(frames[0]) - first
+    if N != len(labels) or first != meta.get("first_frame") or i0 < 0 or i0 + T > T0:
+        return refuse(f"{path} has changed since it was read")
+    for key in ("analogs", "rotations"):
+        A = data.get(key)
+        if A is None or np.size(A) == 0:
+            continue
+        r = np.shape(A)[-1] / T0                   # samples per point frame
+        if r != int(r):
+            return refuse(f"its {key} do not hold a whole number of samples per frame")
+        data[key] = np.asarray(A)[..., i0 * int(r):(i0 + T) * int(r)]
+    data["meta_points"]["camera_masks"] = np.asarray(data["meta_points"]["camera_masks"])[..., i0:i0 + T]
+    c["header"]["points"]["first_frame"] = first + i0
+    trial = params.get("TRIAL", {})
+    for key, frame in (("ACTUAL_START_FIELD", first + i0 + 1), ("ACTUAL_END_FIELD", first + i0 + T)):
+        if key in trial:                              # two 16-bit words, 1-based frame numbers
+            trial[key]["value"] = [frame % 65536, frame // 65536]
+    # one entry per point / channel: ezc3d refuses longer lists, which some files carry
+    # (c3d.org's Eb015pr: 48 point labels for 26 points, 32 analog labels for 16 channels)
+    point = params["POINT"]
+    for key in [k for k in point if k[:6] in ("LABELS", "DESCRI") and k not in ("LABELS", "DESCRIPTIONS")]:
+        del point[key]
+    desc = [str(x) for x in point.get("DESCRIPTIONS", {}).get("value", [])]
+    point["LABELS"]["value"] = tuple(labels)
+    if "DESCRIPTIONS" in point:
+        point["DESCRIPTIONS"]["value"] = tuple((desc + [""] * N)[:N])
+    n_an = int(np.shape(data["analogs"])[1]) if np.ndim(data["analogs"]) == 3 else 0
+    analog = params.get("ANALOG", {})
+    for key in ("LABELS", "DESCRIPTIONS", "UNITS", "SCALE", "OFFSET"):
+        v = analog.get(key, {}).get("value")
+        if v is not None and len(v) > n_an:
+            analog[key]["value"] = v[:n_an]
+    return c, None

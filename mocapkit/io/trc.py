@@ -22,7 +22,8 @@ Layout (tab-separated; comma-separated files such as pyomeca's are read too)::
   (also kept in ``motion.source['warnings']``). Real files do this
   (``markers/pyomeca/markers.trc`` declares 652 frames and holds 93).
 * Markers have no hierarchy: the skeleton is a marker set (every parent -1, offsets 0).
-* ``Frame#`` and ``Time`` are kept in ``source['per_frame']`` (``frame``, ``time``).
+* ``Frame#`` and ``Time`` are kept in ``source['per_frame']`` (``frame``, ``time``), and
+  the header's fields in ``source['header']``; the writer gives them back (:func:`write`).
 
 The writer writes OpenSim's layout: tab-separated, millimetres by default
 (``units='mm'|'cm'|'m'``), empty cells for missing markers, 6 decimals in the chosen
@@ -224,7 +225,11 @@ _WRITE_BLOCK = 2048
 def write(motion: Motion, path: str | os.PathLike, *, units: str = "mm") -> None:
     """Write ``motion`` as a tab-separated TRC file (default millimetres, like OpenSim).
 
-    Missing entries become empty cells. Joint names are used as marker names.
+    Missing entries become empty cells. Joint names are used as marker names. A motion
+    read from a TRC file at its own rate keeps the file's ``Frame#`` numbers and its
+    ``CameraRate`` / ``OrigDataRate`` / ``OrigDataStartFrame`` / ``OrigNumFrames`` (a
+    cleaned file lines up with the video and the software that exported it); otherwise
+    frames are numbered from 1 and the original fields describe this motion.
     """
     u = str(units).strip().lower()
     if u not in UNITS:
@@ -239,13 +244,26 @@ def write(motion: Motion, path: str | os.PathLike, *, units: str = "mm") -> None
     pf = motion.source.get("per_frame", {})
     times = np.asarray(pf.get("time")) if np.shape(pf.get("time", ())) == (T,) else np.arange(T) / motion.fps
     frames = np.arange(1, T + 1)
+    orig = [f"{motion.fps:g}", f"{motion.fps:g}", "1", f"{T}"]   # CameraRate, OrigDataRate, -StartFrame, -NumFrames
+    hdr = motion.source.get("header", {}) if motion.source.get("format") == "trc" else {}
+    try:
+        same_rate = bool(hdr) and np.isclose(float(hdr.get("DataRate", "nan")), motion.fps)
+    except ValueError:
+        same_rate = False
+    if same_rate:
+        kept = [str(hdr.get(k, "")).strip() for k in ("CameraRate", "OrigDataRate", "OrigDataStartFrame",
+                                                        "OrigNumFrames")]
+        orig = [k if k and not any(ch in k for ch in "\t\r\n") else o for k, o in zip(kept, orig)]
+        fr = np.asarray(pf.get("frame", ()), dtype=float)
+        if fr.shape == (T,) and np.isfinite(fr).all():
+            frames = fr
     p = Path(path)
 
     def body(f):
         f.write(f"PathFileType\t4\t(X/Y/Z)\t{p.name}\n")
         f.write("DataRate\tCameraRate\tNumFrames\tNumMarkers\tUnits\tOrigDataRate\tOrigDataStartFrame\t"
                 "OrigNumFrames\n")
-        f.write(f"{motion.fps:g}\t{motion.fps:g}\t{T}\t{J}\t{label}\t{motion.fps:g}\t1\t{T}\n")
+        f.write(f"{motion.fps:g}\t{orig[0]}\t{T}\t{J}\t{label}\t{orig[1]}\t{orig[2]}\t{orig[3]}\n")
         f.write("Frame#\tTime\t" + "\t".join(f"{n}\t\t" for n in motion.skeleton.names).rstrip("\t") + "\n")
         f.write("\t\t" + "\t".join(f"X{j + 1}\tY{j + 1}\tZ{j + 1}" for j in range(J)) + "\n\n")
         # blocks of frames, each formatted by one C-level % operation ("%.6f", as
