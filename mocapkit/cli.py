@@ -209,6 +209,17 @@ def cmd_info(a: argparse.Namespace) -> int:
         "missing_percent": round(100 * m.missing_fraction, 2),
         "units": m.source.get("units", ""),
     }
+    c3 = m.source.get("c3d") if m.source.get("format") == "c3d" else None
+    if c3:                                   # what the file holds besides the markers
+        info["first_frame"] = c3.get("first_frame")
+        if c3.get("analog_channels"):
+            info["analog"] = (f"{c3['analog_channels']} channels at {c3.get('analog_rate', 0):g} Hz "
+                              f"(not cleaned; kept in a C3D output)")
+        if c3.get("model_outputs"):
+            from .io.c3d import outputs_text
+
+            info["model_outputs"] = (outputs_text(c3["model_outputs"])
+                                     + " (points that are not markers: left out; kept in a C3D output)")
     table = None
     diag = None
     if a.diagnose:

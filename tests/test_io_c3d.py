@@ -647,3 +647,51 @@ def test_real_files_keep_their_force_plates_through_denoise(shared_data, tmp_pat
         assert b["header"]["points"]["first_frame"] == a["header"]["points"]["first_frame"]
         np.testing.assert_array_equal(b["parameters"]["FORCE_PLATFORM"]["CHANNEL"]["value"],
                                       a["parameters"]["FORCE_PLATFORM"]["CHANNEL"]["value"])
+
+
+def _with_model_outputs(path: Path, T: int = 20) -> tuple[Path, np.ndarray]:
+    """A Vicon-style export: markers interleaved with Plug-in Gait outputs stored as points
+    (knee angles in degrees, a ground reaction force), named by POINT:ANGLES / FORCES."""
+    rng = np.random.default_rng(3)
+    labels = ["LASI", "LKneeAngles", "RASI", "LGroundReactionForce", "LKNE", "RKneeAngles"]
+    c = ezc3d.c3d()
+    c["parameters"]["POINT"]["RATE"]["value"] = [100.0]
+    c["parameters"]["POINT"]["LABELS"]["value"] = tuple(labels)
+    c["parameters"]["POINT"]["UNITS"]["value"] = ["mm"]
+    pts = np.ones((4, 6, T))
+    pts[:3] = rng.uniform(-90, 90, (3, 6, T))
+    c["data"]["points"] = pts
+    c["data"]["meta_points"]["residuals"] = np.full((1, 6, T), 0.5)
+    c["data"]["meta_points"]["camera_masks"] = np.zeros((7, 6, T), dtype=bool)
+    c.add_parameter("POINT", "ANGLES", ["LKneeAngles", "RKneeAngles"])
+    c.add_parameter("POINT", "FORCES", ["LGroundReactionForce"])
+    c.write(str(path))
+    return path, pts
+
+
+def test_model_outputs_are_not_markers_and_are_written_back_untouched(tmp_path):
+    src, pts = _with_model_outputs(tmp_path / "pig.c3d")
+    m = io.read(src)
+    assert m.skeleton.names == ("LASI", "RASI", "LKNE")
+    assert m.source["c3d"]["model_outputs"] == {"ANGLES": 2, "FORCES": 1}
+    np.testing.assert_allclose(m.positions[:, 1], pts[:3, 2].T / 10, atol=1e-4)
+    out = io.write(m.with_positions(m.positions + 2.0).slice(3, 15), tmp_path / "clean.c3d")
+    b = ezc3d.c3d(str(out))
+    assert list(b["parameters"]["POINT"]["LABELS"]["value"]) == ["LASI", "LKneeAngles", "RASI",
+                                                                 "LGroundReactionForce", "LKNE", "RKneeAngles"]
+    np.testing.assert_allclose(b["data"]["points"][:3, [1, 3, 5]], pts[:3, [1, 3, 5], 3:15], atol=1e-4)
+    np.testing.assert_allclose(b["data"]["points"][:3, [0, 2, 4]], pts[:3, [0, 2, 4], 3:15] + 20, atol=1e-3)
+    assert io.read(out).skeleton.names == ("LASI", "RASI", "LKNE")
+
+
+def test_a_file_of_model_outputs_only_is_refused(tmp_path):
+    c = ezc3d.c3d()
+    c["parameters"]["POINT"]["RATE"]["value"] = [100.0]
+    c["parameters"]["POINT"]["LABELS"]["value"] = ("LKneeAngles",)
+    c["data"]["points"] = np.ones((4, 1, 5))
+    c["data"]["meta_points"]["residuals"] = np.zeros((1, 1, 5))
+    c["data"]["meta_points"]["camera_masks"] = np.zeros((7, 1, 5), dtype=bool)
+    c.add_parameter("POINT", "ANGLES", ["LKneeAngles"])
+    c.write(str(tmp_path / "a.c3d"))
+    with pytest.raises(MocapFormatError, match="no marker trajectories.*1 angles"):
+        io.read(tmp_path / "a.c3d")

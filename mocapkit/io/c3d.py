@@ -245,6 +245,33 @@ def _labels(params: dict, n: int) -> list[str]:
     return labels[:n]
 
 
+#: POINT parameters listing the labels of points that are not marker trajectories (C3D
+#: specification: "3D trajectories that match strings in POINT:ANGLES should be treated as
+#: three-dimensional angles", and so on; OpenSim's C3D reader leaves them out too)
+MODEL_OUTPUTS = ("ANGLES", "FORCES", "MOMENTS", "POWERS", "SCALARS", "REACTIONS")
+
+
+def _model_outputs(params: dict, labels: list[str]) -> dict[str, list[int]]:
+    """Point indices whose label a ``POINT:ANGLES`` / ``FORCES`` / ... list names, per list."""
+    point = params.get("POINT", {})
+    out: dict[str, list[int]] = {}
+    for kind in MODEL_OUTPUTS:
+        names: set[str] = set()
+        for key in [kind] + [f"{kind}{i}" for i in range(2, 100)]:
+            if key not in point:
+                break
+            names |= {str(x).strip() for x in np.atleast_1d(point[key].get("value", []))}
+        found = [i for i, lab in enumerate(labels) if lab.strip() and lab.strip() in names]
+        if found:
+            out[kind] = found
+    return out
+
+
+def outputs_text(outputs: dict[str, Any]) -> str:
+    """'12 angles, 6 forces' from {kind: indices or count}."""
+    return ", ".join(f"{v if isinstance(v, int) else len(v)} {k.lower()}" for k, v in outputs.items())
+
+
 def _unique_names(labels: list[str], n: int) -> list[str]:
     names, seen = [], {}
     for i in range(n):
@@ -288,6 +315,17 @@ def read(path: str | os.PathLike, *, units: str | float | None = None, zero_miss
         warn.append(f"the C3D header announces {announced} frames (frames {info['first']}..{info['last']}) "
                     f"but the data hold {T}; read the {T} frames the data hold")
     res = np.asarray(c["data"]["meta_points"]["residuals"], dtype=float).reshape(N, T)
+    # model outputs (angles, forces, ... that Vicon Nexus and others store as points) are
+    # not markers: they stay in the file for the writer, out of the Motion
+    all_labels = _labels(params, N)
+    outputs = _model_outputs(params, all_labels)
+    is_output = np.isin(np.arange(N), sorted(i for ix in outputs.values() for i in ix))
+    if is_output.all():
+        raise MocapFormatError(path, f"no marker trajectories in this C3D file: its {N} points are all model "
+                               f"outputs ({outputs_text(outputs)})")
+    markers = np.flatnonzero(~is_output)
+    pts, res = pts[:, markers], res[markers]
+    N_file, N = N, len(markers)
     rate = _frame_rate(path, c)
     ulabel, factor, how = _point_units(path, params, units)
     xyz = np.transpose(pts[:3], (2, 1, 0))                            # (T, N, 3)
@@ -301,7 +339,7 @@ def read(path: str | os.PathLike, *, units: str | float | None = None, zero_miss
     res_t = np.where(obs, res.T, -1.0)
     has_residuals = bool((res_t > 0).any())
     filled = obs & (res_t == 0) if has_residuals else np.zeros_like(obs)
-    labels = _labels(params, N)
+    labels = [all_labels[i] if i < len(all_labels) else "" for i in markers]
     names = _unique_names(labels, N)
     sk_warn: list[str] = []
     sk, fixed = _stored_skeleton(params, names, factor, sk_warn)
@@ -313,6 +351,10 @@ def read(path: str | os.PathLike, *, units: str | float | None = None, zero_miss
                          "none (every valid sample has residual 0: nothing read as filled)"}
     if fixed is not None:
         meta["fixed_bones"] = fixed
+    if N < N_file:
+        meta["points_in_file"] = N_file
+        meta["marker_points"] = markers.tolist()          # the file's point index of each joint
+        meta["model_outputs"] = {k: len(v) for k, v in outputs.items() if v}
     # the file's frame numbers (0-based, as ezc3d counts): they follow Motion.slice, so the
     # writer knows which analog samples, events and first frame belong to what it writes
     first = meta["first_frame"]
@@ -519,8 +561,13 @@ def write(motion: Motion, path: str | os.PathLike, *, units: str | float | None 
         c["parameters"]["POINT"]["RATE"]["value"] = [float(motion.fps)]
         c["parameters"]["POINT"]["UNITS"]["value"] = [ulabel]
         c["parameters"]["POINT"]["SCALE"]["value"] = [-step]          # negative: float storage
-        c["data"]["points"] = pts
-        c["data"]["meta_points"]["residuals"] = res.T[None, :, :]
+        if idx is None:
+            c["data"]["points"] = pts
+            c["data"]["meta_points"]["residuals"] = res.T[None, :, :]
+        else:                              # the source's model outputs stay as they are
+            P, R = np.array(c["data"]["points"], dtype=float), np.array(c["data"]["meta_points"]["residuals"])
+            P[:, idx], R[0, idx] = pts, res.T
+            c["data"]["points"], c["data"]["meta_points"]["residuals"] = P, R
         if (parents >= 0).any() and J <= 255:         # a C3D parameter dimension is one byte
             from ..rigid import fixed_bones
 
@@ -532,10 +579,10 @@ def write(motion: Motion, path: str | os.PathLike, *, units: str | float | None 
             c.add_parameter(SKELETON_GROUP, "FIXED_BONES", fixed.tolist())
         return c
 
-    copy, why_not = _source_copy(motion, labels, T)
+    copy, idx, why_not = _source_copy(motion, labels, T)
 
     def _write(tmp: str) -> None:
-        nonlocal why_not
+        nonlocal why_not, idx
         if copy is not None:
             try:
                 with_points(copy).write(tmp)
@@ -543,7 +590,7 @@ def write(motion: Motion, path: str | os.PathLike, *, units: str | float | None 
             except (RuntimeError, ValueError) as e:   # ezc3d's checks of the copied parameters
                 why_not = (f"written without the source file's data other than the points: ezc3d "
                            f"could not write them back ({str(e).splitlines()[0][:160]})")
-        c = ezc3d.c3d()
+        c, idx = ezc3d.c3d(), None
         c["parameters"]["POINT"]["LABELS"]["value"] = tuple(labels)
         c["data"]["meta_points"]["camera_masks"] = np.zeros((7, J, T), dtype=bool)
         try:
@@ -557,11 +604,13 @@ def write(motion: Motion, path: str | os.PathLike, *, units: str | float | None 
     return p
 
 
-def _source_copy(motion: Motion, labels: list[str], T: int) -> tuple[Any, str | None]:
+def _source_copy(motion: Motion, labels: list[str], T: int) -> tuple[Any, np.ndarray | None, str | None]:
     """The motion's source C3D file as an ezc3d object, its analog channels, events,
     force-plate and other parameters kept, cut to the frames the motion holds, ready for
-    :func:`write` to put the points in; or (None, why) when it cannot be used -- why is
-    None when there is nothing to keep (the motion did not come from a C3D file).
+    :func:`write` to put the points in, and the file's point index of each joint (None:
+    the joints are all the file's points); or (None, None, why) when it cannot be used --
+    why is None when there is nothing to keep (the motion did not come from a C3D file).
+    The file's model outputs (``POINT:ANGLES`` ..., not read as joints) stay as they are.
 
     Used when the motion has the source's points in the source's order and at its rate,
     and knows which frames of the file it holds (``source['per_frame']['frame']``,
@@ -575,13 +624,13 @@ def _source_copy(motion: Motion, labels: list[str], T: int) -> tuple[Any, str | 
     src = motion.source
     meta = src.get("c3d") if src.get("format") == "c3d" else None
     if meta is None or not src.get("path"):
-        return None, None
+        return None, None, None
     lost = (f"its {meta.get('analog_channels', 0)} analog channels, events and other parameters"
             if meta.get("analog_channels") else "its events and other parameters")
     frames = src.get("per_frame", {}).get("frame")
 
-    def refuse(why: str) -> tuple[None, str]:
-        return None, f"written without the source file's data other than the points ({lost}): {why}"
+    def refuse(why: str) -> tuple[None, None, str]:
+        return None, None, f"written without the source file's data other than the points ({lost}): {why}"
 
     if frames is None or np.shape(frames) != (T,) or (T > 1 and not np.all(np.diff(frames) == 1)):
         return refuse("the motion's frames are not a stretch of the source's (resampled, or joints "
@@ -601,8 +650,18 @@ def _source_copy(motion: Motion, labels: list[str], T: int) -> tuple[Any, str | 
     T0, N = int(np.shape(data["points"])[2]), int(np.shape(data["points"])[1])
     first = int(c["header"]["points"]["first_frame"])
     i0 = int(frames[0]) - first
-    if N != len(labels) or first != meta.get("first_frame") or i0 < 0 or i0 + T > T0:
+    idx = meta.get("marker_points")
+    file_labels = _labels(params, N)
+    file_labels += [""] * (N - len(file_labels))
+    if (N != meta.get("points_in_file", len(labels)) or first != meta.get("first_frame") or i0 < 0
+            or i0 + T > T0 or (idx is not None and [file_labels[i] for i in idx] != list(labels))):
         return refuse(f"{path} has changed since it was read")
+    if idx is None:
+        file_labels = list(labels)
+    else:
+        idx = np.asarray(idx, dtype=int)
+        data["points"] = np.asarray(data["points"])[..., i0:i0 + T]
+        data["meta_points"]["residuals"] = np.asarray(data["meta_points"]["residuals"])[..., i0:i0 + T]
     for key in ("analogs", "rotations"):
         A = data.get(key)
         if A is None or np.size(A) == 0:
@@ -623,7 +682,7 @@ def _source_copy(motion: Motion, labels: list[str], T: int) -> tuple[Any, str | 
     for key in [k for k in point if k[:6] in ("LABELS", "DESCRI") and k not in ("LABELS", "DESCRIPTIONS")]:
         del point[key]
     desc = [str(x) for x in point.get("DESCRIPTIONS", {}).get("value", [])]
-    point["LABELS"]["value"] = tuple(labels)
+    point["LABELS"]["value"] = tuple(file_labels)
     if "DESCRIPTIONS" in point:
         point["DESCRIPTIONS"]["value"] = tuple((desc + [""] * N)[:N])
     n_an = int(np.shape(data["analogs"])[1]) if np.ndim(data["analogs"]) == 3 else 0
@@ -632,4 +691,4 @@ def _source_copy(motion: Motion, labels: list[str], T: int) -> tuple[Any, str | 
         v = analog.get(key, {}).get("value")
         if v is not None and len(v) > n_an:
             analog[key]["value"] = v[:n_an]
-    return c, None
+    return c, idx, None
