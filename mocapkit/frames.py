@@ -38,7 +38,7 @@ from .errors import MocapValueError
 from .gaps import fill, frame_centroid
 from .io._rotations import axis_rotation
 from .motion import Motion
-from .skeleton import JOINT_ALIASES, Skeleton, _side, strip_side
+from .skeleton import JOINT_ALIASES, Skeleton, _side, bare_name, strip_side
 
 __all__ = ["Frame", "heading_frame", "pelvis_neck_frame", "smooth_track", "up_axis_of",
            "find_hips", "frame_joints", "mirror_permutation", "mirror_local"]
@@ -209,11 +209,18 @@ def frame_joints(skeleton: Skeleton, joints: Mapping[str, str] | None = None) ->
     skipped as in :func:`find_hips`. Raises MocapValueError naming what it looked for.
     """
     joints = dict(joints or {})
-    root = skeleton.index(joints["root"]) if "root" in joints else _root(skeleton)
-    skip = _on_root(skeleton, root)
+    # a marker set (no hierarchy) has no root joint: its first marker may be anywhere (a
+    # neck or hand marker); a point named like a root, else the left hip marker (below)
+    mroot = _marker_root(skeleton)
+    markers = not (skeleton.parents >= 0).any() and "root" not in joints and mroot is None
+    root = (skeleton.index(joints["root"]) if "root" in joints else mroot if mroot is not None
+            else _root(skeleton))
+    skip = set() if markers else _on_root(skeleton, root)
     out = {"root": root}
     hips = None if {"lfemur", "rfemur"} <= joints.keys() else _sided_pair(skeleton, "hip", skip)
-    low = {n.lower(): i for i, n in enumerate(skeleton.names)}
+    low: dict[str, int] = {}
+    for i, n in enumerate(skeleton.names):          # 'Subject:C7' is a C7 (the first one)
+        low.setdefault(bare_name(n).lower(), i)
     necks = [low[c] for c in JOINT_ALIASES["neck"] if c in low and low[c] not in skip]
     for key, auto, looked in (("lfemur", hips and hips[0], "a left joint named like a hip"),
                               ("rfemur", hips and hips[1], "a right joint named like a hip"),
@@ -227,6 +234,8 @@ def frame_joints(skeleton: Skeleton, joints: Mapping[str, str] | None = None) ->
                 f"this skeleton has: {', '.join(skeleton.names)}. Pass joints={{'{key}': NAME}}")
         else:
             out[key] = auto
+    if markers:
+        out["root"] = out["lfemur"]
     if len({out["lfemur"], out["rfemur"], out["upperneck"]}) < 3:
         raise MocapValueError("pelvis-neck frame: lfemur, rfemur and upperneck must be three "
                               f"different joints, got {out}")
@@ -273,12 +282,33 @@ def _heading_smooth(V: np.ndarray, fps: float, smooth_s: float) -> np.ndarray:
                         sigma=max(0.5 * smooth_s * fps, 0.5))
 
 
+#: bare names (lowercase) of a marker set's point that can stand for its root: joint-centre
+#: data exported flat (TRC, C3D) keep their root's name; SACR is Plug-in Gait's sacrum marker
+MARKER_ROOTS = ("root", "hips", "pelvis", "hipcenter", "hip_center", "sacr", "sacrum")
+
+
+def _marker_root(skeleton: Skeleton) -> int | None:
+    """A marker set's (no hierarchy) point named like a root (:data:`MARKER_ROOTS`), else None;
+    None for a skeleton with a hierarchy (its root is its root)."""
+    if (skeleton.parents >= 0).any():
+        return None
+    low = [bare_name(n).lower() for n in skeleton.names]
+    return next((low.index(r) for r in MARKER_ROOTS if r in low), None)
+
+
 def _origin_track(motion: Motion) -> np.ndarray:
     """Root track (T, 3), gaps bridged linearly; the observed joints' centroid when the
-    root is never observed."""
-    P, obs = np.asarray(motion.positions), motion.observed
-    r = _root(motion.skeleton)
-    if obs[:, r].any():
+    root is never observed. A marker set (no hierarchy) has no root: its first marker may
+    be on a hand or a wand; the midpoint of its hip markers (:func:`find_hips`: LASI /
+    RASI ...) is the origin where they are found and seen together, else the centroid."""
+    P, obs, sk = np.asarray(motion.positions), motion.observed, motion.skeleton
+    r = _root(sk)
+    if not (sk.parents >= 0).any():                  # a marker set
+        r = _marker_root(sk)
+        hips = find_hips(sk, shoulders=False) if r is None else None
+        if hips is not None and (both := obs[:, hips[0]] & obs[:, hips[1]]).any():
+            return fill(0.5 * (P[:, hips[0]] + P[:, hips[1]]), np.repeat(both[:, None], 3, axis=1))
+    if r is not None and obs[:, r].any():
         return fill(P[:, r], np.repeat(obs[:, r:r + 1], 3, axis=1))
     C, n = frame_centroid(P, obs)
     return fill(C, np.repeat((n > 0)[:, None], 3, axis=1))
@@ -312,7 +342,8 @@ def heading_frame(motion: Motion, *, smooth_s: float = 0.5, up_axis: int | None 
     Per frame t (``world = R_t @ local + origin_t``, cm):
 
     * ``origin_t`` -- the root joint's track (parent -1; the observed joints' centroid if
-      the root is never observed), gaps bridged linearly, then a running median of
+      the root is never observed; in a marker set the midpoint of the hip markers, see
+      :func:`_origin_track`), gaps bridged linearly, then a running median of
       ``smooth_s`` s and a Gaussian of sigma ``smooth_s / 2`` s. The root's step-to-step
       sway and bounce stay in the local coordinates (the methods learn them).
     * ``R_t`` -- rotation about the vertical axis by the heading angle: the horizontal

@@ -28,8 +28,20 @@ _LEG_WORDS = ("hipjoint", "hip", "femur", "thigh", "upleg", "leg", "knee", "tibi
 _MIDLINE = {"hips", "hip", "hipcenter", "hip_center", "pelvis", "root"}
 
 
+def bare_name(name: str) -> str:
+    """The name without a namespace prefix: Vicon Nexus writes marker labels as
+    ``Subject:LASI``, Mixamo rigs name joints ``mixamorig:LeftUpLeg``."""
+    return name.rsplit(":", 1)[-1].strip()
+
+
 def _side(name: str) -> str | None:
-    """Return 'left', 'right' or None from a joint name (lfemur, LeftArm, ElbowLeft, l_knee, lThigh, LThumb)."""
+    """Return 'left', 'right' or None from a joint name (lfemur, LeftArm, ElbowLeft, l_knee,
+    lThigh, LThumb; ``Subject:LASI`` and ``mixamorig:LeftArm`` by their bare name,
+    :func:`bare_name`)."""
+    if ":" in name:
+        side = _side(bare_name(name))
+        if side is not None:
+            return side
     n = name.strip()
     low = n.lower()
     if low.startswith("left") or low.endswith("left") or re.search(r"(^|[_\.\s])l([_\.\s]|$)", low):
@@ -62,16 +74,23 @@ def _side(name: str) -> str | None:
 JOINT_ALIASES: dict[str, tuple[str, ...]] = {
     # thigh joints: lfemur/rfemur (CMU ASF), LeftUpLeg/RightUpLeg (cgspeed BVH), lThigh/rThigh
     # (Daz BVH), HipLeft/HipRight (Kinect); lhipjoint/rhipjoint are the hip centres in ASF
-    "hip": ("hipjoint", "upleg", "femur", "thigh", "hip"),
+    # marker sets: LASI/RASI (Plug-in Gait and most lab sets: the anterior superior iliac
+    # spines), L_IAS/R_IAS (Qualisys' sports marker set)
+    "hip": ("hipjoint", "upleg", "femur", "thigh", "hip", "asi", "ias"),
     "shoulder": ("clavicle", "collar", "shoulder", "shldr", "humerus", "upperarm", "arm"),
-    "neck": ("upperneck", "neck1", "neck", "neck2", "shouldercenter", "spineshoulder", "head"),
+    # marker sets, last: C7 (Plug-in Gait), CV7 (Qualisys), CLAV (the clavicle notch)
+    "neck": ("upperneck", "neck1", "neck", "neck2", "shouldercenter", "spineshoulder", "head", "c7", "cv7",
+             "clav"),
     "upper_arm": ("arm", "shldr", "shoulder", "clavicle"),
 }
 
 
 def strip_side(name: str) -> str:
     """Joint name without its left/right marker (lowercase): 'lfemur' -> 'femur',
-    'LeftUpLeg' -> 'upleg', 'HipLeft' -> 'hip', 'l_knee' -> 'knee'."""
+    'LeftUpLeg' -> 'upleg', 'HipLeft' -> 'hip', 'l_knee' -> 'knee', 'Subject:LASI' ->
+    'asi' (a namespace prefix goes with the side when the bare name has one)."""
+    if ":" in name and _side(bare_name(name)) is not None:
+        name = bare_name(name)
     low = name.strip().lower()
     for pre in ("left", "right"):
         if low.startswith(pre):

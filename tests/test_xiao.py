@@ -477,3 +477,40 @@ def test_blocked_denoise_equals_one_block(monkeypatch, noise):
     many = model.denoise(m)
     np.testing.assert_allclose(many.positions, one.positions, rtol=0, atol=1e-9)   # bit-equal here; BLAS may round differently elsewhere
     assert many.source["convergence"] == one.source["convergence"]
+
+
+def test_lab_marker_names_give_the_frame_joints():
+    """Vicon names markers 'Subject:LASI', Qualisys 'L_IAS', Mixamo joints 'mixamorig:LeftUpLeg':
+    the sides and the frame's hips and neck are found by the bare names, and a marker set's
+    origin is a marker named like a root (SACR) or else its left hip marker -- not its first
+    marker, which may sit on a hand."""
+    from mocapkit.skeleton import _side, strip_side
+
+    assert _side("Derrick:LASI") == "left" and _side("Derrick:RASI") == "right"
+    assert _side("mixamorig:LeftUpLeg") == "left" and strip_side("Derrick:RASI") == "asi"
+    assert _side("ForearmL:Marker3") is None and strip_side("ForearmL:Marker3") == "forearml:marker3"
+    flat = ("Derrick:RFIN", "Derrick:C7", "Derrick:LASI", "Derrick:RASI", "Derrick:LKNE")
+    sk = Skeleton(flat, -np.ones(5, int), np.zeros((5, 3)))
+    assert frame_joints(sk) == {"root": 2, "lfemur": 2, "rfemur": 3, "upperneck": 1}
+    sk2 = Skeleton(flat + ("Derrick:SACR",), -np.ones(6, int), np.zeros((6, 3)))
+    assert frame_joints(sk2)["root"] == 5
+    qtm = ("R_HM2", "CV7", "L_IAS", "R_IAS")
+    assert frame_joints(Skeleton(qtm, -np.ones(4, int), np.zeros((4, 3)))) == \
+        {"root": 2, "lfemur": 2, "rfemur": 3, "upperneck": 1}
+
+
+def test_train_on_a_plug_in_gait_capture_and_fill_its_gaps(shared_data, tmp_path):
+    """A lab's own marker set: xiao-sparse trained on kineticstoolkit's tennis serve (Vicon
+    Plug-in Gait names, 'Derrick:LASI'), then run on the copy of that take with holes --
+    before the bare names it refused to train ("no joint for 'lfemur'")."""
+    from mocapkit import io
+    from mocapkit.cli import main
+
+    k = shared_data / "markers" / "kineticstoolkit"
+    model, out = tmp_path / "pig.npz", tmp_path / "out.c3d"
+    assert main(["train", "--method", "xiao-sparse", str(k / "kinematics_tennis_serve.c3d"), "-o", str(model),
+                 "-q"]) == 0
+    assert main(["denoise", str(k / "kinematics_tennis_serve_nan.c3d"), str(out), "--method", "xiao-sparse",
+                 "--model", str(model), "-q"]) == 0
+    src, got = io.read(k / "kinematics_tennis_serve_nan.c3d"), io.read(out)
+    assert got.observed.all() and (~src.observed).sum() == 145
