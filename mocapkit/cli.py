@@ -319,7 +319,7 @@ def cmd_denoise(a: argparse.Namespace) -> int:
     else:
         method = _method(a.method or "auto", parse_params(a.param), a.model, m, a.quiet)
     opts, _ = _plan_output(m, a.output, a.force, (a.input, a.model))
-    with gaps.use_policy(max_gap_s=a.max_gap, **({"move_margin_cm": None} if a.keep_moves else {})), \
+    with gaps.use_policy(**_policy_changes(a)), \
             stage(f"denoising {m.n_frames} frames with {method.name}", enable=not a.quiet):
         t0 = time.perf_counter()
         out = method.denoise(m)
@@ -559,8 +559,7 @@ def cmd_batch(a: argparse.Namespace) -> int:
             params = {**denoise.DEFAULT_PARAMS, **params}
         params = method_params(name, params)
     try:
-        policy = {**({"max_gap_s": a.max_gap} if a.max_gap else {}),
-                  **({"move_margin_cm": None} if a.keep_moves else {})}
+        policy = _policy_changes(a)
         summ = run_batch(a.in_dir, a.out_dir, method=name,
                          params=params, model=a.model, workers=a.workers,
                          scheduler=a.scheduler, patterns=a.include or DEFAULT_PATTERNS,
@@ -710,6 +709,13 @@ def cmd_classify(a: argparse.Namespace) -> int:
 
 
 # -- parser ----------------------------------------------------------------------------------
+def _policy_changes(a: argparse.Namespace) -> dict:
+    """The gap-policy changes the switches of :func:`_policy_options` ask for."""
+    return {**({"max_gap_s": a.max_gap} if a.max_gap else {}),
+            **({"move_margin_cm": None} if a.keep_moves else {}),
+            **({"validate_cm": None} if a.keep_unvalidated else {})}
+
+
 def _policy_options(s: argparse.ArgumentParser) -> None:
     """The gap policy's switches, for ``denoise`` and ``batch`` alike."""
     s.add_argument("--max-gap", type=_positive_seconds, metavar="SECONDS",
@@ -720,6 +726,12 @@ def _policy_options(s: argparse.ArgumentParser) -> None:
                    help="write the method's values for every measured sample, even where it moved a "
                         "stretch by more than 5 cm with no spike to remove (by default those are written "
                         "as measured, with a warning)")
+    s.add_argument("--keep-unvalidated", action="store_true",
+                   help="write a method's fills of gaps longer than 2 frames even where its own "
+                        "self-validation on the file (observed stretches next to each gap hidden and "
+                        "filled by it: two more runs) puts them over 5 cm RMSE; by default those are "
+                        "left missing and counted. auto and fill-auto validate their own fills "
+                        "(--param max_fill_error_cm / max_error_cm)")
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import warnings
 from dataclasses import dataclass
-from typing import Mapping, Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
@@ -294,6 +294,27 @@ def _marker_root(skeleton: Skeleton) -> int | None:
         return None
     low = [bare_name(n).lower() for n in skeleton.names]
     return next((low.index(r) for r in MARKER_ROOTS if r in low), None)
+
+
+#: how :func:`heading_frame` centres a marker set: since 2026-12-05 on a root-named marker
+#: or its hip markers' midpoint (before, on its first marker, wherever that was). A model
+#: fitted in that frame records this as ``marker_origin_`` (:func:`check_marker_origin`).
+MARKER_ORIGIN = "root-or-hips"
+
+
+def check_marker_origin(model: Any, motion: Motion) -> None:
+    """Refuse a body-frame model fitted on a marker set under the older origin rule: its
+    mean pose sits in a frame centred elsewhere (on Plug-in Gait, C7 instead of the pelvis:
+    every output ~40 cm off). Skeletons with a hierarchy are unaffected, and so is a marker
+    set whose first point is named like a root (joint centres exported flat): the origin is
+    that point under both rules."""
+    sk = motion.skeleton
+    if (sk.parents >= 0).any() or getattr(model, "marker_origin_", None) == MARKER_ORIGIN \
+            or _marker_root(sk) == 0:
+        return
+    raise MocapValueError(
+        f"{model.name}: this model was trained on a marker set before 2026-12-05, when a marker set's "
+        f"body frame was centred on its first marker; retrain it (mocapkit train --method {model.name} ...)")
 
 
 def _origin_track(motion: Motion) -> np.ndarray:

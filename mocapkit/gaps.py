@@ -30,6 +30,13 @@ metres away, so every method runs under one policy (applied by
   reaches or leaves only by a step faster than ``speed_factor`` times the capture's own
   speed (:func:`unreachable_fills`): a jump of metres between two frames, or between two
   fills that take turns.
+* A fill of a gap longer than 2 frames that the method itself cannot reproduce on the
+  file is not trusted either: observed stretches of the marker next to each gap, shaped
+  like it, are hidden and filled by the same method (two more runs), and a gap whose
+  fills miss there by more than ``validate_cm`` RMSE is left missing
+  (:func:`mocapkit.denoise.fill_auto.unvalidated_fills`; ``auto`` and ``fill-auto`` choose
+  and validate their fills themselves). Without it the methods that do not validate
+  wrote a quarter of their real-occlusion fills more than 20 cm off.
 * Measured samples are a method's to clean, not to replace: where it moved a stretch of
   a marker by more than ``move_margin_cm`` (and ten times the noise) that its neighbours
   show no spike in, the measured samples are kept (:func:`moved_without_cause`) and
@@ -104,6 +111,11 @@ class GapPolicy:
     move_margin_cm : measured samples a method moved by more than this (and ten times the
         noise) where their neighbours show no spike are given back as measured
         (:func:`moved_without_cause`); None = no check.
+    validate_cm : a fill of a gap longer than 2 frames that the method's own
+        self-validation on the file puts over this RMSE (cm) is left missing
+        (:func:`mocapkit.denoise.fill_auto.unvalidated_fills`: the method runs twice more);
+        None = no check. Methods that validate their own fills (``auto``, ``fill-auto``:
+        their ``max_fill_error_cm`` / ``max_error_cm``) are not run again.
     restrict : False fills everything (the papers' synthetic protocols).
     """
 
@@ -115,11 +127,14 @@ class GapPolicy:
     rigid_margin_cm: float | None = 10.0
     speed_factor: float | None = 3.0
     move_margin_cm: float | None = 5.0
+    validate_cm: float | None = 5.0
     restrict: bool = True
 
     def __post_init__(self) -> None:
         if self.move_margin_cm is not None and not (self.move_margin_cm > 0):
             raise MocapValueError(f"move_margin_cm must be a positive number of cm, got {self.move_margin_cm!r}")
+        if self.validate_cm is not None and not (self.validate_cm > 0):
+            raise MocapValueError(f"validate_cm must be a positive number of cm, got {self.validate_cm!r}")
         if self.speed_factor is not None and not (self.speed_factor > 0):
             raise MocapValueError(f"speed_factor must be a positive number, got {self.speed_factor!r}")
         if self.max_gap_s is not None and not (self.max_gap_s > 0):
@@ -130,7 +145,7 @@ class GapPolicy:
 
 DEFAULT_POLICY = GapPolicy()
 FILL_ALL = GapPolicy(restrict=False, volume_margin_cm=None, envelope_margin_cm=None, rigid_margin_cm=None,
-                     speed_factor=None, move_margin_cm=None)
+                     speed_factor=None, move_margin_cm=None, validate_cm=None)
 
 _POLICY: contextvars.ContextVar[GapPolicy] = contextvars.ContextVar("mocapkit_gap_policy",
                                                                     default=DEFAULT_POLICY)
@@ -737,7 +752,8 @@ def frame_centroid(positions: np.ndarray, observed: np.ndarray) -> tuple[np.ndar
         return s / n[:, None], n
 
 
-def apply_policy(inp, out, *, evidence: str, method: str, policy: GapPolicy | None = None):
+def apply_policy(inp, out, *, evidence: str, method: str, policy: GapPolicy | None = None,
+                 unvalidated: np.ndarray | None = None):
     # ``out.source['fill_codes']`` = {"names": [...], "codes": (T, J) int, -1 = none} lets a
     # method that combines fills (fill-auto) report which one produced each kept sample.
     """The motion a method may return for ``inp``: unsupported or implausible fills of ``out``
@@ -747,6 +763,8 @@ def apply_policy(inp, out, *, evidence: str, method: str, policy: GapPolicy | No
     taken from ``out`` as they are (denoised); samples missing in ``inp`` are kept only
     where :func:`supported` allows, they are finite and (policy permitting) inside the
     capture volume. Where ``out`` itself left a sample missing it stays missing.
+    ``unvalidated`` (T, J): fills the method's self-validation put over
+    ``policy.validate_cm`` (computed by the caller, which can run the method again).
     """
     pol = policy or current_policy()
     obs_in = inp.observed
@@ -779,6 +797,8 @@ def apply_policy(inp, out, *, evidence: str, method: str, policy: GapPolicy | No
         why[reason] = int((flags & ~implausible).sum())
         implausible = implausible | flags
 
+    if unvalidated is not None and pol.validate_cm is not None and want.any():
+        reject(f"not validated under {pol.validate_cm:g} cm", want & ok & unvalidated)
     if pol.volume_margin_cm is not None and want.any():
         lo, hi = capture_volume(inp.positions, obs_in)
         reject("outside the capture volume", want & ok & outside_volume(P, lo, hi, pol.volume_margin_cm))

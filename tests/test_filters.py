@@ -263,9 +263,15 @@ def test_filters_on_real_clip(shared_data):
         # jumps 85 cm between frames 1 and 2 (an artefact of the AMC), and a fill of frame
         # 1 between them is at least 40 cm off (gaps.unreachable_fills); hampel moves a
         # measured sample next to it, given back, and the fills beside that one go too
+        # as above, and (since the policy's self-validation,
+        # 2026-12-05) the fills the method's own validation on the clip puts over 5 cm RMSE:
+        # the interpolating spline and the median through 2 cm noise, 13 and 7 samples
         left = ~out.observed
-        assert left.sum() == out.source["gap_report"]["left_implausible"] <= 8
-        assert not left[10:].any() and np.isfinite(out.positions[out.observed]).all()
+        rep = out.source["gap_report"]
+        assert left.sum() == rep["left_implausible"] <= 20
+        assert set(rep["left_implausible_by"]) <= {"out of the marker's reach", "not validated under 5 cm"}
+        assert left[10:].sum() <= rep["left_implausible_by"].get("not validated under 5 cm", 0)
+        assert np.isfinite(out.positions[out.observed]).all()
         err = float(np.sqrt(np.mean((out.positions - clean.positions)[out.observed] ** 2)))
         if name in ("gaussian", "butterworth", "savgol"):
             assert err < 1.6, f"{name}: {err:.2f} cm"        # smoothing beats the 2 cm noise

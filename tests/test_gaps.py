@@ -163,7 +163,8 @@ def test_fill_auto_chooses_per_gap_and_keeps_observed():
     def rmse(o):
         return float(np.sqrt(np.mean((o.positions[~obs] - P[~obs]) ** 2)))
 
-    singles = {n: rmse(denoise.get(n).denoise(m)) for n in ("linear", "spline")}
+    with gaps.use_policy(validate_cm=None):                  # (the 120-frame gap validates over 5 cm)
+        singles = {n: rmse(denoise.get(n).denoise(m)) for n in ("linear", "spline")}
     assert rmse(out) <= 1.05 * min(singles.values())         # per-gap choice: no worse than the best
     assert sum(out.source["gap_report"]["filled_by"].values()) == out.source["gap_report"]["filled"]
 
@@ -488,3 +489,66 @@ def test_a_limb_thrown_with_its_partner_is_not_given_back():
     res[100:102, 0] += [0, 15.0, 0]                          # marker 0 half put back
     back = gaps.moved_without_cause(noisy, np.ones((T, 3), bool), res, 5.0)
     assert not back[100:102, 0].any()
+
+
+def _circling(T: int = 600, J: int = 6, fps: float = 100.0) -> np.ndarray:
+    """Markers circling 40 cm about the z axis, one turn per second (cm)."""
+    t = np.arange(T) / fps
+    ph = np.linspace(0, 2 * np.pi, J, endpoint=False)
+    P = np.zeros((T, J, 3))
+    P[..., 0] = 40 * np.cos(2 * np.pi * t[:, None] + ph)
+    P[..., 1] = 40 * np.sin(2 * np.pi * t[:, None] + ph)
+    P[..., 2] = 100 + 10 * ph
+    return P
+
+
+def test_fills_the_method_cannot_validate_on_the_file_are_left_missing():
+    """Linear interpolation across half a turn cuts the circle (up to 40 cm off): the
+    self-validation on the file (stretches of the marker next to the gap, hidden and
+    filled by the method) finds that and the fill is left missing and counted; a 2-frame
+    hole is not judged; the same fill on a straight walk validates and is written."""
+    P = _circling()
+    obs = np.ones(P.shape[:2], bool)
+    obs[200:250, 1] = False                  # half a turn
+    obs[400:402, 2] = False                  # a 2-frame hole
+    m = _markers(np.where(obs[..., None], P, np.nan)).with_observed(obs)
+    out = denoise.get("linear").denoise(m)
+    rep = out.source["gap_report"]
+    assert not out.observed[200:250, 1].any() and out.observed[400:402, 2].all()
+    assert rep["left_implausible_by"] == {"not validated under 5 cm": 50}
+    with gaps.use_policy(validate_cm=None):                # the switch (CLI --keep-unvalidated)
+        off = denoise.get("linear").denoise(m).source["gap_report"]["left_implausible_by"]
+    assert "not validated under 5 cm" not in off     # (the rigid check still drops part of it)
+    W = _walker(T=600, J=6)
+    w = _markers(W).with_observed(obs)
+    out = denoise.get("linear").denoise(w)
+    assert out.observed[200:250, 1].all()
+    assert np.sqrt(np.mean((out.positions[200:250, 1] - W[200:250, 1]) ** 2)) < 5.0
+
+
+def test_methods_that_validate_their_own_fills_are_not_run_again(monkeypatch):
+    from mocapkit.denoise import fill_auto
+
+    calls = []
+    real = fill_auto.unvalidated_fills
+    monkeypatch.setattr(fill_auto, "unvalidated_fills", lambda *a: calls.append(a[0].name) or real(*a))
+    P = _circling()
+    obs = np.ones(P.shape[:2], bool)
+    obs[200:250, 1] = False
+    m = _markers(np.where(obs[..., None], P, np.nan)).with_observed(obs)
+    for name in ("fill-auto", "auto", "spline"):
+        denoise.get(name).denoise(m)
+    assert calls == ["spline"]
+
+
+def test_cli_keep_unvalidated(tmp_path, capsys):
+    from mocapkit.cli import main
+
+    P = _circling()
+    obs = np.ones(P.shape[:2], bool)
+    obs[200:250, 1] = False
+    src = io.write(_markers(np.where(obs[..., None], P, np.nan)).with_observed(obs), tmp_path / "c.c3d")
+    assert main(["denoise", str(src), str(tmp_path / "a.c3d"), "--method", "linear"]) == 0
+    assert "50 not validated under 5 cm" in capsys.readouterr().out
+    assert main(["denoise", str(src), str(tmp_path / "b.c3d"), "--method", "linear", "--keep-unvalidated"]) == 0
+    assert "not validated" not in capsys.readouterr().out

@@ -224,6 +224,7 @@ class Auto(Denoiser):
     needs_training = False
     keeps_observed = False
     fill_evidence = "markers"
+    validates_fills = True           # (max_fill_error_cm / max_error_cm: the policy does not re-run it)
 
     _parameter_constraints = {"min_noise_cm": [Interval(Real, 0, None)], "spike_rate": [Interval(Real, 0, 1)],
                               "long_gap_s": [Interval(Real, 0, None)], "edge_test": [bool],

@@ -153,6 +153,79 @@ def _prepare(motion: Motion) -> tuple[Motion, np.ndarray]:
     return Motion(P, motion.skeleton, motion.fps, obs, motion.source, motion.filled), off
 
 
+def trained_joint_map(joints: Sequence[str], motion: Motion) -> np.ndarray | None:
+    """Index array ``idx`` such that ``motion.positions[:, idx]`` are a trained model's
+    ``joints`` in the model's order, or None when the motion's joints are not those.
+
+    The names match exactly, or one-to-one by their bare names
+    (:func:`mocapkit.skeleton.bare_name`): Vicon writes ``Subject:LASI``, so a lab's model
+    trained on one subject's takes meets ``Viktor:LASI`` where it learned ``Derrick:LASI``.
+    A skeleton with a hierarchy must keep its joint order (a parent comes before its
+    children); a marker set (no hierarchy) may list its markers in any order, as two takes
+    exported by the same software sometimes do.
+    """
+    from ..skeleton import bare_name
+
+    names, joints = list(motion.skeleton.names), [str(j) for j in joints]
+    if names == joints:
+        return np.arange(len(names))
+    if len(names) != len(joints):
+        return None
+    for key in (str, bare_name):
+        where = {key(n): i for i, n in enumerate(names)}
+        if len(where) == len(names) and len({key(j) for j in joints}) == len(joints) \
+                and all(key(j) in where for j in joints):
+            idx = np.array([where[key(j)] for j in joints])
+            hierarchy = (motion.skeleton.parents >= 0).any()
+            return idx if not hierarchy or np.array_equal(idx, np.arange(len(idx))) else None
+    return None
+
+
+def check_trained_joints(den: "Denoiser", motion: Motion) -> None:
+    """The one check of a data-driven method's joints against its model's (``joint_names_``):
+    MocapValueError naming what is missing and extra. :meth:`Denoiser.denoise` has already
+    renamed and reordered a motion :func:`trained_joint_map` matches, so this raises only for
+    another joint set (or a call from inside another method's denoise)."""
+    joints = [str(j) for j in den.joint_names_]
+    names = list(motion.skeleton.names)
+    if names == joints:
+        return
+    from ..skeleton import bare_name
+
+    def diff(key):
+        a, b = {key(n) for n in names}, {key(j) for j in joints}
+        return [key(j) for j in joints if key(j) not in a], [key(n) for n in names if key(n) not in b]
+
+    # by bare names when those tell more ('Derrick:RWRA' against 'Viktor:...': RWRA is missing)
+    missing, extra = min(diff(str), diff(bare_name), key=lambda d: len(d[0]) + len(d[1]))
+    what = "; ".join(f"{label} {', '.join(v[:6])}{' ...' if len(v) > 6 else ''}"
+                     for label, v in (("missing", missing), ("extra", extra)) if v) \
+        or "the same joints in another order"
+    raise MocapValueError(
+        f"{den.name}: the model was trained on {len(joints)} joints, this motion has {len(names)} "
+        f"({what}); train a model on clips of this skeleton or marker set "
+        f"(mocapkit train --method {den.name} CLIPS... -o model.npz)")
+
+
+def _as_trained(den: "Denoiser", motion: Motion) -> tuple[Motion, np.ndarray | None]:
+    """``motion`` with a trained model's joint names and order where
+    :func:`trained_joint_map` matches them, and the index map to undo it (None: as it is)."""
+    joints = getattr(den, "joint_names_", None)
+    if joints is None or list(motion.skeleton.names) == [str(j) for j in joints]:
+        return motion, None
+    idx = trained_joint_map(joints, motion)
+    if idx is None:
+        return motion, None
+    from ..skeleton import Skeleton
+
+    sk = motion.skeleton
+    inv = np.argsort(idx)
+    parents = np.where(sk.parents[idx] >= 0, inv[np.maximum(sk.parents[idx], 0)], -1)
+    renamed = Skeleton(tuple(str(j) for j in joints), parents, sk.offsets[idx])
+    return Motion(motion.positions[:, idx], renamed, motion.fps, motion.observed[:, idx], motion.source,
+                  motion.filled[:, idx]), idx
+
+
 def _guard(fn):
     """Wrap a subclass's ``denoise`` with the shared rules (module docstring). Calls made
     from inside another method's denoise (a chain, a self-validation) are not wrapped again."""
@@ -168,11 +241,27 @@ def _guard(fn):
         self._validate_params("denoise()")
         self.last_report_ = {}
         work, off = _prepare(motion)
+        work, idx = _as_trained(self, work)
+        from ..gaps import current_policy
+
+        limit = current_policy().validate_cm if current_policy().restrict else None
         token = _INSIDE.set(1)
         try:
             raw = fn(self, work, *args, **kwargs)
+            unvalidated = None
+            if limit is not None and not self.validates_fills and (~work.observed & raw.observed).any():
+                from .fill_auto import unvalidated_fills
+
+                run_report = dict(self.__dict__.get("last_report_", {}))   # the validation's runs
+                unvalidated = unvalidated_fills(self, work, raw, float(limit))  # report too:
+                self.last_report_ = run_report                               # keep the real one
         finally:
             _INSIDE.reset(token)
+        if idx is not None:                 # back to the motion's own names and order
+            inv = np.argsort(idx)
+            raw = Motion(raw.positions[:, inv], motion.skeleton, raw.fps, raw.observed[:, inv], raw.source,
+                         raw.filled[:, inv])
+            unvalidated = None if unvalidated is None else unvalidated[:, inv]
         if raw.positions.shape != motion.positions.shape:
             raise RuntimeError(f"{self.name}: output shape {raw.positions.shape} != input "
                                f"{motion.positions.shape}")
@@ -181,7 +270,8 @@ def _guard(fn):
             if self.keeps_observed:         # bit-identical measured samples, whatever the shift
                 Q[motion.observed] = motion.positions[motion.observed]
             raw = raw.with_positions(Q, raw.observed)
-        out = self._after_policy(apply_policy(motion, raw, evidence=self.fill_evidence, method=self.name))
+        out = self._after_policy(apply_policy(motion, raw, evidence=self.fill_evidence, method=self.name,
+                                              unvalidated=unvalidated))
         return out.with_source(**self.last_report_) if self.last_report_ else out
 
     denoise._gap_policy_guard = True
@@ -233,6 +323,9 @@ class Denoiser:
             cls.fit = _checked_fit(fit)
     #: whether observed, trusted entries are returned unchanged (property tests check it)
     keeps_observed: ClassVar[bool] = False
+    #: whether the method validates its own fills on the file (auto, fill-auto): the gap
+    #: policy's ``validate_cm`` check then does not run it again
+    validates_fills: ClassVar[bool] = False
 
     #: RMSE (cm) within which a clean real clip must come back (property tests)
     clean_tolerance_cm: ClassVar[float] = 1.0

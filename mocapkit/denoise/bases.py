@@ -13,11 +13,11 @@ import numpy as np
 
 from .. import signal
 from ..errors import MocapValueError
-from ..frames import Frame, frame_in_place, heading_frame, mirror_local, mirror_permutation, up_axis_of
+from ..frames import MARKER_ORIGIN, Frame, check_marker_origin, frame_in_place, heading_frame, mirror_local, mirror_permutation, up_axis_of
 from ..motion import Motion
 from ..solvers import robust_bases as rb
 from ..solvers.evidence import evidence_blend
-from .base import Denoiser, check_training_match, register, report_convergence
+from .base import Denoiser, check_trained_joints, check_training_match, register, report_convergence
 from .constraints import Integral, Interval, Options, Real, center_as_string
 
 _POSITIVE = Interval(Real, 0, None, closed="neither")
@@ -446,6 +446,7 @@ class LouChai(Denoiser):
         self.space_ = self.space
         self.up_axis_ = int(up)
         self.joint_names_ = list(first.skeleton.names)
+        self.marker_origin_ = MARKER_ORIGIN
         self.channel_names_ = list(channel_names) if channel_names else []
         self.n_windows_ = int(S)
         self.n_frames_ = int(sum(len(a) for a in arrays))
@@ -529,11 +530,9 @@ class LouChai(Denoiser):
         if self.space != self.space_:
             raise MocapValueError(f"lou-chai: the model was trained in space={self.space_!r}, "
                                   f"not {self.space!r}")
-        if list(motion.skeleton.names) != list(self.joint_names_):
-            raise MocapValueError(
-                f"lou-chai: the model was trained on a {len(self.joint_names_)}-joint skeleton "
-                f"({', '.join(self.joint_names_[:4])}, ...); this motion has {motion.n_joints} joints "
-                f"({', '.join(motion.skeleton.names[:4])}, ...)")
+        check_trained_joints(self, motion)
+        if self.space_ == "position" and self.frame == "body":
+            check_marker_origin(self, motion)
         if not motion.observed.any():
             raise MocapValueError("lou-chai: the clip has no observed joint at all")
         if self.space_ == "angle":

@@ -37,11 +37,11 @@ import numpy as np
 
 from .. import signal
 from ..errors import MocapValueError
-from ..frames import Frame, heading_frame, up_axis_of
+from ..frames import MARKER_ORIGIN, Frame, check_marker_origin, heading_frame, up_axis_of
 from ..motion import Motion
 from ..solvers import _linalg
 from ..solvers.evidence import evidence_blend
-from .base import Denoiser, register, training_matrices
+from .base import Denoiser, check_trained_joints, register, training_matrices
 from .constraints import Integral, Interval, Options, Real
 from .filters import require_observed_joints
 
@@ -359,6 +359,7 @@ class KalmanLearned(Denoiser):
         self.fps_ = float(first.fps)
         self.up_axis_ = int(up)
         self.joint_names_ = list(first.skeleton.names)
+        self.marker_origin_ = MARKER_ORIGIN
         return self
 
     def _initial_state(self, y0, F, Qf, H, Rdiag, order):
@@ -398,11 +399,9 @@ class KalmanLearned(Denoiser):
     @_linalg.one_blas_thread
     def denoise(self, motion: Motion) -> Motion:
         self._check_fitted()
-        if list(motion.skeleton.names) != list(self.joint_names_):
-            raise MocapValueError(
-                f"kalman-learned: the model was trained on a {len(self.joint_names_)}-joint skeleton "
-                f"({', '.join(self.joint_names_[:4])}, ...); this motion has {motion.n_joints} joints "
-                f"({', '.join(motion.skeleton.names[:4])}, ...)")
+        check_trained_joints(self, motion)
+        if self.frame == "body":
+            check_marker_origin(self, motion)
         if not np.isclose(motion.fps, float(self.fps_), rtol=1e-6):
             raise MocapValueError(
                 f"kalman-learned: the model was trained at {float(self.fps_):g} fps but the clip is at "

@@ -15,7 +15,7 @@ import numpy as np
 
 from .. import gaps
 from ..errors import MocapValueError
-from ..frames import Frame, frame_in_place, pelvis_neck_frame
+from ..frames import MARKER_ORIGIN, Frame, check_marker_origin, frame_in_place, pelvis_neck_frame
 from ..motion import Motion
 from ..skeleton import BODY_PARTS
 from ..signal._arrays import channel_blocks
@@ -23,7 +23,7 @@ from ..solvers import llc as _llc
 from ..solvers._linalg import one_blas_thread
 from ..windows import lagged, overlap_add_into, window_blocks
 from ._refill import check_motion, known_mask
-from .base import Denoiser, register
+from .base import Denoiser, check_trained_joints, register
 from .constraints import Integral, Interval, Numbers, Real
 
 _POSITIVE = Interval(Real, 0, None, closed="neither")
@@ -220,6 +220,7 @@ class PSC(Denoiser):
         self.parts_ = [idx for _, idx in parts]
         self.part_names_ = [p for p, _ in parts]
         self.joint_names_ = list(sk.names)
+        self.marker_origin_ = MARKER_ORIGIN
         self.train_iterations_ = [int(len(h)) for h in hist]
         self.train_error_ = [float(h[-1]) if len(h) else float("nan") for h in hist]
         return self
@@ -278,10 +279,8 @@ class PSC(Denoiser):
         self._check_fitted()
         motion = check_motion(motion, self.name)
         M = int(self.window)
-        if list(motion.skeleton.names) != list(self.joint_names_):
-            raise MocapValueError(
-                f"psc: the model was trained on joints {', '.join(self.joint_names_[:5])}...; "
-                f"this motion has {', '.join(motion.skeleton.names[:5])}... (train on this skeleton)")
+        check_trained_joints(self, motion)
+        check_marker_origin(self, motion)
         T = motion.n_frames
         if T < M:
             raise MocapValueError(f"psc: the clip has {T} frames, fewer than the window ({M})")

@@ -98,12 +98,12 @@ from typing import Any, Sequence
 import numpy as np
 
 from ..errors import MocapValueError
-from ..frames import frame_in_place, pelvis_neck_frame
+from ..frames import MARKER_ORIGIN, check_marker_origin, frame_in_place, pelvis_neck_frame
 from ..motion import Motion
 from ..signal import estimate_noise
 from ..signal._arrays import channel_blocks
 from ..windows import lagged, overlap_add_into, window_blocks, window_starts
-from .base import Denoiser, register, report_convergence, training_matrices
+from .base import Denoiser, check_trained_joints, register, report_convergence, training_matrices
 from .constraints import Integral, Interval, Options, Real, center_as_string
 
 __all__ = ["XiaoSparse", "XiaoSparseFullPose", "detect_noise"]
@@ -334,6 +334,7 @@ class XiaoSparse(Denoiser):
         self.parts_ = [np.asarray(p, dtype=np.int64) for p in parts]
         self.part_names_ = list(part_names)
         self.joint_names_ = names
+        self.marker_origin_ = MARKER_ORIGIN
         self.train_stride_ = int(stride)
         self.fps_ = float(ref.fps)
         self._cache = None
@@ -428,11 +429,9 @@ class XiaoSparse(Denoiser):
         from .filters import filled_matrix
 
         names = list(self.joint_names_)
-        if set(motion.skeleton.names) != set(names):
-            missing = sorted(set(names) - set(motion.skeleton.names))
-            extra = sorted(set(motion.skeleton.names) - set(names))
-            raise MocapValueError(f"{self.name}: the motion's joints differ from the training "
-                                  f"joints (missing {missing[:8]}, extra {extra[:8]})")
+        if set(motion.skeleton.names) != set(names):   # (another order is the model's own business)
+            check_trained_joints(self, motion)
+        check_marker_origin(self, motion)
         M = int(self.window)
         T0 = motion.n_frames
         P = filled_matrix(motion, self.name).reshape(T0, motion.n_joints, 3)
