@@ -409,8 +409,9 @@ def test_real_gaps_basket_sprint_stay_near_the_body(shared_data):
         # no step the capture's speed can not make (the policy's check, idempotent)
         assert not gaps.unreachable_fills(m.positions, m.observed, new, 3.0, values=out.positions).any()
     # measured: rigid 2620, pattern 11207, pca 10922 of 37068 missing samples (pca 16709
-    # before the policy's speed check of 2026-12-05)
-    assert min(counts["fill-pca"], counts["fill-pattern"]) > counts["fill-rigid"] > 1000
+    # before the policy's speed check of 2026-12-05); rigid 763 since the policy's
+    # self-validation (2026-12-05, sixteenth session)
+    assert min(counts["fill-pca"], counts["fill-pattern"]) > counts["fill-rigid"] > 500
 
 
 def test_fill_kinematic_puts_a_knee_back_on_its_bones():

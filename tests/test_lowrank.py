@@ -4,7 +4,7 @@ import warnings
 import numpy as np
 import pytest
 
-from mocapkit import Motion, Skeleton, denoise
+from mocapkit import Motion, Skeleton, denoise, gaps
 from mocapkit.errors import MocapValueError
 from mocapkit.signal import estimate_noise
 from mocapkit.solvers import lowrank as lr
@@ -361,11 +361,12 @@ def test_denoisers_edge_cases():
             # its fill of the 190-frame gap steps 9 cm into it and 27 cm out of it (9-27 cm
             # off the truth): the policy's speed check leaves it missing and says so
             assert not out.observed[100:290, 3].any() and rep["left_implausible"] == 190
-        else:
-            assert out.observed[:, keep].all()
+        else:   # the 190-frame gap: kept where the method's own validation on the clip passes it
+            assert out.observed[:, keep].all() or rep["left_implausible_by"].get("not validated under 5 cm")
         assert rep["never_observed"] == [truth.skeleton.names[2]]
-    out = denoise.get("slra", segment=60, overlap=20).denoise(
-        m.with_observed(np.ones_like(obs) & (np.arange(31) != 2)))
+    with gaps.use_policy(validate_cm=None):        # the segments' mechanics, every fill kept
+        out = denoise.get("slra", segment=60, overlap=20).denoise(
+            m.with_observed(np.ones_like(obs) & (np.arange(31) != 2)))
     assert np.isfinite(out.positions[:, np.arange(31) != 2]).all()
     short = truth.slice(0, 8)                                      # fewer frames than coordinates
     for name in ("tsvd", "svt", "rpca", "slra"):
