@@ -252,9 +252,10 @@ def _guard(fn):
             if limit is not None and not self.validates_fills and (~work.observed & raw.observed).any():
                 from .fill_auto import unvalidated_fills
 
-                run_report = dict(self.__dict__.get("last_report_", {}))   # the validation's runs
-                unvalidated = unvalidated_fills(self, work, raw, float(limit))  # report too:
-                self.last_report_ = run_report                               # keep the real one
+                # the validation's runs report too: the real run's report is the one kept
+                run_report = dict(self.__dict__.get("last_report_", {}))
+                unvalidated = unvalidated_fills(self, work, raw, float(limit))
+                self.last_report_ = run_report
         finally:
             _INSIDE.reset(token)
         if idx is not None:                 # back to the motion's own names and order
