@@ -101,9 +101,6 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    from mocapkit.gaps import use_policy
+    from _report import method_time
 
-    # the method's own time: the gap policy's self-validation of fills (two more runs of
-    # the method where it fills gaps longer than 2 frames, since 2026-12-05) is left out
-    with use_policy(validate_cm=None):
-        main()
+    method_time(main)

@@ -106,9 +106,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    from mocapkit.gaps import use_policy
+    from _report import method_time
 
-    # the method's own time: the gap policy's self-validation of fills (two more runs of
-    # the method where it fills gaps longer than 2 frames, since 2026-12-05) is left out
-    with use_policy(validate_cm=None):
-        raise SystemExit(main())
+    raise SystemExit(method_time(main))

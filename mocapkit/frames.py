@@ -38,7 +38,7 @@ from .errors import MocapValueError
 from .gaps import fill, frame_centroid
 from .io._rotations import axis_rotation
 from .motion import Motion
-from .skeleton import JOINT_ALIASES, Skeleton, _side, bare_name, strip_side
+from .skeleton import JOINT_ALIASES, MIDLINE_ROOTS, Skeleton, _side, bare_name, strip_side
 
 __all__ = ["Frame", "heading_frame", "pelvis_neck_frame", "smooth_track", "up_axis_of",
            "find_hips", "frame_joints", "mirror_permutation", "mirror_local"]
@@ -160,7 +160,7 @@ def _root(skeleton: Skeleton) -> int:
 def _on_root(skeleton: Skeleton, root: int) -> set[int]:
     """``root`` and the joints within :data:`ON_ROOT_CM` of it in the rest pose. A marker
     set without hierarchy (TRC, C3D: every offset 0) has no rest pose: only ``root``."""
-    if not (skeleton.parents >= 0).any():
+    if skeleton.is_flat:
         return {root}
     rest = skeleton.rest_positions()
     near = np.linalg.norm(rest - rest[root], axis=1) <= ON_ROOT_CM
@@ -211,10 +211,13 @@ def frame_joints(skeleton: Skeleton, joints: Mapping[str, str] | None = None) ->
     joints = dict(joints or {})
     # a marker set (no hierarchy) has no root joint: its first marker may be anywhere (a
     # neck or hand marker); a point named like a root, else the left hip marker (below)
-    mroot = _marker_root(skeleton)
-    markers = not (skeleton.parents >= 0).any() and "root" not in joints and mroot is None
-    root = (skeleton.index(joints["root"]) if "root" in joints else mroot if mroot is not None
-            else _root(skeleton))
+    markers = False
+    if "root" in joints:
+        root = skeleton.index(joints["root"])
+    elif (mroot := _marker_root(skeleton)) is not None:
+        root = mroot
+    else:
+        root, markers = _root(skeleton), skeleton.is_flat
     skip = set() if markers else _on_root(skeleton, root)
     out = {"root": root}
     hips = None if {"lfemur", "rfemur"} <= joints.keys() else _sided_pair(skeleton, "hip", skip)
@@ -282,18 +285,15 @@ def _heading_smooth(V: np.ndarray, fps: float, smooth_s: float) -> np.ndarray:
                         sigma=max(0.5 * smooth_s * fps, 0.5))
 
 
-#: bare names (lowercase) of a marker set's point that can stand for its root: joint-centre
-#: data exported flat (TRC, C3D) keep their root's name; SACR is Plug-in Gait's sacrum marker
-MARKER_ROOTS = ("root", "hips", "pelvis", "hipcenter", "hip_center", "sacr", "sacrum")
-
-
 def _marker_root(skeleton: Skeleton) -> int | None:
-    """A marker set's (no hierarchy) point named like a root (:data:`MARKER_ROOTS`), else None;
-    None for a skeleton with a hierarchy (its root is its root)."""
-    if (skeleton.parents >= 0).any():
+    """A marker set's first point named like a root -- a midline name of the skeleton module
+    (``root``, ``hips``, ``pelvis`` ...: joint centres exported flat keep their root's name)
+    or Plug-in Gait's sacrum marker ``SACR`` -- else None; None for a skeleton with a
+    hierarchy (its root is its root)."""
+    if not skeleton.is_flat:
         return None
-    low = [bare_name(n).lower() for n in skeleton.names]
-    return next((low.index(r) for r in MARKER_ROOTS if r in low), None)
+    names = MIDLINE_ROOTS | {"sacr", "sacrum"}
+    return next((j for j, n in enumerate(skeleton.names) if bare_name(n).lower() in names), None)
 
 
 #: how :func:`heading_frame` centres a marker set: since 2026-12-05 on a root-named marker
@@ -304,13 +304,13 @@ MARKER_ORIGIN = "root-or-hips"
 
 def check_marker_origin(model: Any, motion: Motion) -> None:
     """Refuse a body-frame model fitted on a marker set under the older origin rule: its
-    mean pose sits in a frame centred elsewhere (on Plug-in Gait, C7 instead of the pelvis:
-    every output ~40 cm off). Skeletons with a hierarchy are unaffected, and so is a marker
+    mean pose sits in a frame centred elsewhere (kineticstoolkit's tennis serve: on C7,
+    median 56 cm from the ASIS midpoint; a lou-chai model fitted so moved its own training
+    take's samples by a median 49 cm). Skeletons with a hierarchy are unaffected, and so is a marker
     set whose first point is named like a root (joint centres exported flat): the origin is
     that point under both rules."""
     sk = motion.skeleton
-    if (sk.parents >= 0).any() or getattr(model, "marker_origin_", None) == MARKER_ORIGIN \
-            or _marker_root(sk) == 0:
+    if not sk.is_flat or getattr(model, "marker_origin_", None) == MARKER_ORIGIN or _marker_root(sk) == 0:
         return
     raise MocapValueError(
         f"{model.name}: this model was trained on a marker set before 2026-12-05, when a marker set's "
@@ -324,7 +324,7 @@ def _origin_track(motion: Motion) -> np.ndarray:
     RASI ...) is the origin where they are found and seen together, else the centroid."""
     P, obs, sk = np.asarray(motion.positions), motion.observed, motion.skeleton
     r = _root(sk)
-    if not (sk.parents >= 0).any():                  # a marker set
+    if sk.is_flat:                                   # a marker set
         r = _marker_root(sk)
         hips = find_hips(sk, shoulders=False) if r is None else None
         if hips is not None and (both := obs[:, hips[0]] & obs[:, hips[1]]).any():

@@ -24,8 +24,9 @@ _ARM_WORDS = ("clavicle", "shoulder", "collar", "shldr", "humerus", "arm", "elbo
               "pinky", "carpal", "mid", "pinky")
 _LEG_WORDS = ("hipjoint", "hip", "femur", "thigh", "upleg", "leg", "knee", "tibia",
               "shin", "ankle", "foot", "toe", "heel", "buttock")
-# Names of joints on the body midline that contain a limb keyword ("Hips", "hip").
-_MIDLINE = {"hips", "hip", "hipcenter", "hip_center", "pelvis", "root"}
+#: Names of the body's root on the midline, some with a limb keyword ("Hips", "hip"): not a
+#: leg joint (:func:`_limb`), and a flat marker set's root (:mod:`mocapkit.frames`).
+MIDLINE_ROOTS = frozenset({"hips", "hip", "hipcenter", "hip_center", "pelvis", "root"})
 
 
 def bare_name(name: str) -> str:
@@ -105,7 +106,7 @@ def strip_side(name: str) -> str:
 
 def _limb(name: str) -> str | None:
     low = re.sub(r"left|right", "", name.lower())
-    if low in _MIDLINE and low == name.lower():   # 'HipLeft'/'LeftHip' keep their side: a leg joint
+    if low in MIDLINE_ROOTS and low == name.lower():   # 'HipLeft'/'LeftHip' keep their side: a leg joint
         return None
     if any(w in low for w in _LEG_WORDS if w not in ("hip",)) or low.endswith("hip") or low.startswith(("hip", "lhip", "rhip")):
         # 'hip' alone counts only with a side (HipLeft, lhipjoint, LHip)
@@ -160,6 +161,11 @@ class Skeleton:
         object.__setattr__(self, "_index", {n: i for i, n in enumerate(names)})
 
     # -- basic queries -------------------------------------------------------------
+    @property
+    def is_flat(self) -> bool:
+        """No joint has a parent: a marker set (C3D, TRC), not a skeleton's joint centres."""
+        return not bool((self.parents >= 0).any())
+
     @property
     def n_joints(self) -> int:
         return len(self.names)

@@ -70,7 +70,7 @@ def test_a_model_of_one_subject_cleans_another_subjects_take(method):
 @pytest.mark.parametrize("method", ["xiao-sparse", "psc", "lou-chai", "kalman-learned"])
 def test_a_marker_set_model_from_the_older_origin_rule_is_refused(method, tmp_path):
     """Before 2026-12-05 a marker set's body frame was centred on its first marker (here
-    C7); a model saved then has no ``marker_origin_`` and would put every output ~40 cm off:
+    C7); a model saved then has no ``marker_origin_`` and would put its outputs tens of cm off:
     it is refused with a one-line reason. A skeleton model (a hierarchy) is unaffected."""
     quick = {"xiao-sparse": {"n_atoms": 32, "n_iter": 2}}.get(method, {})
     den = get(method, **quick).fit([_markers("S:", s) for s in (1, 2)])

@@ -26,8 +26,6 @@ from __future__ import annotations
 
 import importlib
 
-import numpy as np
-
 from .base import Denoiser, available, get, register  # noqa: F401
 
 DEFAULT_METHOD = "auto"
@@ -50,8 +48,7 @@ def is_marker_capture(motion) -> bool:
     """A marker capture: points with no joint hierarchy (read from C3D / TRC, or more than
     one point built so). A C3D that carries the joint hierarchy mocapkit writes
     (:mod:`mocapkit.io.c3d`) holds joint centres, not markers."""
-    flat = bool(np.all(np.asarray(motion.skeleton.parents) < 0))
-    return flat and (motion.source.get("format") in ("c3d", "trc") or motion.n_joints > 1)
+    return motion.skeleton.is_flat and (motion.source.get("format") in ("c3d", "trc") or motion.n_joints > 1)
 
 
 

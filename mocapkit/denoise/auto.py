@@ -159,6 +159,7 @@ from ..solvers.gcv_spline import _BISQUARE, ROBUST_MIN_SCALE, cutoff_hz, gcv_smo
 from ..windows import frame_blocks
 from ..solvers.mssa import correlated_probe, mssa_denoise, sure_divergence, sure_weights
 from .base import Denoiser, get, register
+from .fill_auto import SHORT_FRAMES
 from .constraints import Integral, Interval, Real
 from .fill_auto import DEFAULT_CANDIDATES
 
@@ -875,8 +876,9 @@ def _partner_fill(X: np.ndarray, kept: np.ndarray, fit: np.ndarray, s: np.ndarra
 #: longer than this (frames) go to fill-auto: real occlusions of skin markers are filled best
 #: per gap, by the rigid cluster, pattern or body-frame PCA fill its validation picks
 #: (docs/results/real_gaps.md); a gap of 1-2 frames by the spline chain, which is as good
-#: there and avoids fill-auto's per-gap cost on thousands of them
-MARKER_SHORT_FRAMES = 2
+#: there and avoids fill-auto's per-gap cost on thousands of them. The gap policy's
+#: self-validation of other methods' fills leaves the same gaps out (one number)
+MARKER_SHORT_FRAMES = SHORT_FRAMES
 
 #: :func:`_impute`: embedding window (frames), passes of the validation run and of the
 #: final run (which starts from the validation run's result) and over-relaxation factor.

@@ -176,8 +176,7 @@ def trained_joint_map(joints: Sequence[str], motion: Motion) -> np.ndarray | Non
         if len(where) == len(names) and len({key(j) for j in joints}) == len(joints) \
                 and all(key(j) in where for j in joints):
             idx = np.array([where[key(j)] for j in joints])
-            hierarchy = (motion.skeleton.parents >= 0).any()
-            return idx if not hierarchy or np.array_equal(idx, np.arange(len(idx))) else None
+            return idx if motion.skeleton.is_flat or np.array_equal(idx, np.arange(len(idx))) else None
     return None
 
 

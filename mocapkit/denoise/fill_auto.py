@@ -88,6 +88,7 @@ import numpy as np
 from ..errors import MocapValueError
 from ..gaps import Gap, current_policy, find_gaps, supported
 from ..motion import Motion
+from ..signal import estimate_noise
 from .base import Denoiser, available, get, register
 from .constraints import Interval, Options, Real
 
@@ -280,8 +281,9 @@ def _pooled(err: np.ndarray, n: np.ndarray, gaps: Sequence[Gap], n0: float,
     return out
 
 
-#: gaps of at most this many frames are not validated by :func:`unvalidated_fills` (as
-#: ``auto`` leaves 1-2 frame holes of a marker capture to its spline, unvalidated)
+#: gaps of at most this many frames are not validated by :func:`unvalidated_fills`, as
+#: ``auto`` leaves 1-2 frame holes of a marker capture to its spline
+#: (:data:`mocapkit.denoise.auto.MARKER_SHORT_FRAMES`)
 SHORT_FRAMES = 2
 #: fill-auto's default ``prior_frames``, used by :func:`unvalidated_fills` too
 PRIOR_FRAMES = 20.0
@@ -341,8 +343,6 @@ def unvalidated_fills(method: Denoiser, motion: Motion, out: Motion, limit_cm: f
     fill of 15 frames of a cubic next to another gap, fill-rigid's of a planted body
     whose hide lost the cluster).
     """
-    from ..gaps import find_gaps
-
     obs = motion.observed
     written = ~obs & out.observed
     gaps = [g for g in find_gaps(obs) if g.kind != "never" and g.length > SHORT_FRAMES
@@ -353,13 +353,10 @@ def unvalidated_fills(method: Denoiser, motion: Motion, out: Motion, limit_cm: f
     P = motion.positions
     X = np.where(out.observed[..., None], out.positions, np.nan)
     covers = _coverage([X], gaps)[:, 0]
-    sq = np.zeros(len(gaps))
+    sq = np.zeros(len(gaps))                        # squared error x frames, per gap
     cnt = np.zeros(len(gaps))
     failed = np.zeros(len(gaps), bool)
-    # the markers missing with each gap's marker over most of the gap go with its stretch:
-    # a real occlusion hides a whole plate or limb, and a stretch hidden alone keeps the
-    # donors the real gap lacks (basket sprint's mask, 42 % missing: trnn / tsmc / svt
-    # fills validated alone were still 16-58 % gross)
+    # the markers missing over most of each gap go with its stretch (docstring)
     along = [np.flatnonzero((~obs[g.start:g.stop]).mean(axis=0) >= 0.5) for g in gaps]
     for hide in _hides(obs, gaps, 2):
         if not hide:
@@ -374,28 +371,14 @@ def unvalidated_fills(method: Denoiser, motion: Motion, out: Motion, limit_cm: f
         e, c = _stretch_errors(X, P, hide, len(gaps))
         failed |= np.isinf(e) & ~covers            # cannot fill a stretch, nor the real gap
         ok = np.isfinite(e)                         # inf where it covers the gap: no evidence
-        sq[ok] += 3 * c[ok] * e[ok] ** 2
+        sq[ok] += c[ok] * e[ok] ** 2
         cnt[ok] += c[ok]
-    # the error over all its hidden frames, not the worst round: this is no choice between
-    # fills (fill-auto's), but whether the method's own fill is far off. The worst round
-    # dropped a third of fill-pattern's fills of the tennis serve's hidden blocks, 3.5 cm
-    # RMSE (tests/test_fill.py)
-    # a hidden sample is a measurement: its noise is in the error and is no fault of the
-    # fill (bra-p through 6 cm noise: every stretch "off" by 6 cm); the package's one noise
-    # level, per coordinate, comes off in quadrature
-    from ..signal import estimate_noise
-
+    # a hidden sample is a measurement: its noise is no fault of the fill (bra-p through
+    # 6 cm noise: every stretch "off" by 6 cm), so the package's one noise level comes off
     sigma = estimate_noise(motion.matrix(copy=False), motion.matrix_mask(), pool="all", fallback=0.0)
     with np.errstate(invalid="ignore", divide="ignore"):
-        err = np.where(cnt > 0, np.sqrt(np.maximum(sq / (3 * cnt) - sigma ** 2, 0.0)),
-                       np.where(failed, np.inf, np.nan))
-    # a gap no stretch of its own judged takes the file's score of gaps at least half as
-    # long (:func:`_pooled`, bounded for every method: how a fill did on 20-frame gaps says
-    # nothing of a 500-frame one -- a lab's trained models under the basket sprint's mask,
-    # judged so, wrote 20-26 cm RMSE fills, docs/results/own_markers.md); one the file says
-    # nothing about keeps the method's fill up to :data:`UNJUDGED_S` (a spline across 15
-    # frames of a cubic next to another gap is exact, and so is fill-rigid on a planted body
-    # whose hide lost the cluster), and is not trusted beyond
+        err = np.where(cnt > 0, np.sqrt(np.maximum(sq / cnt - sigma ** 2, 0.0)), np.where(failed, np.inf, np.nan))
+    # pooling bounded for every method: a 20-frame gap says nothing of a 500-frame one
     err = _pooled(err[:, None], cnt[:, None], gaps, PRIOR_FRAMES, np.array([True]))[:, 0]
     longest = UNJUDGED_S * motion.fps
     for g, e in zip(gaps, err):
@@ -466,7 +449,7 @@ class FillAuto(Denoiser):
                               "rounds": [Options(1, 2)], "prior_frames": [Interval(Real, 0, None)]}
 
     def __init__(self, candidates: Sequence[str] = DEFAULT_CANDIDATES,
-                 max_error_cm: float | None = 5.0, rounds: int = 2, prior_frames: float = 20.0):
+                 max_error_cm: float | None = 5.0, rounds: int = 2, prior_frames: float = PRIOR_FRAMES):
         self._store_params(locals())
 
     @classmethod
@@ -575,7 +558,6 @@ class FillAuto(Denoiser):
         """Each gap from its best-validated candidate by ``err`` (next best per frame where it
         has none); ``strict``: the scores that decide whether a gap is filled at all and by
         which fallbacks; ``e_all``: the validated errors the estimate charges."""
-        from ..signal import estimate_noise
 
         Y = np.array(motion.positions)
         names = [n for n, _ in methods]
