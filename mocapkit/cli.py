@@ -712,7 +712,7 @@ def cmd_classify(a: argparse.Namespace) -> int:
 def _policy_changes(a: argparse.Namespace) -> dict:
     """The gap-policy changes the switches of :func:`_policy_options` ask for."""
     return {**({"max_gap_s": a.max_gap} if a.max_gap else {}),
-            **({"move_margin_cm": None} if a.keep_moves else {}),
+            **({"move_margin_cm": None, "misfit_factor": None} if a.keep_moves else {}),
             **({"validate_cm": None} if a.keep_unvalidated else {})}
 
 
@@ -724,8 +724,9 @@ def _policy_options(s: argparse.ArgumentParser) -> None:
                         "evidence: never extrapolated)")
     s.add_argument("--keep-moves", action="store_true",
                    help="write the method's values for every measured sample, even where it moved a "
-                        "stretch by more than 5 cm with no spike to remove (by default those are written "
-                        "as measured, with a warning)")
+                        "stretch by more than 5 cm with no spike to remove, or where a learned model moved "
+                        "a marker by more than twice the input's noise (by default those are written as "
+                        "measured, with a warning)")
     s.add_argument("--keep-unvalidated", action="store_true",
                    help="write a method's fills of gaps longer than 2 frames even where its own "
                         "self-validation on the file (observed stretches next to each gap hidden and "

@@ -99,7 +99,7 @@ def test_mismatch_warns_when_the_output_leaves_the_input():
     m = Motion(P, sk, 60.0)
     bad = m.with_positions(P + rng.normal(0, 5.0, P.shape))
     den = denoise.get("bra-p")
-    with pytest.warns(TrainingMismatchWarning, match="moves the observed markers"):
+    with pytest.warns(TrainingMismatchWarning, match="training clips probably do not cover"):
         check_training_match(den, m, bad)
 
 

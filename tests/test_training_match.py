@@ -1,4 +1,5 @@
-"""Training-mismatch check of data-driven methods (mocapkit.denoise.base.check_training_match)."""
+"""A learned model's misfit: markers moved beyond the input's noise are given back as measured
+(mocapkit.denoise.base.check_training_match, mocapkit.gaps.model_misfit)."""
 from __future__ import annotations
 
 import warnings
@@ -6,7 +7,7 @@ import warnings
 import numpy as np
 import pytest
 
-from mocapkit import cli, corrupt, datasets, denoise
+from mocapkit import cli, corrupt, datasets, denoise, gaps
 from mocapkit import io as mio
 from mocapkit.denoise.base import check_training_match
 from mocapkit.errors import MocapWarning, TrainingMismatchWarning
@@ -35,26 +36,75 @@ def _caught(fn):
 def test_threshold_on_known_changes(clip):
     inp = _noisy(clip, 1.0)
     d = _Stub()
-    info, w = _caught(lambda: check_training_match(d, inp, clip))     # perfect denoiser
-    assert w == [] and info["mismatch"] is False and d.last_report_["training_match"] is info
-    assert 0.8 < info["noise_cm"] < 1.2                   # robust estimate of the 1 cm noise
-    assert 0.55 < info["median_change_cm"] < 0.8          # median |N(0, 1)| = 0.674
-    moved = clip.with_positions(clip.positions + np.array([3.0, -3.0, 3.0]))
-    info, w = _caught(lambda: check_training_match(d, inp, moved))     # every coordinate 3 cm off
-    assert info["mismatch"] is True and len(w) == 1 and issubclass(w[0].category, MocapWarning)
-    assert "stub:" in str(w[0].message) and "train on clean clips" in str(w[0].message)
-    info, w = _caught(lambda: check_training_match(d, clip, clip.with_positions(clip.positions + 0.9)))
-    assert info["threshold_cm"] == 1.0 and info["mismatch"] is False and w == []  # 1 cm floor
+    back, w = _caught(lambda: check_training_match(d, inp, clip))     # perfect denoiser: moves by the noise
+    info = d.last_report_["training_match"]
+    assert w == [] and not back.any() and info["mismatch"] is False and info["markers"] == []
+    assert 0.8 < info["noise_cm"] < 1.2 and info["threshold_cm"] == pytest.approx(2 * info["noise_cm"])
+    assert 0.85 < info["moved_rms_cm"] < 1.3               # RMS |N(0, 1)| per coordinate, the worst marker
+    moved = clip.positions.copy()
+    moved[:, 5] += 3.0                                     # one marker 3 cm off on every axis
+    back, w = _caught(lambda: check_training_match(d, inp, clip.with_positions(moved)))
+    info = d.last_report_["training_match"]
+    assert back[:, 5].all() and not np.delete(back, 5, axis=1).any()
+    assert info["markers"] == [clip.skeleton.names[5]] and info["samples"] == clip.n_frames
+    assert len(w) == 1 and issubclass(w[0].category, MocapWarning)
+    msg = str(w[0].message)
+    assert msg.startswith("stub:") and "1 of 31 markers" in msg and "written as measured" in msg
+    back, w = _caught(lambda: check_training_match(d, inp, clip.with_positions(moved), give_back=False))
+    assert back is None and "written as the model put them" in str(w[0].message)
+
+
+def test_spikes_keep_the_model_values():
+    """Where the input has a spike the model removed, its value is kept even on a marker
+    given back; everywhere else the measurement comes back."""
+    rng = np.random.default_rng(0)
+    T, J = 200, 4
+    t = np.arange(T)[:, None, None] / 60.0
+    truth = np.concatenate([np.sin(t * (1 + j)) * 20.0 + j * 10.0 for j in range(J)], axis=1)
+    truth = np.broadcast_to(truth[..., :1], (T, J, 3)).copy()
+    P = truth + rng.normal(0, 0.05, truth.shape)
+    P[50, 0] += 15.0                                       # a spike on marker 0 (frame 50) and the first frame
+    P[0, 0] += 15.0
+    Q = truth + 0.4                                        # the model: spikes gone, 0.4 cm off everywhere
+    Q[:, 1:] = P[:, 1:]                                    # markers 1-3 untouched
+    obs = np.ones((T, J), bool)
+    back, rms = gaps.model_misfit(P, obs, Q, 0.05, 2.0)
+    # the spikes and the samples whose neighbours' cubic they throw off (2.5-10 cm) keep the model's value
+    assert set(np.flatnonzero(~back[:, 0])) == {0, 2, 48, 49, 50, 51, 52} and not back[:, 1:].any()
+    assert rms[0] == pytest.approx(0.4, abs=0.02) and np.all(rms[1:] == 0)
+    obs[8:, 2] = False                                     # too few samples judged: not judged
+    Q[:, 2] += 5.0
+    back, rms = gaps.model_misfit(P, obs, Q, 0.05, 2.0)
+    assert np.isnan(rms[2]) and not back[:, 2].any()
 
 
 def test_lou_chai_self_vs_other_behaviour(clip):
-    inp = _noisy(clip, 0.1)
-    own = denoise.get("lou-chai").fit([clip])
-    out, w = _caught(lambda: own.denoise(inp))
-    assert w == [] and out.source["training_match"]["mismatch"] is False
+    """Trained on other behaviours lou-chai replaces the run: what it moved beyond the
+    noise comes back as measured, and the result is then nearer the truth."""
+    inp = _noisy(clip, 0.5)
     other = denoise.get("lou-chai").fit([mio.read(datasets.bundled(c + ".amc")) for c in ("16_15", "07_05")])
+    with gaps.use_policy(misfit_factor=None):
+        kept, _ = _caught(lambda: other.denoise(inp))
     out, w = _caught(lambda: other.denoise(inp))
-    assert len(w) == 1 and out.source["training_match"]["median_change_cm"] > 2.0
+    info = out.source["training_match"]
+    assert len(w) == 1 and info["mismatch"] and info["given_back"] and info["samples"] > 0
+    rep = out.source["gap_report"]       # samples moved more than 5 cm are counted as such first
+    assert 0 < rep["kept_measured_misfit"] <= info["samples"] <= rep["kept_measured_misfit"] + rep["kept_measured"]
+    from mocapkit import metrics
+    e_kept, e_out, e_in = (float(metrics.rmse(clip, m)) for m in (kept, out, inp))
+    assert e_kept > e_in and e_out < e_kept                 # worse than the input; less so given back
+    own = denoise.get("lou-chai").fit([clip])
+    out, _ = _caught(lambda: own.denoise(inp))
+    assert float(metrics.rmse(clip, out)) < e_in           # cleaned: never worse than the input
+
+
+def test_fill_all_gives_nothing_back(clip):
+    inp = _noisy(clip, 0.5)
+    other = denoise.get("lou-chai").fit([mio.read(datasets.bundled("16_15.amc"))])
+    with gaps.use_policy(gaps.FILL_ALL):
+        out, w = _caught(lambda: other.denoise(inp))
+    assert out.source["training_match"]["mismatch"] and not out.source["training_match"]["given_back"]
+    assert len(w) == 1 and "written as the model put them" in str(w[0].message)
 
 
 def test_cli_prints_one_line(tmp_path, capsys, clip):
@@ -70,3 +120,25 @@ def test_cli_prints_one_line(tmp_path, capsys, clip):
     assert rc == 0 and (tmp_path / "out.trc").exists()
     lines = [ln for ln in err.splitlines() if "training clips probably do not cover" in ln]
     assert len(lines) == 1 and lines[0].startswith("mocapkit denoise: warning: lou-chai:")
+    assert "written as measured" in lines[0]
+
+
+def test_cli_keep_moves_writes_the_model_values(tmp_path, capsys, clip):
+    model = tmp_path / "walk.npz"
+    denoise.get("lou-chai").fit([mio.read(datasets.bundled("16_15.amc"))]).save(model)
+    src = tmp_path / "in.trc"
+    mio.write(_noisy(clip, 0.1), src)
+    outs = {}
+    for flag in ([], ["--keep-moves"]):
+        out = tmp_path / f"out{len(flag)}.trc"
+        with warnings.catch_warnings():
+            warnings.simplefilter("default")
+            assert cli.main(["denoise", str(src), str(out), "--method", "lou-chai", "--model", str(model),
+                             "-q", *flag]) == 0
+        outs[len(flag)] = mio.read(out).positions
+        err = capsys.readouterr().err
+        assert ("written as the model put them" in err) == bool(flag)
+    given = mio.read(src).positions
+    # by default most samples come back as measured; with --keep-moves none does
+    assert np.mean(np.all(np.isclose(outs[0], given, atol=1e-3), axis=2)) > 0.5
+    assert np.mean(np.all(np.isclose(outs[1], given, atol=1e-3), axis=2)) < 0.1

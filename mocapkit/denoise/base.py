@@ -243,10 +243,16 @@ def _guard(fn):
         work, idx = _as_trained(self, work)
         from ..gaps import current_policy
 
-        limit = current_policy().validate_cm if current_policy().restrict else None
+        pol = current_policy()
+        limit = pol.validate_cm if pol.restrict else None
         token = _INSIDE.set(1)
         try:
             raw = fn(self, work, *args, **kwargs)
+            misfit = None
+            if self.learned:
+                misfit = check_training_match(self, work, raw, factor=pol.misfit_factor,
+                                              give_back=pol.restrict and pol.misfit_factor is not None,
+                                              warn=bool(getattr(self, "warn", True)), stacklevel=3)
             unvalidated = None
             if limit is not None and not self.validates_fills and (~work.observed & raw.observed).any():
                 from .fill_auto import unvalidated_fills
@@ -262,6 +268,7 @@ def _guard(fn):
             raw = Motion(raw.positions[:, inv], motion.skeleton, raw.fps, raw.observed[:, inv], raw.source,
                          raw.filled[:, inv])
             unvalidated = None if unvalidated is None else unvalidated[:, inv]
+            misfit = None if misfit is None else misfit[:, inv]
         if raw.positions.shape != motion.positions.shape:
             raise RuntimeError(f"{self.name}: output shape {raw.positions.shape} != input "
                                f"{motion.positions.shape}")
@@ -271,7 +278,7 @@ def _guard(fn):
                 Q[motion.observed] = motion.positions[motion.observed]
             raw = raw.with_positions(Q, raw.observed)
         out = self._after_policy(apply_policy(motion, raw, evidence=self.fill_evidence, method=self.name,
-                                              unvalidated=unvalidated))
+                                              unvalidated=unvalidated, misfit=misfit))
         return out.with_source(**self.last_report_) if self.last_report_ else out
 
     denoise._gap_policy_guard = True
@@ -323,6 +330,10 @@ class Denoiser:
             cls.fit = _checked_fit(fit)
     #: whether observed, trusted entries are returned unchanged (property tests check it)
     keeps_observed: ClassVar[bool] = False
+    #: whether the result comes from a model learned from other clips (xiao-sparse, psc,
+    #: lou-chai, kalman-learned, the networks): the guard gives back, as measured, the
+    #: samples of a marker it moved beyond the input's noise (:func:`check_training_match`)
+    learned: ClassVar[bool] = False
     #: whether the method validates its own fills on the file (auto, fill-auto): the gap
     #: policy's ``validate_cm`` check then does not run it again
     validates_fills: ClassVar[bool] = False
@@ -565,54 +576,65 @@ def report_convergence(den: Denoiser, info: Any, *, tol: float, max_iter: int,
     return summary
 
 
-#: thresholds of :func:`check_training_match` (median change of the observed entries)
-MISMATCH_NOISE_FACTOR = 2.0
-MISMATCH_FLOOR_CM = 1.0
+def check_training_match(den: "Denoiser", inp: Motion, out: Motion, *, factor: float | None = None,
+                         give_back: bool = True, warn: bool = True, stacklevel: int = 3) -> np.ndarray | None:
+    """Flag the markers a learned model moved beyond the input's noise; the samples to give back.
 
+    A denoiser moves a measured coordinate by about its noise; a model that moves a
+    marker's samples by more than ``factor`` times the input's robust noise level
+    (:func:`mocapkit.signal.estimate_noise`, ``pool="all"``), RMS over the samples where
+    the input shows no spike, is replacing that marker's motion rather than cleaning it
+    -- typically because its training clips do not cover this motion -- and its result
+    there is further from the truth than the measurement (:func:`mocapkit.gaps.model_misfit`,
+    which holds the reasoning and what was measured). Called by the guard for methods with
+    ``learned``, with the gap policy's ``misfit_factor`` (None: the default policy's) and
+    ``give_back`` False under :data:`mocapkit.gaps.FILL_ALL` or ``--keep-moves`` (the
+    markers are reported, the model's values written).
 
-def check_training_match(den: "Denoiser", inp: Motion, out: Motion, *, warn: bool = True,
-                         stacklevel: int = 3) -> dict[str, float]:
-    """Flag a data-driven result that moved the observed markers far beyond their noise.
+    Records ``den.last_report_["training_match"]`` (the result's ``source["training_match"]``)
+    = {noise_cm, threshold_cm, markers (names), moved_rms_cm (the worst judged marker's RMS
+    move, cm), samples (given back), given_back, mismatch} and, when ``mismatch`` and
+    ``warn``, emits one TrainingMismatchWarning. Returns the (T, J) samples to give back as
+    measured, or None.
 
-    A denoiser should move an observed coordinate by about its noise (median |noise| =
-    0.67 sigma for Gaussian noise; outliers are a minority and do not move the median).
-    When the median |out - in| over the observed coordinates exceeds
-    ``max(MISMATCH_NOISE_FACTOR * sigma, MISMATCH_FLOOR_CM)`` -- sigma the robust noise
-    level of the input (:func:`mocapkit.signal.estimate_noise`, ``pool="all"``, cm) --
-    the learnt model is replacing the motion rather than cleaning it, typically because
-    it was trained on another behaviour.  Measured with ``lou-chai`` on the bundled CMU
-    clips 16_15, 07_05, 09_06, 131_07 (1 cm noise + 5 % missing, 0.1 cm noise, 20 %
-    outliers): trained on the clip itself the median change is 0.16-0.81 cm (RMSE 0.4-4.2
-    cm) and none of the 12 cases warns; trained on the three other clips it is 1.2-6.6 cm
-    (RMSE 3.5-15 cm) and 10 of the 12 cases warn -- not 16_15 and 07_05 with 1 cm noise
-    (RMSE 3.6 / 4.3 cm, median change 1.4 / 1.85 cm under the 2 cm threshold).
-
-    Records ``den.last_report_["training_match"]`` (the result's
-    ``source["training_match"]``) = {median_change_cm, noise_cm, threshold_cm, mismatch} and, when ``mismatch`` and ``warn``, emits one TrainingMismatchWarning.
+    >>> import numpy as np
+    >>> from mocapkit import corrupt, datasets, io
+    >>> clip = io.read(datasets.bundled("09_06.amc"))
+    >>> noisy = corrupt.gaussian(clip, sigma_cm=1.0, seed=0)[0]
+    >>> class Model: name = "model"
+    >>> model = Model()
+    >>> back = check_training_match(model, noisy, clip.with_positions(clip.positions + 3.0), warn=False)
+    >>> int(back.any(axis=0).sum()), model.last_report_["training_match"]["markers"][:2]
+    (31, ['root', 'lhipjoint'])
     """
     import warnings
 
     from ..errors import TrainingMismatchWarning
-
+    from ..gaps import DEFAULT_POLICY, model_misfit
     from ..signal import estimate_noise
 
-    X, ok = inp.matrix(copy=False), inp.matrix_mask()     # read-only views: no copies
-    sigma = estimate_noise(X, ok, pool="all", fallback=0.0)
-    d = out.matrix(copy=False) - X
-    d = np.abs(d, out=d)[ok] if not ok.all() else np.abs(d, out=d).ravel()
-    med = float(np.median(d, overwrite_input=True)) if d.size else 0.0
-    del d
-    thr = max(MISMATCH_NOISE_FACTOR * sigma, MISMATCH_FLOOR_CM)
-    info = {"median_change_cm": med, "noise_cm": sigma, "threshold_cm": thr,
-            "mismatch": bool(med > thr)}
+    sigma = estimate_noise(inp.matrix(copy=False), inp.matrix_mask(), pool="all", fallback=0.0)
+    give = bool(give_back)
+    f = float(DEFAULT_POLICY.misfit_factor if factor is None else factor)
+    mask, rms = model_misfit(inp.positions, inp.observed, out.positions, sigma, f)
+    flagged = np.flatnonzero(mask.any(axis=0))
+    names = [inp.skeleton.names[j] for j in flagged]
+    worst = float(np.nanmax(rms)) if np.isfinite(rms).any() else 0.0
+    info = {"noise_cm": float(sigma), "threshold_cm": f * float(sigma), "markers": names,
+            "moved_rms_cm": worst, "samples": int(mask.sum()) if give else 0, "given_back": give,
+            "mismatch": bool(names)}
     den.__dict__.setdefault("last_report_", {})["training_match"] = info
-    if warn and info["mismatch"]:
-        warnings.warn(
-            f"{den.name}: the result moves the observed markers by {med:.2f} cm (median) while "
-            f"the input's noise is about {sigma:.2f} cm: the training clips probably do not "
-            f"cover this motion; train on clean clips of the same behaviour",
-            TrainingMismatchWarning, stacklevel=stacklevel)
-    return info
+    if warn and names:
+        j = int(flagged[np.argmax(rms[flagged])])
+        what = (f"{len(names)} of {inp.n_joints} markers ({', '.join(names[:4])}{' ...' if len(names) > 4 else ''}) "
+                f"by up to {rms[j]:.2g} cm RMS ({inp.skeleton.names[j]}) where the input's noise is about "
+                f"{sigma:.2g} cm")
+        tail = (f"{int(mask.sum())} measured samples are written as measured (its values kept only where "
+                f"the input has a spike)" if give else "they are written as the model put them")
+        warnings.warn(f"{den.name}: the model moved {what}: its training clips probably do not cover this "
+                      f"motion; {tail}. Train on clean clips like this one, or use --method auto",
+                      TrainingMismatchWarning, stacklevel=stacklevel)
+    return mask if give else None
 
 
 def training_matrices(motions: Iterable[Motion]) -> list[np.ndarray]:

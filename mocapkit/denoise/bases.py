@@ -17,7 +17,7 @@ from ..frames import MARKER_ORIGIN, Frame, check_marker_origin, frame_in_place, 
 from ..motion import Motion
 from ..solvers import robust_bases as rb
 from ..solvers.evidence import evidence_blend
-from .base import Denoiser, check_trained_joints, check_training_match, register, report_convergence
+from .base import Denoiser, check_trained_joints, register, report_convergence
 from .constraints import Integral, Interval, Options, Real, center_as_string
 
 _POSITIVE = Interval(Real, 0, None, closed="neither")
@@ -292,6 +292,7 @@ class LouChai(Denoiser):
     description = ("Lou & Chai 2010 example-based robust filter bases (M-SSA bases learned from clean "
                    "clips + Welsch IRLS; fills gaps)")
     needs_training = True
+    learned = True
     keeps_observed = False
     #: trained on 2 s of one walk (quick_params), a clean continuation of it comes back
     #: within 0.8 cm RMSE (CMU 16_15): the bases term projects out what the few training
@@ -502,10 +503,8 @@ class LouChai(Denoiser):
     def denoise(self, motion: Motion) -> Motion:
         """Robust filtering of ``motion``; records ``source["convergence"]`` on the result and, with
         ``warn_convergence``, warns (ConvergenceWarning) once if an outer iteration hit
-        ``max_iter`` before the relative change of J fell to ``tol``. Records
-        ``source["training_match"]`` and warns (TrainingMismatchWarning) when the result moved the
-        observed markers far beyond their noise level
-        (:func:`~mocapkit.denoise.base.check_training_match`)."""
+        ``max_iter`` before the relative change of J fell to ``tol``. The guard gives back the
+        markers the model moved beyond their noise (:func:`~mocapkit.denoise.base.check_training_match`)."""
         self._conv_log = []
         try:
             out = self._denoise_all(motion)
@@ -522,7 +521,6 @@ class LouChai(Denoiser):
         if log:
             report_convergence(self, log, tol=float(self.tol), max_iter=int(self.max_iter),
                                unit="phase", warn=bool(self.warn_convergence))
-        check_training_match(self, motion, out)
         return out
 
     def _denoise_all(self, motion: Motion) -> Motion:

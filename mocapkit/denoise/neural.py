@@ -51,8 +51,8 @@ True): the network's bones are set to their median length over the clip
 residual error stretches them frame by frame).
 
 Guard rails: inputs outside 24-1000 fps, without the 21 joints, or with a body far from
-the training bodies' size get one MocapValueError; a result that moves the observed
-samples far beyond the input's estimated noise emits a TrainingMismatchWarning
+the training bodies' size get one MocapValueError; the markers a result moves beyond the
+input's estimated noise are written as measured, with a TrainingMismatchWarning
 (:func:`mocapkit.denoise.base.check_training_match`, recorded in the result's ``source["training_match"]``).
 
 ``threads``: torch threads for training (None: every core this process may use) and
@@ -92,6 +92,7 @@ class _NeuralDenoiser(Denoiser):
     """Shared implementation of ``bra`` and ``bra-p`` (see the module docstring)."""
 
     keeps_observed = False
+    learned = True
     fill_evidence = "markers"
     clean_tolerance_cm = 6.0
     _perceptual: bool = True
@@ -191,14 +192,11 @@ class _NeuralDenoiser(Denoiser):
         return self
 
     def denoise(self, motion: Motion) -> Motion:
-        from .base import check_training_match
-
         b = self._bundle()
         post = None if self.postprocess is None else (bool(self.postprocess) and self._perceptual)
         out = b.refine(motion, postprocess=post, threads=self.threads, turns=int(self.turns),
                        constant_bones=bool(self.constant_bones))
-        check_training_match(self, motion, out, warn=bool(self.warn), stacklevel=4)
-        return out  # checked by the guard
+        return out  # checked by the guard (check_training_match included)
 
     # -- persistence ------------------------------------------------------------------------
     def save(self, path: str | os.PathLike, *, half: bool = False) -> None:
