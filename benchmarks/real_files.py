@@ -11,9 +11,11 @@ fits the file's joints) on the files themselves -- every shared marker file and 
 :data:`KINECT_STEP`-th MSR-Action3D Kinect skeleton; their own gaps, noise and glitches --
 and records, per file and method:
 
-* ``filled`` / ``implausible`` / ``kept_measured``: the gap policy's report
-  (:func:`mocapkit.gaps.apply_policy`): samples filled, fills dropped as implausible,
-  measured samples a method moved without cause and that were written as measured;
+* ``filled`` / ``implausible`` / ``kept_measured`` / ``kept_misfit``: the gap policy's
+  report (:func:`mocapkit.gaps.apply_policy`): samples filled, fills dropped as
+  implausible, measured samples a method moved without cause (over 5 cm) and those a
+  model-based method moved beyond twice the noise (:func:`mocapkit.gaps.model_misfit`),
+  written as measured;
 * ``moved_max_cm``: the largest move of a measured sample in what is written;
 * ``step_ratio``: the largest step into, inside or out of a fill over the policy's
   allowance (``speed_factor v dt + 2 cm``, :func:`mocapkit.gaps.unreachable_fills`) --
@@ -75,6 +77,7 @@ def _checks(m, out) -> dict:
     return {"missing": int((~O).sum()), "filled": int(new.sum()),
             "implausible": int(rep.get("left_implausible", 0)),
             "kept_measured": int(rep.get("kept_measured", 0)),
+            "kept_misfit": int(rep.get("kept_measured_misfit", 0)),
             "moved_max_cm": float(moved.max()) if moved.size else 0.0,
             "step_ratio": ratio, "outside_1m": outside, "zeros": zeros}
 
@@ -138,19 +141,22 @@ def render(doc: dict, wall: float | None) -> str:
            f"new samples at exactly (0, 0, 0): {sum(r['zeros'] for r in ok)}",
            f"- fills dropped as implausible: {sum(r['implausible'] for r in ok)} in "
            f"{sum(r['implausible'] > 0 for r in ok)} runs; measured samples written back as "
-           f"measured: {sum(r['kept_measured'] for r in ok)} in {sum(r['kept_measured'] > 0 for r in ok)} runs", ""]
+           f"measured: {sum(r['kept_measured'] for r in ok)} in {sum(r['kept_measured'] > 0 for r in ok)} runs "
+           f"(moved over 5 cm without cause), {sum(r.get('kept_misfit', 0) for r in ok)} in "
+           f"{sum(r.get('kept_misfit', 0) > 0 for r in ok)} runs (a model moved the marker beyond twice the noise)",
+           ""]
     crashes = [r for r in rows if r["status"] == "crash"]
     if crashes:
         out += ["## Crashes", ""] + [f"- {r['file']} / {r['method']}: {r['reason']}" for r in crashes] + [""]
     out += ["## Runs that changed something (ok runs with fills, drops, samples given back or a "
             "measured sample moved over 5 cm)", "",
-            "| file | method | missing | filled | implausible | given back | largest move of a measured sample (cm) | step ratio | s | warnings |",
+            "| file | method | missing | filled | implausible | given back (> 5 cm / misfit) | largest move of a measured sample (cm) | step ratio | s | warnings |",
             "|---|---|---:|---:|---:|---:|---:|---:|---:|---|"]
     for r in ok:
-        if r["filled"] or r["implausible"] or r["kept_measured"] or r["moved_max_cm"] > 5:
+        if r["filled"] or r["implausible"] or r["kept_measured"] or r.get("kept_misfit") or r["moved_max_cm"] > 5:
             w = "; ".join(x[:90] for x in r["warnings"])
             out.append(f"| {r['file']} | {r['method']} | {r['missing']} | {r['filled']} | {r['implausible']} | "
-                       f"{r['kept_measured']} | {r['moved_max_cm']:.1f} | {r['step_ratio']:.2f} | "
+                       f"{r['kept_measured']} / {r.get('kept_misfit', 0)} | {r['moved_max_cm']:.1f} | {r['step_ratio']:.2f} | "
                        f"{r['seconds']:.1f} | {w} |")
     return "\n".join(out) + "\n"
 

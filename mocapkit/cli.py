@@ -724,7 +724,7 @@ def _policy_options(s: argparse.ArgumentParser) -> None:
                         "evidence: never extrapolated)")
     s.add_argument("--keep-moves", action="store_true",
                    help="write the method's values for every measured sample, even where it moved a "
-                        "stretch by more than 5 cm with no spike to remove, or where a learned model moved "
+                        "stretch by more than 5 cm with no spike to remove, or where a model-based method moved "
                         "a marker by more than twice the input's noise (by default those are written as "
                         "measured, with a warning)")
     s.add_argument("--keep-unvalidated", action="store_true",

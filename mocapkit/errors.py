@@ -48,10 +48,16 @@ class MocapWarning(UserWarning):
     """Base class of the warnings mocapkit emits on purpose (the CLI prints them as one line)."""
 
 
-class TrainingMismatchWarning(MocapWarning):
-    """A data-driven method changed the observed markers far more than their noise level:
-    its training clips probably do not cover the input's motion (see
-    :func:`mocapkit.denoise.base.check_training_match`)."""
+class ModelMisfitWarning(MocapWarning):
+    """A model-based method (low-rank, dynamical) moved some markers' measured samples far
+    beyond their noise: its model does not fit them; they were written as measured (see
+    :func:`mocapkit.denoise.base.check_model_fit`)."""
+
+
+class TrainingMismatchWarning(ModelMisfitWarning):
+    """A learned model moved some markers' measured samples far beyond their noise: its
+    training clips probably do not cover the input's motion; they were written as measured
+    (see :func:`mocapkit.denoise.base.check_model_fit`)."""
 
 
 class MeasuredKeptWarning(MocapWarning):

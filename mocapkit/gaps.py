@@ -42,11 +42,11 @@ metres away, so every method runs under one policy (applied by
 * Measured samples are a method's to clean, not to replace: where it moved a stretch of
   a marker by more than ``move_margin_cm`` (and ten times the noise) that its neighbours
   show no spike in, the measured samples are kept (:func:`moved_without_cause`) and
-  counted in the report. A model learned from other clips (xiao-sparse, psc, lou-chai,
-  kalman-learned, the networks) that moved a marker's measured samples by more than
-  ``misfit_factor`` times the input's noise, where the input shows no spike, gets them
-  back too (:func:`model_misfit`): its result there is further from the truth than the
-  measurement.
+  counted in the report. A model -- learned from other clips (xiao-sparse, psc, lou-chai,
+  kalman-learned, the networks) or fitted to the clip (the low-rank methods, dynammo) --
+  that moved a marker's measured samples by more than ``misfit_factor`` times the input's
+  noise, where the input shows no spike, gets them back too (:func:`model_misfit`): its
+  result there is further from the truth than the measurement.
 * What is filled is flagged (``Motion.filled``); what is left is reported in
   ``motion.source["gap_report"]`` (see :func:`summary_line`).
 
@@ -117,7 +117,7 @@ class GapPolicy:
     move_margin_cm : measured samples a method moved by more than this (and ten times the
         noise) where their neighbours show no spike are given back as measured
         (:func:`moved_without_cause`); None = no check.
-    misfit_factor : a learned model's measured samples of a marker it moved by more than
+    misfit_factor : a model-based method's measured samples of a marker it moved by more than
         this many times the input's noise (RMS, where the input shows no spike) are given
         back as measured (:func:`model_misfit`); None = no check.
     validate_cm : a fill of a gap longer than 2 frames that the method's own
@@ -646,7 +646,7 @@ MISFIT_MIN_SAMPLES = 10
 
 def model_misfit(positions: np.ndarray, observed: np.ndarray, result: np.ndarray, noise_cm: float,
                  factor: float) -> tuple[np.ndarray, np.ndarray]:
-    """Measured samples a learned model moved beyond the noise: ((T, J) bool, (J,) RMS cm).
+    """Measured samples a model moved beyond the noise: ((T, J) bool, (J,) RMS cm).
 
     ``positions`` (T, J, 3) the input, ``result`` the model's values, ``noise_cm`` the
     input's noise (per coordinate, e.g. :func:`mocapkit.signal.estimate_noise`). Per
@@ -665,19 +665,22 @@ def model_misfit(positions: np.ndarray, observed: np.ndarray, result: np.ndarray
     ``sqrt(f^2 - 1)`` x noise -- beyond 1.41 x noise the measurement is the better of the
     two. 2 leaves room for the noise estimate's own error.
 
-    Measured (2026-12-06, 860 runs: the shipped and same-behaviour xiao-sparse, psc and
-    lou-chai models on the 14 held-out clips of ``benchmarks/shipped_models.py`` at 30 and
-    120 fps, and four models trained on one subject's tennis serve run on another's, no
-    noise / Gaussian 1 and 3 cm / 10 % x 15 cm spikes / both; RMSE cm against the clean
-    clip): 188 results were worse than their input; with the samples returned given back
-    the mean RMSE falls from 1.10 to 0.95 cm, no result gets worse by more than 0.1 %,
-    e.g. lou-chai trained on one behaviour on 1 cm noise 1.72 -> 1.00 cm, on clean clips
-    1.00 -> 0.16 cm; a tennis-serve xiao-sparse model on the other player's clean serve
-    0.22 -> 0.14 cm. Measured and not kept: the whole marker given back (spikes
-    restored: xiao-sparse on spikes 0.44 -> 2.74 cm); the spikes taken as every sample
-    within 2 frames of a deviation (clean clips kept the model's values on fast motion:
-    0.52 -> 0.28 instead of 0.16); the median move instead of the RMS (a model off by
-    5-8 cm on a few frames of a marker went unseen).
+    Measured (2026-12-06, ``benchmarks/model_misfit.py``, docs/results/model_misfit.md;
+    1,875 runs: the shipped and same-behaviour xiao-sparse, psc and lou-chai models and
+    rpca, slra, tsvd, svt, trnn, tsmc, dynammo on the 14 held-out clips of
+    ``benchmarks/shipped_models.py`` at 30 and 120 fps, and four models trained on one
+    subject's tennis serve with the same seven run on another's; no noise / Gaussian 1
+    and 3 cm / 10 % x 15 cm spikes / both; RMSE cm against the clean clip): 452 results
+    were worse than their input; with the samples returned given back the mean RMSE falls
+    from 1.27 to 1.12 cm and no result gets worse by more than 0.1 %, e.g. lou-chai
+    trained on other subjects' clips of the behaviour on 1 cm noise 1.72 -> 1.00 cm, on
+    clean clips 1.00 -> 0.16 cm; rpca on 1 cm noise 1.14 -> 0.98, tsmc 1.19 -> 0.82; tsvd
+    on a clean tennis serve 1.46 -> 0.20 cm. Measured and not kept (on the first 860
+    runs): the whole marker given back (spikes restored: xiao-sparse on spikes 0.44 ->
+    2.74 cm); the spikes taken as every sample within 2 frames of a deviation (clean clips
+    kept the model's values on fast motion: 0.52 -> 0.28 instead of 0.16); the median
+    move instead of the RMS (a model off by 5-8 cm on a few frames of a marker went
+    unseen).
     """
     P = np.asarray(positions, dtype=float)
     obs = np.asarray(observed, dtype=bool)
@@ -842,7 +845,7 @@ def apply_policy(inp, out, *, evidence: str, method: str, policy: GapPolicy | No
     capture volume. Where ``out`` itself left a sample missing it stays missing.
     ``unvalidated`` (T, J): fills the method's self-validation put over
     ``policy.validate_cm`` (computed by the caller, which can run the method again).
-    ``misfit`` (T, J): measured samples a learned model moved beyond the noise
+    ``misfit`` (T, J): measured samples a model-based method moved beyond the noise
     (:func:`model_misfit`, computed by the caller, which knows the method is one); they
     are written as measured and counted in ``kept_measured_misfit``.
     """
@@ -861,7 +864,10 @@ def apply_policy(inp, out, *, evidence: str, method: str, policy: GapPolicy | No
             sigma = estimate_noise(inp.matrix(copy=False), inp.matrix_mask(), pool="all", fallback=0.0)
             back = moved_without_cause(inp.positions, obs_in, P, pol.move_margin_cm, sigma)
     moved = np.linalg.norm(P[back] - inp.positions[back], axis=1) if back.any() else None
-    misfit = (obs_in & misfit & ~back) if misfit is not None else np.zeros_like(obs_in)
+    misfit = (obs_in & misfit) if misfit is not None else np.zeros_like(obs_in)
+    # every marker moved far is one the misfit warning names (and counts): one line
+    said = misfit.any() and not (back.any(axis=0) & ~misfit.any(axis=0)).any()
+    misfit &= ~back
     given = back | misfit
     if given.any():
         P = P.copy()
@@ -929,10 +935,11 @@ def apply_policy(inp, out, *, evidence: str, method: str, policy: GapPolicy | No
         "kept_measured": int(back.sum()),
         "kept_measured_misfit": int(misfit.sum()),
     }
-    if moved is not None:
+    if moved is not None:                   # (report first; the warning unless the misfit's said it)
         t, j = np.argwhere(back)[int(moved.argmax())]
         report["kept_measured_max_cm"] = float(moved.max())
         report["kept_measured_worst"] = f"{inp.skeleton.names[j]} frame {t}"
+    if moved is not None and not said:
         warnings.warn(f"{method} moved {int(back.sum())} measured samples of "
                       f"{int(back.any(axis=0).sum())} markers by more than {pol.move_margin_cm:g} cm where the "
                       f"capture shows no spike (up to {moved.max():.0f} cm, {report['kept_measured_worst']}): "

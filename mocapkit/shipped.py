@@ -193,7 +193,7 @@ class RateAdapter(Denoiser):
     (frames t, t+k, ...), each filtered at the model rate and interleaved again; any other
     rate is resampled to ``model_fps`` (cubic spline, :meth:`Motion.resample`), filtered
     and interpolated back (cubic spline) to the clip's frames. The wrapped estimator's
-    ``name``, ``fill_evidence``, ``keeps_observed`` and ``learned`` are reported as its own (observed
+    ``name``, ``fill_evidence``, ``keeps_observed`` and ``misfit_check`` are reported as its own (observed
     samples are kept by a keeps_observed method only in the phase mode).
     """
 
@@ -209,7 +209,7 @@ class RateAdapter(Denoiser):
             self.description = model.description
             self.fill_evidence = model.fill_evidence
             self.keeps_observed = model.keeps_observed
-            self.learned = model.learned
+            self.misfit_check = model.misfit_check
 
     def __repr__(self) -> str:
         return f"RateAdapter({self.model!r}, model_fps={self.model_fps:g})"

@@ -44,7 +44,7 @@ def test_clean_clip_comes_back_within_half_a_cm(net, walk):
         warnings.simplefilter("error", TrainingMismatchWarning)     # and no mismatch warning
         out = net.denoise(walk)
     assert metrics.rmse(walk, out) < 0.5
-    assert not out.source["training_match"]["mismatch"]
+    assert not out.source["model_fit"]["mismatch"]
 
 
 def test_error_grows_with_noise_and_stays_below_it(net, walk):
@@ -87,8 +87,8 @@ def test_missing_joint_is_refused(walk):
 
 
 def test_mismatch_warns_when_the_output_leaves_the_input():
-    """check_training_match on a network result: a result 5 cm off a clean input warns."""
-    from mocapkit.denoise.base import check_training_match
+    """check_model_fit on a network result: a result 5 cm off a clean input warns."""
+    from mocapkit.denoise.base import check_model_fit
 
     rng = np.random.default_rng(0)
     t = np.arange(240) / 60.0
@@ -100,7 +100,7 @@ def test_mismatch_warns_when_the_output_leaves_the_input():
     bad = m.with_positions(P + rng.normal(0, 5.0, P.shape))
     den = denoise.get("bra-p")
     with pytest.warns(TrainingMismatchWarning, match="training clips probably do not cover"):
-        check_training_match(den, m, bad)
+        check_model_fit(den, m, bad)
 
 
 def test_inference_without_torch_in_a_subprocess(tmp_path):

@@ -249,10 +249,9 @@ def _guard(fn):
         try:
             raw = fn(self, work, *args, **kwargs)
             misfit = None
-            if self.learned:
-                misfit = check_training_match(self, work, raw, factor=pol.misfit_factor,
-                                              give_back=pol.restrict and pol.misfit_factor is not None,
-                                              warn=bool(getattr(self, "warn", True)), stacklevel=3)
+            if self.misfit_check:           # (its warning below, with the policy's count)
+                misfit = check_model_fit(self, work, raw, factor=pol.misfit_factor,
+                                         give_back=pol.restrict and pol.misfit_factor is not None, warn=False)
             unvalidated = None
             if limit is not None and not self.validates_fills and (~work.observed & raw.observed).any():
                 from .fill_auto import unvalidated_fills
@@ -279,6 +278,11 @@ def _guard(fn):
             raw = raw.with_positions(Q, raw.observed)
         out = self._after_policy(apply_policy(motion, raw, evidence=self.fill_evidence, method=self.name,
                                               unvalidated=unvalidated, misfit=misfit))
+        fit = self.last_report_.get("model_fit") if self.misfit_check else None
+        if fit and fit["mismatch"] and getattr(self, "warn", True):
+            rep = out.source.get("gap_report") or {}
+            misfit_warning(self, fit, rep.get("kept_measured_misfit", 0) + rep.get("kept_measured", 0)
+                           if fit["given_back"] else 0)
         return out.with_source(**self.last_report_) if self.last_report_ else out
 
     denoise._gap_policy_guard = True
@@ -306,7 +310,7 @@ class Denoiser:
     keeps only what the gap policy allows (module docstring). Parameters are checked by
     the base class before ``fit`` and ``denoise`` run; rules between parameters go in
     :meth:`_check_combination`. A result's run diagnostics (``source["convergence"]``,
-    ``source["training_match"]``) are also in ``last_report_``, which is never saved.
+    ``source["model_fit"]``) are also in ``last_report_``, which is never saved.
     """
 
     name: ClassVar[str] = ""
@@ -330,10 +334,12 @@ class Denoiser:
             cls.fit = _checked_fit(fit)
     #: whether observed, trusted entries are returned unchanged (property tests check it)
     keeps_observed: ClassVar[bool] = False
-    #: whether the result comes from a model learned from other clips (xiao-sparse, psc,
-    #: lou-chai, kalman-learned, the networks): the guard gives back, as measured, the
-    #: samples of a marker it moved beyond the input's noise (:func:`check_training_match`)
-    learned: ClassVar[bool] = False
+    #: whether the result is a model's reconstruction of the motion rather than a filter the
+    #: user chose: ``"learned"`` from other clips (xiao-sparse, psc, lou-chai,
+    #: kalman-learned, the networks) or ``"fitted"`` to the clip (the low-rank methods,
+    #: dynammo). The guard gives back, as measured, the samples of a marker the model moved
+    #: beyond the input's noise (:func:`check_model_fit`); None: not checked
+    misfit_check: ClassVar[str | None] = None
     #: whether the method validates its own fills on the file (auto, fill-auto): the gap
     #: policy's ``validate_cm`` check then does not run it again
     validates_fills: ClassVar[bool] = False
@@ -576,26 +582,27 @@ def report_convergence(den: Denoiser, info: Any, *, tol: float, max_iter: int,
     return summary
 
 
-def check_training_match(den: "Denoiser", inp: Motion, out: Motion, *, factor: float | None = None,
-                         give_back: bool = True, warn: bool = True, stacklevel: int = 3) -> np.ndarray | None:
-    """Flag the markers a learned model moved beyond the input's noise; the samples to give back.
+def check_model_fit(den: "Denoiser", inp: Motion, out: Motion, *, factor: float | None = None,
+                    give_back: bool = True, warn: bool = True, stacklevel: int = 3) -> np.ndarray | None:
+    """Flag the markers a model-based method moved beyond the input's noise; the samples to give back.
 
     A denoiser moves a measured coordinate by about its noise; a model that moves a
     marker's samples by more than ``factor`` times the input's robust noise level
     (:func:`mocapkit.signal.estimate_noise`, ``pool="all"``), RMS over the samples where
-    the input shows no spike, is replacing that marker's motion rather than cleaning it
-    -- typically because its training clips do not cover this motion -- and its result
-    there is further from the truth than the measurement (:func:`mocapkit.gaps.model_misfit`,
-    which holds the reasoning and what was measured). Called by the guard for methods with
-    ``learned``, with the gap policy's ``misfit_factor`` (None: the default policy's) and
-    ``give_back`` False under :data:`mocapkit.gaps.FILL_ALL` or ``--keep-moves`` (the
-    markers are reported, the model's values written).
+    the input shows no spike, is replacing that marker's motion rather than cleaning it --
+    a learned model whose training clips do not cover this motion, a low-rank model that
+    does not fit the clip -- and its result there is further from the truth than the
+    measurement (:func:`mocapkit.gaps.model_misfit`, which holds the reasoning and what was
+    measured). Called by the guard for the methods with a ``misfit_check``, with the gap
+    policy's ``misfit_factor`` (None: the default policy's) and ``give_back`` False under
+    :data:`mocapkit.gaps.FILL_ALL` or ``--keep-moves`` (the markers are reported, the
+    model's values written).
 
-    Records ``den.last_report_["training_match"]`` (the result's ``source["training_match"]``)
+    Records ``den.last_report_["model_fit"]`` (the result's ``source["model_fit"]``)
     = {noise_cm, threshold_cm, markers (names), moved_rms_cm (the worst judged marker's RMS
     move, cm), samples (given back), given_back, mismatch} and, when ``mismatch`` and
-    ``warn``, emits one TrainingMismatchWarning. Returns the (T, J) samples to give back as
-    measured, or None.
+    ``warn``, emits one TrainingMismatchWarning (a learned model) or ModelMisfitWarning.
+    Returns the (T, J) samples to give back as measured, or None.
 
     >>> import numpy as np
     >>> from mocapkit import corrupt, datasets, io
@@ -603,13 +610,10 @@ def check_training_match(den: "Denoiser", inp: Motion, out: Motion, *, factor: f
     >>> noisy = corrupt.gaussian(clip, sigma_cm=1.0, seed=0)[0]
     >>> class Model: name = "model"
     >>> model = Model()
-    >>> back = check_training_match(model, noisy, clip.with_positions(clip.positions + 3.0), warn=False)
-    >>> int(back.any(axis=0).sum()), model.last_report_["training_match"]["markers"][:2]
+    >>> back = check_model_fit(model, noisy, clip.with_positions(clip.positions + 3.0), warn=False)
+    >>> int(back.any(axis=0).sum()), model.last_report_["model_fit"]["markers"][:2]
     (31, ['root', 'lhipjoint'])
     """
-    import warnings
-
-    from ..errors import TrainingMismatchWarning
     from ..gaps import DEFAULT_POLICY, model_misfit
     from ..signal import estimate_noise
 
@@ -623,18 +627,35 @@ def check_training_match(den: "Denoiser", inp: Motion, out: Motion, *, factor: f
     info = {"noise_cm": float(sigma), "threshold_cm": f * float(sigma), "markers": names,
             "moved_rms_cm": worst, "samples": int(mask.sum()) if give else 0, "given_back": give,
             "mismatch": bool(names)}
-    den.__dict__.setdefault("last_report_", {})["training_match"] = info
-    if warn and names:
+    if names:
         j = int(flagged[np.argmax(rms[flagged])])
-        what = (f"{len(names)} of {inp.n_joints} markers ({', '.join(names[:4])}{' ...' if len(names) > 4 else ''}) "
-                f"by up to {rms[j]:.2g} cm RMS ({inp.skeleton.names[j]}) where the input's noise is about "
-                f"{sigma:.2g} cm")
-        tail = (f"{int(mask.sum())} measured samples are written as measured (its values kept only where "
-                f"the input has a spike)" if give else "they are written as the model put them")
-        warnings.warn(f"{den.name}: the model moved {what}: its training clips probably do not cover this "
-                      f"motion; {tail}. Train on clean clips like this one, or use --method auto",
-                      TrainingMismatchWarning, stacklevel=stacklevel)
+        info.update(worst_marker=inp.skeleton.names[j], worst_rms_cm=float(rms[j]), n_markers=inp.n_joints)
+    den.__dict__.setdefault("last_report_", {})["model_fit"] = info
+    if warn and names:
+        misfit_warning(den, info, int(mask.sum()), stacklevel=stacklevel + 1)
     return mask if give else None
+
+
+def misfit_warning(den: "Denoiser", info: dict, given: int, *, stacklevel: int = 3) -> None:
+    """The one warning line of :func:`check_model_fit`'s ``info``: the markers, how far, why,
+    and ``given`` -- the measured samples written as measured (the guard counts those the
+    gap policy gave back for a move over 5 cm among them)."""
+    import warnings
+
+    from ..errors import ModelMisfitWarning, TrainingMismatchWarning
+
+    names = info["markers"]
+    what = (f"{len(names)} of {info['n_markers']} markers ({', '.join(names[:4])}{' ...' if len(names) > 4 else ''}) "
+            f"by up to {info['worst_rms_cm']:.2g} cm RMS ({info['worst_marker']}) where the input's noise is "
+            f"about {info['noise_cm']:.2g} cm")
+    tail = (f"{given} measured samples are written as measured (its values kept only where the input has "
+            f"a spike)" if info["given_back"] else "they are written as the model put them")
+    if getattr(den, "misfit_check", "learned") == "fitted":
+        why, advice, cat = "its model does not fit these markers", "Use --method auto", ModelMisfitWarning
+    else:
+        why, advice, cat = ("its training clips probably do not cover this motion",
+                            "Train on clean clips like this one, or use --method auto", TrainingMismatchWarning)
+    warnings.warn(f"{den.name}: the model moved {what}: {why}; {tail}. {advice}", cat, stacklevel=stacklevel)
 
 
 def training_matrices(motions: Iterable[Motion]) -> list[np.ndarray]:

@@ -292,7 +292,7 @@ class LouChai(Denoiser):
     description = ("Lou & Chai 2010 example-based robust filter bases (M-SSA bases learned from clean "
                    "clips + Welsch IRLS; fills gaps)")
     needs_training = True
-    learned = True
+    misfit_check = "learned"
     keeps_observed = False
     #: trained on 2 s of one walk (quick_params), a clean continuation of it comes back
     #: within 0.8 cm RMSE (CMU 16_15): the bases term projects out what the few training
@@ -504,7 +504,7 @@ class LouChai(Denoiser):
         """Robust filtering of ``motion``; records ``source["convergence"]`` on the result and, with
         ``warn_convergence``, warns (ConvergenceWarning) once if an outer iteration hit
         ``max_iter`` before the relative change of J fell to ``tol``. The guard gives back the
-        markers the model moved beyond their noise (:func:`~mocapkit.denoise.base.check_training_match`)."""
+        markers the model moved beyond their noise (:func:`~mocapkit.denoise.base.check_model_fit`)."""
         self._conv_log = []
         try:
             out = self._denoise_all(motion)

@@ -171,6 +171,7 @@ class TSMC(_MatrixCompletion):
     """
 
     name = "tsmc"
+    misfit_check = "fitted"
     description = "thesis bilinear low-rank + sparse error + 2nd-difference smoothness (TSMC model, ALM)"
 
     _parameter_constraints = {**_MatrixCompletion._SHARED, "alpha": [_POSITIVE], "beta": [_NONNEG],
@@ -212,6 +213,7 @@ class TrNN(_MatrixCompletion):
     """
 
     name = "trnn"
+    misfit_check = "fitted"
     description = "thesis truncated nuclear norm + sparse error + smoothness, single-loop ALM with DCT M-step"
 
     _parameter_constraints = {**_MatrixCompletion._SHARED, "r": [Interval(Integral, 0, None)],
@@ -257,6 +259,7 @@ class DynaMMo(Denoiser):
     """
 
     name = "dynammo"
+    misfit_check = "fitted"
     fill_evidence = "markers"
     description = "DynaMMo: linear dynamical system with missing values fitted by EM (Kalman/RTS E-step)"
     keeps_observed = True

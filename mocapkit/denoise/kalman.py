@@ -266,7 +266,7 @@ class KalmanLearned(Denoiser):
     fill_evidence = "markers"
     description = "Kalman + RTS with linear dynamics learned from training clips (Lou & Chai baseline; body frame, PCA latent)"
     needs_training = True
-    learned = True
+    misfit_check = "learned"
     keeps_observed = False
 
     _parameter_constraints = {"order": [Options(1, 2)], "energy": [Interval(Real, 0, 1, closed="right")],

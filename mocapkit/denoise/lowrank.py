@@ -172,6 +172,7 @@ class TSVD(Denoiser):
     """
 
     name = "tsvd"
+    misfit_check = "fitted"
     fill_evidence = "markers"
     description = "truncated SVD, keep k singular values of the frames x coordinates matrix (SLRA baseline)"
     clean_tolerance_cm = 2.0
@@ -213,6 +214,7 @@ class SVT(Denoiser):
     """
 
     name = "svt"
+    misfit_check = "fitted"
     fill_evidence = "markers"
     description = "singular value thresholding (Cai-Candes-Shen), noise-bounded, completes missing markers"
     clean_tolerance_cm = 1.0
@@ -269,6 +271,7 @@ class RPCA(Denoiser):
     """
 
     name = "rpca"
+    misfit_check = "fitted"
     fill_evidence = "markers"
     description = "robust PCA (low rank + sparse) of the whole clip by inexact ALM (Lin-Chen-Ma)"
     clean_tolerance_cm = 2.0
@@ -325,6 +328,7 @@ class SLRA(Denoiser):
     """
 
     name = "slra"
+    misfit_check = "fitted"
     fill_evidence = "markers"
     description = "segmented RPCA (SLRA, seed 004): IALM per consecutive segment, optional blended overlap"
     clean_tolerance_cm = 2.0

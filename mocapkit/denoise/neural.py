@@ -53,7 +53,7 @@ residual error stretches them frame by frame).
 Guard rails: inputs outside 24-1000 fps, without the 21 joints, or with a body far from
 the training bodies' size get one MocapValueError; the markers a result moves beyond the
 input's estimated noise are written as measured, with a TrainingMismatchWarning
-(:func:`mocapkit.denoise.base.check_training_match`, recorded in the result's ``source["training_match"]``).
+(:func:`mocapkit.denoise.base.check_model_fit`, recorded in the result's ``source["model_fit"]``).
 
 ``threads``: torch threads for training (None: every core this process may use) and
 threads for inference (None: 1).
@@ -92,7 +92,7 @@ class _NeuralDenoiser(Denoiser):
     """Shared implementation of ``bra`` and ``bra-p`` (see the module docstring)."""
 
     keeps_observed = False
-    learned = True
+    misfit_check = "learned"
     fill_evidence = "markers"
     clean_tolerance_cm = 6.0
     _perceptual: bool = True
@@ -196,7 +196,7 @@ class _NeuralDenoiser(Denoiser):
         post = None if self.postprocess is None else (bool(self.postprocess) and self._perceptual)
         out = b.refine(motion, postprocess=post, threads=self.threads, turns=int(self.turns),
                        constant_bones=bool(self.constant_bones))
-        return out  # checked by the guard (check_training_match included)
+        return out  # checked by the guard (check_model_fit included)
 
     # -- persistence ------------------------------------------------------------------------
     def save(self, path: str | os.PathLike, *, half: bool = False) -> None:

@@ -148,7 +148,7 @@ class PSC(Denoiser):
     fill_evidence = "markers"
     description = "thesis PSC: per-body-part window dictionaries trained to predict missing markers, LLC recovery"
     needs_training = True
-    learned = True
+    misfit_check = "learned"
     keeps_observed = True
     clean_tolerance_cm = 1.0
     _parameter_constraints = {

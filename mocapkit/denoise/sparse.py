@@ -236,7 +236,7 @@ class XiaoSparse(Denoiser):
     fill_evidence = "markers"
     description = "Xiao et al. 2015: poselet K-SVD dictionaries, l2/l1 (Gaussian) or l1/l1 ADMM (outliers) coding"
     needs_training = True
-    learned = True
+    misfit_check = "learned"
     keeps_observed = False
     clean_tolerance_cm = 1.0
     _fullpose = False

@@ -1,5 +1,5 @@
-"""A learned model's misfit: markers moved beyond the input's noise are given back as measured
-(mocapkit.denoise.base.check_training_match, mocapkit.gaps.model_misfit)."""
+"""A model that does not fit the motion: the markers it moved beyond the input's noise are
+given back as measured (mocapkit.denoise.base.check_model_fit, mocapkit.gaps.model_misfit)."""
 from __future__ import annotations
 
 import warnings
@@ -9,7 +9,7 @@ import pytest
 
 from mocapkit import cli, corrupt, datasets, denoise, gaps
 from mocapkit import io as mio
-from mocapkit.denoise.base import check_training_match
+from mocapkit.denoise.base import check_model_fit
 from mocapkit.errors import MocapWarning, TrainingMismatchWarning
 
 
@@ -36,21 +36,21 @@ def _caught(fn):
 def test_threshold_on_known_changes(clip):
     inp = _noisy(clip, 1.0)
     d = _Stub()
-    back, w = _caught(lambda: check_training_match(d, inp, clip))     # perfect denoiser: moves by the noise
-    info = d.last_report_["training_match"]
+    back, w = _caught(lambda: check_model_fit(d, inp, clip))     # perfect denoiser: moves by the noise
+    info = d.last_report_["model_fit"]
     assert w == [] and not back.any() and info["mismatch"] is False and info["markers"] == []
     assert 0.8 < info["noise_cm"] < 1.2 and info["threshold_cm"] == pytest.approx(2 * info["noise_cm"])
     assert 0.85 < info["moved_rms_cm"] < 1.3               # RMS |N(0, 1)| per coordinate, the worst marker
     moved = clip.positions.copy()
     moved[:, 5] += 3.0                                     # one marker 3 cm off on every axis
-    back, w = _caught(lambda: check_training_match(d, inp, clip.with_positions(moved)))
-    info = d.last_report_["training_match"]
+    back, w = _caught(lambda: check_model_fit(d, inp, clip.with_positions(moved)))
+    info = d.last_report_["model_fit"]
     assert back[:, 5].all() and not np.delete(back, 5, axis=1).any()
     assert info["markers"] == [clip.skeleton.names[5]] and info["samples"] == clip.n_frames
     assert len(w) == 1 and issubclass(w[0].category, MocapWarning)
     msg = str(w[0].message)
     assert msg.startswith("stub:") and "1 of 31 markers" in msg and "written as measured" in msg
-    back, w = _caught(lambda: check_training_match(d, inp, clip.with_positions(moved), give_back=False))
+    back, w = _caught(lambda: check_model_fit(d, inp, clip.with_positions(moved), give_back=False))
     assert back is None and "written as the model put them" in str(w[0].message)
 
 
@@ -86,7 +86,7 @@ def test_lou_chai_self_vs_other_behaviour(clip):
     with gaps.use_policy(misfit_factor=None):
         kept, _ = _caught(lambda: other.denoise(inp))
     out, w = _caught(lambda: other.denoise(inp))
-    info = out.source["training_match"]
+    info = out.source["model_fit"]
     assert len(w) == 1 and info["mismatch"] and info["given_back"] and info["samples"] > 0
     rep = out.source["gap_report"]       # samples moved more than 5 cm are counted as such first
     assert 0 < rep["kept_measured_misfit"] <= info["samples"] <= rep["kept_measured_misfit"] + rep["kept_measured"]
@@ -103,7 +103,7 @@ def test_fill_all_gives_nothing_back(clip):
     other = denoise.get("lou-chai").fit([mio.read(datasets.bundled("16_15.amc"))])
     with gaps.use_policy(gaps.FILL_ALL):
         out, w = _caught(lambda: other.denoise(inp))
-    assert out.source["training_match"]["mismatch"] and not out.source["training_match"]["given_back"]
+    assert out.source["model_fit"]["mismatch"] and not out.source["model_fit"]["given_back"]
     assert len(w) == 1 and "written as the model put them" in str(w[0].message)
 
 
@@ -142,3 +142,23 @@ def test_cli_keep_moves_writes_the_model_values(tmp_path, capsys, clip):
     # by default most samples come back as measured; with --keep-moves none does
     assert np.mean(np.all(np.isclose(outs[0], given, atol=1e-3), axis=2)) > 0.5
     assert np.mean(np.all(np.isclose(outs[1], given, atol=1e-3), axis=2)) < 0.1
+
+
+def test_low_rank_on_a_clean_clip_gives_back(clip):
+    """rpca, a low-rank model fitted to the clip, moves a clean clip's markers by far more
+    than their noise: those come back as measured (ModelMisfitWarning) and the result is
+    nearer the truth; under FILL_ALL (the papers' protocols) its values are written."""
+    from mocapkit import metrics
+    from mocapkit.errors import ModelMisfitWarning
+
+    rp = denoise.get("rpca")
+    with warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always")
+        out = rp.denoise(clip)
+        with gaps.use_policy(gaps.FILL_ALL):
+            paper = rp.denoise(clip)
+    mis = [x for x in w if issubclass(x.category, ModelMisfitWarning)]
+    assert mis and not issubclass(mis[0].category, TrainingMismatchWarning)
+    assert "its model does not fit these markers" in str(mis[0].message) and "Use --method auto" in str(mis[0].message)
+    assert out.source["model_fit"]["given_back"] and not paper.source["model_fit"]["given_back"]
+    assert float(metrics.rmse(clip, out)) < 0.5 * float(metrics.rmse(clip, paper))
