@@ -553,3 +553,22 @@ def test_cli_keep_unvalidated(tmp_path, capsys):
     assert "50 not validated under 5 cm" in capsys.readouterr().out
     assert main(["denoise", str(src), str(tmp_path / "b.c3d"), "--method", "linear", "--keep-unvalidated"]) == 0
     assert "not validated" not in capsys.readouterr().out
+
+
+def test_moved_without_cause_clip_edges_are_not_samples_alone():
+    """A pair of rigid partners thrown together on the first two frames (a joint-angle
+    spike of a skeleton file moves the limb below it as a whole): a method that puts one
+    back is not given back for breaking the pair there, as the take's edge is no gap; the
+    same stretch seen alone between gaps still is (the Kinect / trnn case)."""
+    T = 60
+    t = np.arange(T)[:, None] / 30.0
+    A = np.hstack([50 * np.sin(t), 100 + 0 * t, 20 * np.cos(t)])
+    P = np.stack([A, A + [10.0, 0, 0], A + [0, 40.0, 0]], axis=1)     # A, its partner B, C
+    Q = P.copy()
+    P[:2, :2] += [15.0, 0, 0]                   # A and B thrown together on frames 0-1
+    Q[:2, 1] += [15.0, 0, 0]                    # the method put A back, not B: pair broken
+    obs = np.ones((T, 3), bool)
+    assert not gaps.moved_without_cause(P, obs, Q, 5.0).any()
+    obs[2:4, 0] = False                         # frames 0-1 of A now seen alone before a gap
+    back = gaps.moved_without_cause(P, obs, Q, 5.0)
+    assert back[:2, 0].all() and back.sum() == 2

@@ -319,6 +319,11 @@ class Denoiser:
     #: evidence a fill uses (:func:`mocapkit.gaps.supported`): "interp" (the ends of the gap,
     #: per channel) or "markers" (other markers observed in the same frame)
     fill_evidence: ClassVar[str] = "interp"
+    #: whether a fill's error grows with the gap's length even with other markers as
+    #: evidence (fill-pattern: a donor's shape offset to meet the gap's ends); with
+    #: ``fill_evidence == "interp"`` such a fill is judged by fill-auto only on gaps at least
+    #: half as long as the one it fills (:func:`mocapkit.denoise.fill_auto._pooled`)
+    fill_drifts: ClassVar[bool] = False
 
     #: constraints of every constructor parameter (:mod:`mocapkit.denoise.constraints`):
     #: name -> list of constraints, any one of which a value must satisfy

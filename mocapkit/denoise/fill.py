@@ -230,6 +230,9 @@ class FillPattern(Denoiser):
     needs_training = False
     keeps_observed = True
     fill_evidence = "markers"
+    #: the donor's shape drifts from the gap's own path the longer the gap (at an edge gap,
+    #: from its one end): fill-auto judges it by gaps at least half as long
+    fill_drifts = True
     clean_tolerance_cm = 1e-9
 
     _parameter_constraints = {"window_s": [Interval(Real, 0, None, closed="neither")]}
