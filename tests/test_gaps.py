@@ -557,9 +557,10 @@ def test_cli_keep_unvalidated(tmp_path, capsys):
 
 def test_moved_without_cause_clip_edges_are_not_samples_alone():
     """A pair of rigid partners thrown together on the first two frames (a joint-angle
-    spike of a skeleton file moves the limb below it as a whole): a method that puts one
-    back is not given back for breaking the pair there, as the take's edge is no gap; the
-    same stretch seen alone between gaps still is (the Kinect / trnn case)."""
+    spike of a skeleton file moves the limb below it as a whole): in a skeleton a method
+    that puts one back is not given back for breaking the pair there, as the take's edge
+    is no gap; in a marker set it is, and so is the same stretch seen alone before a gap
+    (the Kinect / trnn case)."""
     T = 60
     t = np.arange(T)[:, None] / 30.0
     A = np.hstack([50 * np.sin(t), 100 + 0 * t, 20 * np.cos(t)])
@@ -568,7 +569,8 @@ def test_moved_without_cause_clip_edges_are_not_samples_alone():
     P[:2, :2] += [15.0, 0, 0]                   # A and B thrown together on frames 0-1
     Q[:2, 1] += [15.0, 0, 0]                    # the method put A back, not B: pair broken
     obs = np.ones((T, 3), bool)
-    assert not gaps.moved_without_cause(P, obs, Q, 5.0).any()
+    assert not gaps.moved_without_cause(P, obs, Q, 5.0, edges_alone=False).any()     # a skeleton
+    assert gaps.moved_without_cause(P, obs, Q, 5.0)[:2, 0].all()        # a marker set: judged
     obs[2:4, 0] = False                         # frames 0-1 of A now seen alone before a gap
-    back = gaps.moved_without_cause(P, obs, Q, 5.0)
+    back = gaps.moved_without_cause(P, obs, Q, 5.0, edges_alone=False)
     assert back[:2, 0].all() and back.sum() == 2
