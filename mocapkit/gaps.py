@@ -519,7 +519,8 @@ def moved_without_cause(positions: np.ndarray, observed: np.ndarray, result: np.
     for samples without four measured neighbours only, when in a frame of it the
     measurement keeps its distance to a rigid partner measured there and the result
     breaks it (:func:`_breaks_partners`; on the take's first and last two frames only
-    with ``edges_alone``, which apply_policy sets for marker sets, not skeletons) -- not
+    with ``edges_alone``, which apply_policy sets unless the positions are forward
+    kinematics of a skeleton's angles, :func:`mocapkit.rigid.fixed_bones`) -- not
     where input and result are both rough:
     a tracker that throws a limb throws its partners with it (MSR-Action3D's Kinect: a
     wrist and hand 30 cm off together, which auto had put back, were given back).
@@ -601,12 +602,13 @@ def moved_without_cause(positions: np.ndarray, observed: np.ndarray, result: np.
         # rough, a limb the tracker threw as a whole keeps its partners' distances (MSR
         # Kinect: a wrist and hand 30 cm off together, which auto had put back)
         alone = ~np.maximum.reduceat(lay(moved & has_g), first)
-        # ... and, unless ``edges_alone``, next to a gap: in a skeleton file a spike in a
+        # ... and, unless ``edges_alone``, next to a gap: in a BVH / AMC file a spike in a
         # joint angle throws the limb below it as a whole, and auto's removal of such
         # spikes on the take's first and last two frames was given back (auto_files, BVH
         # spikes: 07_03@120 0.30 -> 0.52 cm RMSE, worst auto / oracle 0.46 -> 0.80); on
-        # a marker set the edges stay judged so (real_gaps: without, tsmc's worst fill
-        # 49 -> 70 cm, trnn's and tsmc's gross fills 1.27 / 1.00 -> 1.29 / 1.02 %)
+        # a marker set or a Kinect take the edges stay judged so (real_gaps: without,
+        # tsmc's worst fill 49 -> 70 cm, trnn's and tsmc's gross fills 1.27 / 1.00 -> 1.29
+        # / 1.02 %)
         by_gap = np.ones(len(js), bool)
         if not edges_alone:
             cs = np.vstack([np.zeros((1, obs.shape[1]), int), np.cumsum(~obs, axis=0)])
@@ -886,9 +888,12 @@ def apply_policy(inp, out, *, evidence: str, method: str, policy: GapPolicy | No
             from .signal import estimate_noise
 
             sigma = estimate_noise(inp.matrix(copy=False), inp.matrix_mask(), pool="all", fallback=0.0)
-            # a skeleton's take edges are not samples alone (moved_without_cause)
+            from .rigid import fixed_bones
+
+            # positions that are forward kinematics of angles (BVH, ASF/AMC): the take's
+            # edges are no samples alone (moved_without_cause)
             back = moved_without_cause(inp.positions, obs_in, P, pol.move_margin_cm, sigma,
-                                       edges_alone=inp.skeleton.is_flat)
+                                       edges_alone=not len(fixed_bones(inp)[0]))
     moved = np.linalg.norm(P[back] - inp.positions[back], axis=1) if back.any() else None
     misfit = (obs_in & misfit) if misfit is not None else np.zeros_like(obs_in)
     # every marker moved far is one the misfit warning names (and counts): one line
