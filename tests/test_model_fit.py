@@ -41,6 +41,7 @@ def test_threshold_on_known_changes(clip):
     assert w == [] and not back.any() and info["mismatch"] is False and info["markers"] == []
     assert 0.8 < info["noise_cm"] < 1.2 and info["threshold_cm"] == pytest.approx(2 * info["noise_cm"])
     assert 0.85 < info["moved_rms_cm"] < 1.3               # RMS |N(0, 1)| per coordinate, the worst marker
+    assert info["n_markers"] == 31 and info["kind"] == "learned"
     moved = clip.positions.copy()
     moved[:, 5] += 3.0                                     # one marker 3 cm off on every axis
     back, w = _caught(lambda: check_model_fit(d, inp, clip.with_positions(moved)))
@@ -90,6 +91,8 @@ def test_lou_chai_self_vs_other_behaviour(clip):
     assert len(w) == 1 and info["mismatch"] and info["given_back"] and info["samples"] > 0
     rep = out.source["gap_report"]       # samples moved more than 5 cm are counted as such first
     assert 0 < rep["kept_measured_misfit"] <= info["samples"] <= rep["kept_measured_misfit"] + rep["kept_measured"]
+    # one line for both: the samples moved far are on markers it names, and it counts them
+    assert f"{rep['kept_measured_misfit'] + rep['kept_measured']} measured samples are written" in str(w[0].message)
     from mocapkit import metrics
     e_kept, e_out, e_in = (float(metrics.rmse(clip, m)) for m in (kept, out, inp))
     assert e_kept > e_in and e_out < e_kept                 # worse than the input; less so given back

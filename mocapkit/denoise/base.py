@@ -249,7 +249,7 @@ def _guard(fn):
         try:
             raw = fn(self, work, *args, **kwargs)
             misfit = None
-            if self.misfit_check:           # (its warning below, with the policy's count)
+            if self.misfit_check:           # (the gap policy warns, with what it gave back)
                 misfit = check_model_fit(self, work, raw, factor=pol.misfit_factor,
                                          give_back=pol.restrict and pol.misfit_factor is not None, warn=False)
             unvalidated = None
@@ -276,13 +276,9 @@ def _guard(fn):
             if self.keeps_observed:         # bit-identical measured samples, whatever the shift
                 Q[motion.observed] = motion.positions[motion.observed]
             raw = raw.with_positions(Q, raw.observed)
+        fit = self.last_report_.get("model_fit") if self.misfit_check and getattr(self, "warn", True) else None
         out = self._after_policy(apply_policy(motion, raw, evidence=self.fill_evidence, method=self.name,
-                                              unvalidated=unvalidated, misfit=misfit))
-        fit = self.last_report_.get("model_fit") if self.misfit_check else None
-        if fit and fit["mismatch"] and getattr(self, "warn", True):
-            rep = out.source.get("gap_report") or {}
-            misfit_warning(self, fit, rep.get("kept_measured_misfit", 0) + rep.get("kept_measured", 0)
-                           if fit["given_back"] else 0)
+                                              unvalidated=unvalidated, misfit=misfit, fit=fit))
         return out.with_source(**self.last_report_) if self.last_report_ else out
 
     denoise._gap_policy_guard = True
@@ -320,9 +316,9 @@ class Denoiser:
     #: per channel) or "markers" (other markers observed in the same frame)
     fill_evidence: ClassVar[str] = "interp"
     #: whether a fill's error grows with the gap's length even with other markers as
-    #: evidence (fill-pattern: a donor's shape offset to meet the gap's ends); with
-    #: ``fill_evidence == "interp"`` such a fill is judged by fill-auto only on gaps at least
-    #: half as long as the one it fills (:func:`mocapkit.denoise.fill_auto._pooled`)
+    #: evidence (fill-pattern: a donor's shape offset to meet the gap's ends); fill-auto
+    #: then judges it, like an ``"interp"`` fill, only by gaps at least half as long as the
+    #: one it fills (:func:`mocapkit.denoise.fill_auto._pooled`)
     fill_drifts: ClassVar[bool] = False
 
     #: constraints of every constructor parameter (:mod:`mocapkit.denoise.constraints`):
@@ -604,10 +600,13 @@ def check_model_fit(den: "Denoiser", inp: Motion, out: Motion, *, factor: float 
     model's values written).
 
     Records ``den.last_report_["model_fit"]`` (the result's ``source["model_fit"]``)
-    = {noise_cm, threshold_cm, markers (names), moved_rms_cm (the worst judged marker's RMS
-    move, cm), samples (given back), given_back, mismatch} and, when ``mismatch`` and
-    ``warn``, emits one TrainingMismatchWarning (a learned model) or ModelMisfitWarning.
-    Returns the (T, J) samples to give back as measured, or None.
+    = {noise_cm, threshold_cm, markers (the names flagged), n_markers, kind (the method's
+    ``misfit_check``), moved_rms_cm and worst_marker (the largest RMS move of a judged
+    marker, cm, and its name), samples (to give back), given_back, mismatch} and, when
+    ``mismatch`` and ``warn``, emits one TrainingMismatchWarning (a learned model) or
+    ModelMisfitWarning (:func:`mocapkit.gaps.misfit_warning`; the guard leaves it to
+    :func:`mocapkit.gaps.apply_policy`, which knows what it gave back). Returns the (T, J)
+    samples to give back as measured, or None.
 
     >>> import numpy as np
     >>> from mocapkit import corrupt, datasets, io
@@ -619,48 +618,24 @@ def check_model_fit(den: "Denoiser", inp: Motion, out: Motion, *, factor: float 
     >>> int(back.any(axis=0).sum()), model.last_report_["model_fit"]["markers"][:2]
     (31, ['root', 'lhipjoint'])
     """
-    from ..gaps import DEFAULT_POLICY, model_misfit
+    from ..gaps import DEFAULT_POLICY, misfit_warning, model_misfit
     from ..signal import estimate_noise
 
     sigma = estimate_noise(inp.matrix(copy=False), inp.matrix_mask(), pool="all", fallback=0.0)
-    give = bool(give_back)
     f = float(DEFAULT_POLICY.misfit_factor if factor is None else factor)
     mask, rms = model_misfit(inp.positions, inp.observed, out.positions, sigma, f)
-    flagged = np.flatnonzero(mask.any(axis=0))
-    names = [inp.skeleton.names[j] for j in flagged]
-    worst = float(np.nanmax(rms)) if np.isfinite(rms).any() else 0.0
+    names = [inp.skeleton.names[j] for j in np.flatnonzero(mask.any(axis=0))]
+    judged = np.isfinite(rms).any()
     info = {"noise_cm": float(sigma), "threshold_cm": f * float(sigma), "markers": names,
-            "moved_rms_cm": worst, "samples": int(mask.sum()) if give else 0, "given_back": give,
+            "n_markers": inp.n_joints, "kind": getattr(den, "misfit_check", None) or "learned",
+            "moved_rms_cm": float(np.nanmax(rms)) if judged else 0.0,
+            "worst_marker": inp.skeleton.names[int(np.nanargmax(rms))] if judged else None,
+            "samples": int(mask.sum()) if give_back else 0, "given_back": bool(give_back),
             "mismatch": bool(names)}
-    if names:
-        j = int(flagged[np.argmax(rms[flagged])])
-        info.update(worst_marker=inp.skeleton.names[j], worst_rms_cm=float(rms[j]), n_markers=inp.n_joints)
     den.__dict__.setdefault("last_report_", {})["model_fit"] = info
     if warn and names:
-        misfit_warning(den, info, int(mask.sum()), stacklevel=stacklevel + 1)
-    return mask if give else None
-
-
-def misfit_warning(den: "Denoiser", info: dict, given: int, *, stacklevel: int = 3) -> None:
-    """The one warning line of :func:`check_model_fit`'s ``info``: the markers, how far, why,
-    and ``given`` -- the measured samples written as measured (the guard counts those the
-    gap policy gave back for a move over 5 cm among them)."""
-    import warnings
-
-    from ..errors import ModelMisfitWarning, TrainingMismatchWarning
-
-    names = info["markers"]
-    what = (f"{len(names)} of {info['n_markers']} markers ({', '.join(names[:4])}{' ...' if len(names) > 4 else ''}) "
-            f"by up to {info['worst_rms_cm']:.2g} cm RMS ({info['worst_marker']}) where the input's noise is "
-            f"about {info['noise_cm']:.2g} cm")
-    tail = (f"{given} measured samples are written as measured (its values kept only where the input has "
-            f"a spike)" if info["given_back"] else "they are written as the model put them")
-    if getattr(den, "misfit_check", "learned") == "fitted":
-        why, advice, cat = "its model does not fit these markers", "Use --method auto", ModelMisfitWarning
-    else:
-        why, advice, cat = ("its training clips probably do not cover this motion",
-                            "Train on clean clips like this one, or use --method auto", TrainingMismatchWarning)
-    warnings.warn(f"{den.name}: the model moved {what}: {why}; {tail}. {advice}", cat, stacklevel=stacklevel)
+        misfit_warning(den.name, info, info["samples"], stacklevel=stacklevel + 1)
+    return mask if give_back else None
 
 
 def training_matrices(motions: Iterable[Motion]) -> list[np.ndarray]:
