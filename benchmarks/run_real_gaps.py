@@ -118,6 +118,16 @@ def targets_section(rows: list[dict], methods: list[str]) -> str:
                    f"{_f(v(m, 'coverage'))} | {_f(v(m, 'outside_1m'))} / "
                    f"{_f(o['extra'].get('all_cases') if o else None)} | {_f(v(m, 'zero_fills'))} | "
                    f"{_f(v(m, 'crashes'))} |")
+    est = [(m, by.get(("targets", cond, m, "estimate_within_1.5x"))) for m in methods]
+    est = [(m, r) for m, r in est if r]
+    if est:
+        out += ["", "Self-estimated error (issue #19): the method's own estimate of its error against the "
+                "true RMSE over what it covers (auto: every sample written; fill-auto: its fills), on the "
+                "same scored cases:", "",
+                "| method | within 1.5x, % of cases | cases | under (< 1/1.5) | over (> 1.5) | median estimate / true |",
+                "|---|---:|---:|---:|---:|---:|"]
+        out += [f"| {m} | {_f(r['value'])} | {r.get('n')} | {r['extra'].get('under')} | {r['extra'].get('over')} | "
+                f"{_f(r['extra'].get('median_ratio'))} |" for m, r in est]
     return "\n".join(out) + "\n"
 
 

@@ -236,6 +236,43 @@ def test_fill_auto_does_not_stretch_interpolation_scores_over_a_far_longer_gap()
     assert np.isnan(got[3, 0]) and got[3, 1] == 1.0   # 4x longer: interpolation unvalidated
 
 
+def test_fill_auto_does_not_lend_interpolation_scores_to_a_flickering_marker(monkeypatch):
+    """A marker seen one frame in eleven around its gaps: the file's other gaps, each with
+    its length seen on both sides, are no licence to interpolate between its isolated
+    samples (the tennis serve under the basket sprint's mask: splines through a flickering
+    hand 1 m off). Its gaps are left missing; the well-seen gaps are still filled."""
+    from mocapkit.denoise.fill_auto import POOL_SUPPORT, _pooled, side_support
+
+    P = _walker(T=600, J=6)
+    t = np.arange(600) / 100.0
+    P[:, 0] += 40 * np.sin(2 * np.pi * 3 * t)[:, None] * [1, 0, 0]     # a fast swing
+    obs = np.ones(P.shape[:2], bool)
+    obs[200:300, 0] = False
+    obs[200:300:11, 0] = True                       # seen one frame in eleven
+    obs[205:300:11, 1:] = False                     # the others blink within its gaps: no
+    for j in range(1, 6):                           # neighbour is seen throughout one
+        obs[60 * j:60 * j + 3, j] = False
+    m = _markers(P).with_observed(obs)
+    found = [g for g in gaps.find_gaps(obs) if g.kind != "never"]
+    seen = side_support(obs, found) >= POOL_SUPPORT
+    assert not seen[[g.joint == 0 for g in found]].any() and seen[[g.joint > 0 for g in found]].all()
+    fa = denoise.get("fill-auto", candidates=("linear", "spline"), max_error_cm=5.0)
+    out = fa.denoise(m)
+    inner = ~obs[212:287, 0]                         # the gaps with no stretch of their own
+    assert not out.observed[212:287, 0][inner].any()
+    with monkeypatch.context() as mp:                # the rule off: the pool fills them
+        mp.setattr("mocapkit.denoise.fill_auto.POOL_SUPPORT", 0.0)
+        assert fa.denoise(m).observed[212:287, 0][inner].all()
+    assert out.observed[:, 1:].all()                 # the others' gaps: seen on both sides
+    # the rule itself: an unscored gap takes the pool where its marker is seen, not elsewhere
+    g = [gaps.Gap(0, 100 * i, 100 * i + 4, "interior") for i in range(3)]
+    err = np.array([[1.0, 1.0], [np.nan, np.nan], [np.nan, np.nan]])
+    n = np.array([[4.0, 4.0], [0, 0], [0, 0]])
+    got = _pooled(err, n, g, 20.0, np.array([True, False]), np.array([True, True, False]))
+    assert got[1, 0] == got[1, 1] == 1.0
+    assert np.isnan(got[2, 0]) and got[2, 1] == 1.0     # bounded candidate: unvalidated
+
+
 def test_fills_off_a_rigid_partner_are_left_missing():
     """The gap policy's rigid check: a fill more than rigid_margin_cm off the distance span
     a rigid partner measured in its frame keeps is left missing (it is that far off at

@@ -119,6 +119,10 @@ def test_scorer_hand_example():
     box = (np.array([-1.0, -1.0, -1.0]), np.array([1.0, 1.0, 1.0]))
     f = R.score_fill(truth, hidden, est, est_obs, box)
     s = f.summary()
+    # what an estimate is scored against: the fills, or every sample written (the measured
+    # ones 0 cm off here, 5 of them written)
+    assert f.true_error("fills") == pytest.approx(s["rmse"])
+    assert f.true_error("written") == pytest.approx(np.sqrt((25 + 900) / (3 * 7)))
     assert s["n_hidden"] == 3 and s["n_filled"] == 2
     assert s["coverage"] == pytest.approx(200 / 3)
     assert s["rmse"] == pytest.approx(np.sqrt((25 + 900) / 6))
@@ -180,4 +184,12 @@ def test_quick_protocol_on_shared_data(shared_data, monkeypatch):
     crashes = by[("targets", "cases <= 60% missing", "cubic", "crashes")]
     assert crashes.value == 4
     assert ("targets", "cases <= 60% missing", "default", "gross_pct") in by
+    # the default (auto) says what error it expects: scored against the truth, per case
+    est = [r for r in rows if r.metric == "estimate_ratio"]
+    assert est and {r.method for r in est} == {"default"}
+    for r in est:
+        assert r.extra["over"] == "written" and r.extra["true_cm"] > 0
+        assert r.value == pytest.approx(r.extra["estimate_cm"] / r.extra["true_cm"])
+    within = by[("targets", "cases <= 60% missing", "default", "estimate_within_1.5x")]
+    assert within.n == len([r for r in est if r.clip != "tennis_serve_vendor"])
     assert any(r.metric == "rms_to_vendor_fill" and r.method == "linear" for r in rows)

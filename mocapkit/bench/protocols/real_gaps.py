@@ -62,6 +62,11 @@ the mask):
 - ``rmse_all_hidden`` (cm): RMSE over every hidden sample, only where the method filled
   them all.
 - ``missing_pct`` (method ``mask``): share of the case's samples that are missing.
+- ``estimate_ratio``: for a method that estimates its own error (``auto``, ``fill-auto``:
+  :func:`own_estimate`), that estimate divided by the true RMSE over what it covers
+  (``auto``: every sample written, the measured ones included; ``fill-auto``: its fills);
+  the target rows give the share of scored cases within a factor
+  :data:`ESTIMATE_FACTOR` (issue #19's test of the estimate, here on real occlusions).
 
 The targets of issue #15 are read on the cases with at most 60 % missing
 (:data:`SCORED_MAX_MISSING`): rows with ``clip = 'targets'``.
@@ -98,6 +103,8 @@ SCORED_MAX_MISSING = 60.0
 GROSS_CM = 20.0
 OUTSIDE_CM = 100.0
 PEERS = ("linear", "cubic", "kineticstoolkit")
+#: issue #19: a self-validating method's estimated error within this factor of the true one
+ESTIMATE_FACTOR = 1.5
 MOCAPKIT_METHODS = ("kalman-cv", "svt", "trnn", "tsmc", "dynammo",
                     "fill-rigid", "fill-pattern", "fill-pca", "fill-auto", "auto")
 PREFERRED_SOURCES = ("kineticstoolkit/kinematics_basket_sprint.c3d",
@@ -333,9 +340,25 @@ def make_runner(name: str, motion: Motion) -> tuple[Callable[[Motion], tuple[np.
         if not isinstance(est, Motion) or est.positions.shape != m.positions.shape:
             shape = getattr(getattr(est, "positions", None), "shape", type(est).__name__)
             raise MocapError(f"returned {shape}, expected a Motion of shape {m.positions.shape}")
+        run.estimate = own_estimate(est)
         return np.asarray(est.positions), np.asarray(est.observed)
 
+    run.estimate = None
+
     return run, repr(meth)
+
+
+def own_estimate(out: Motion) -> tuple[float, str] | None:
+    """The error a self-validating method says its result has, and over what: ``auto``'s
+    ``estimated_rmse_cm`` (every sample it wrote: ``'written'``) or ``fill-auto``'s (its
+    fills: ``'fills'``); None for a method that gives none."""
+    a = out.source.get("auto")
+    if isinstance(a, dict) and a.get("estimated_rmse_cm") is not None:
+        return float(a["estimated_rmse_cm"]), "written"
+    f = out.source.get("fill_auto")
+    if isinstance(f, dict) and f.get("estimated_rmse_cm") is not None:
+        return float(f["estimated_rmse_cm"]), "fills"
+    return None
 
 
 # ---------------------------------------------------------------------------------------
@@ -356,6 +379,16 @@ class Fill:
     err2: np.ndarray           # squared 3-D error, NaN where not filled
     outside: np.ndarray        # filled and > OUTSIDE_CM outside the box
     zero: np.ndarray           # filled with exactly (0, 0, 0)
+    measured_sse: float = 0.0  # squared 3-D error summed over the measured samples written
+    n_measured: int = 0
+    estimate: tuple[float, str] | None = None     # own_estimate of the result
+
+    def true_error(self, scope: str) -> float:
+        """RMSE per coordinate (cm) over what an estimate of ``scope`` covers: the fills, or
+        every sample written (fills and measured samples)."""
+        if scope == "fills":
+            return _rmse(self.sse(), self.n_filled)
+        return _rmse(self.sse() + self.measured_sse, self.n_filled + self.n_measured)
 
     @property
     def n_hidden(self) -> int:
@@ -405,7 +438,10 @@ def score_fill(truth: np.ndarray, hidden: np.ndarray, est: np.ndarray, est_obser
         dist = np.sqrt(np.sum(out * out, axis=2))
     outside = filled & (dist > OUTSIDE_CM)
     zero = filled & (np.where(filled[..., None], est, 1.0) == 0.0).all(axis=2)
-    return Fill(hidden, filled, err2, outside, zero)
+    measured = ~hidden & np.asarray(est_observed, dtype=bool) & np.isfinite(truth).all(axis=2) \
+        & np.isfinite(est).all(axis=2)
+    msse = float(np.sum((est[measured] - truth[measured]) ** 2))
+    return Fill(hidden, filled, err2, outside, zero, msse, int(measured.sum()))
 
 
 def _rmse(sse: float, n: int) -> float:
@@ -453,6 +489,7 @@ def run_methods(case: CaseResult, truth: np.ndarray, inp: Motion, hidden: np.nda
             case.ran[name] = desc
             case.seconds[name] = t.seconds
             case.fills[name] = score_fill(truth, hidden, P, obs, box)
+            case.fills[name].estimate = getattr(runner, "estimate", None)
         except Exception as e:  # noqa: BLE001  (a crash is a result)
             msg = f"{type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''}"[:300]
             case.errors[name] = msg
@@ -517,6 +554,12 @@ def case_rows(case: CaseResult, methods: list[str]) -> Iterator[Row]:
         if s["n_filled"] == s["n_hidden"]:
             yield Row(PROTOCOL, case.clip, case.condition, name, "rmse_all_hidden", "cm", s["rmse"],
                       n=s["n_hidden"], extra=dict(base))
+        if f.estimate is not None and s["n_filled"]:
+            value, scope = f.estimate
+            true = f.true_error(scope)
+            yield Row(PROTOCOL, case.clip, case.condition, name, "estimate_ratio", "x",
+                      value / true if true > 0 else float("nan"),
+                      extra={**base, "estimate_cm": value, "true_cm": true, "over": scope})
 
 
 def pooled_rows(cases: list[CaseResult], methods: list[str], clip: str, condition: str) -> Iterator[Row]:
@@ -602,6 +645,15 @@ def target_rows(cases: list[CaseResult], methods: list[str]) -> Iterator[Row]:
                       float(max(ratios)), n=len(ratios), extra={"case": worst_case})
             yield Row(PROTOCOL, "targets", cond, name, "cases_worse_than_best_peer", "cases",
                       float(sum(r > 1.0 + 1e-9 for r in ratios)), n=len(ratios))
+        est = [r.value for c in scored for r in case_rows(c, [name]) if r.metric == "estimate_ratio"
+               and np.isfinite(r.value)]
+        if est:
+            est_ = np.asarray(est)
+            yield Row(PROTOCOL, "targets", cond, name, "estimate_within_1.5x", "%",
+                      100.0 * float(np.mean((est_ >= 1 / ESTIMATE_FACTOR) & (est_ <= ESTIMATE_FACTOR))),
+                      n=len(est), extra={"under": int((est_ < 1 / ESTIMATE_FACTOR).sum()),
+                                         "over": int((est_ > ESTIMATE_FACTOR).sum()),
+                                         "median_ratio": float(np.median(est_))})
         yield Row(PROTOCOL, "targets", cond, name, "gross_pct", "%",
                   100.0 * n_g / n_f if n_f else float("nan"), n=n_f)
         yield Row(PROTOCOL, "targets", cond, name, "coverage", "%", 100.0 * n_f / n_h if n_h else float("nan"),
