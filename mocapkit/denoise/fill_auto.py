@@ -290,19 +290,20 @@ def _pooled(err: np.ndarray, n: np.ndarray, gaps: Sequence[Gap], n0: float,
     the pool is made of gaps that had their length seen on their side(s) -- that is what a
     hidden stretch takes -- and an interpolation or a donor's offset resting on a few
     isolated samples is no such gap.
-    Found on real_gaps (2026-12-06, eighteenth session): fill-auto's fills of gaps with no
-    stretch of their own carried 351 of its 357 gross fills (> 20 cm off); of them, gaps of at
-    most 30 frames, 3,502 samples, were 4.64 cm RMSE against 0.39 for those judged on their
-    own stretches -- splines through a flickering hand in the tennis serve (under the
-    basket sprint's mask), up to 111 cm off -- and HDM05 markers seen 19 frames after a
-    183-frame leading gap took fill-pattern's pool, 11-18 cm off. Measured with the rule
-    (fill-auto, 37 cases): pooled RMSE 2.52 -> 2.11 cm, gross fills 0.66 -> 0.41 %,
-    coverage 33.2 -> 31.3 %; the share 0.25-0.9 gives the same within 0.01 cm (the gaps it
-    takes are seen in far fewer of their frames); withheld from interpolation alone, 2.45
-    cm and 0.70 %. The same rule in :func:`unvalidated_fills` was measured and not kept:
-    there a gap without a score counts as unjudged and is kept up to :data:`UNJUDGED_S`, so
-    withholding the pool kept fills the pool had refused (real_gaps, gross fills kalman-cv
-    0 -> 2.35 %, trnn 1.27 -> 3.35 %, tsmc 1.00 -> 3.23 %).
+    Found on real_gaps (2026-12-06, eighteenth session): fill-auto's fills of gaps with
+    no stretch of their own carried 351 of its 357 gross fills (> 20 cm off); of them,
+    gaps of at most 30 frames, 3,502 samples, were 4.64 cm RMSE against 0.39 for those
+    judged on their own stretches -- splines through a flickering hand in the tennis serve
+    (under the basket sprint's mask), up to 111 cm off -- and HDM05 markers unseen for the
+    first 125-183 of the take's 202 frames took fill-pattern's pool, 11-18 cm off.
+    Measured with the rule (fill-auto, 37 cases): pooled RMSE 2.52 -> 2.11 cm, gross fills
+    0.66 -> 0.41 %, coverage 33.2 -> 31.3 %. Not counting frames beyond the take as
+    unseen: 2.22 cm, 0.54 %, alike for shares 0.25, 0.5, 0.75 and 0.9 (the gaps the rule
+    takes are seen in far fewer of their frames); with that variant and the pool withheld
+    from interpolation alone: 2.45 cm, 0.70 %. The same rule in :func:`unvalidated_fills`
+    was measured and not kept: there a gap without a score counts as unjudged and is kept
+    up to :data:`UNJUDGED_S`, so withholding the pool kept fills the pool had refused
+    (real_gaps, gross fills kalman-cv 0 -> 2.35 %, trnn 1.27 -> 3.35 %, tsmc 1.00 -> 3.23 %).
     inf (the candidate could not fill the stretch) stays inf; a candidate validated
     nowhere stays NaN.
     """
