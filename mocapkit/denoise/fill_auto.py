@@ -22,7 +22,9 @@ file, so (decision, METHODS.md §6 "self-validation"):
    score on all the file's gaps of the same kind and length (:func:`_pooled`: a few
    hidden frames are a noisy judge); a gap without a usable stretch (a marker seen too
    little) takes that file-wide score alone (for interpolation only where the file
-   validated gaps at least half as long: a far longer gap is no gap it was judged on).
+   validated gaps at least half as long -- a far longer gap is no gap it was judged on --
+   and where the marker is seen in at least half the frames on each side of the gap:
+   splines between a few isolated samples are no fill it was judged on either).
    A candidate that cannot cover a hidden stretch -- its own evidence is missing there: a
    kinematic fill whose joint's child is in another real gap over those frames, a rigid
    fill whose segment-mates are -- but does cover the real gap is not failed by that
