@@ -338,8 +338,21 @@ def cmd_denoise(a: argparse.Namespace) -> int:
                   f"estimated fill error "
                   f"{_cm(auto['estimated_rmse_cm'])} cm RMSE (from observed stretches hidden like the "
                   f"file's own gaps)" + (f"; {auto['left_gaps']} gaps left missing (no fill validated "
-                                        f"under {auto['max_error_cm']:g} cm)" if auto["left_gaps"] else ""))
+                                        f"under {auto['max_error_cm']:g} cm)" if auto["left_gaps"] else "")
+                  + _pooled_note(auto.get("pooled_share")))
     return 0
+
+
+def _pooled_note(share: float | None) -> str:
+    """The fill-auto line's caution when most fills were judged only by the file's other gaps
+    (:data:`mocapkit.denoise.fill_auto.POOLED_WARN_SHARE`)."""
+    from .denoise.fill_auto import POOLED_WARN_SHARE
+
+    if share is None or share < POOLED_WARN_SHARE:
+        return ""
+    return (f"; {100 * share:.0f} % of the fills had no observed stretch next to their own gap to be "
+            f"judged on, only the file's other gaps: the estimate may run low (on real occlusions "
+            f"such estimates were about half the true error)")
 
 
 def _cm(x: float) -> str:

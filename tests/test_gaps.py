@@ -611,3 +611,20 @@ def test_moved_without_cause_clip_edges_are_not_samples_alone():
     obs[2:4, 0] = False                         # frames 0-1 of A now seen alone before a gap
     back = gaps.moved_without_cause(P, obs, Q, 5.0, edges_alone=False)
     assert back[:2, 0].all() and back.sum() == 2
+
+
+def test_pooled_share_counts_the_written_fills_judged_by_other_gaps_only():
+    from mocapkit.denoise.fill_auto import pooled_share, rescored
+
+    emap = np.full((4, 2), np.nan)
+    emap[:, 0] = 1.0                                    # four fills of marker 0
+    pooled = np.zeros((4, 2), bool)
+    pooled[:3, 0] = True                                # three of them judged by the pool
+    assert pooled_share(emap, pooled) == 0.75
+    written = np.ones((4, 2), bool)
+    written[0, 0] = False                               # the policy left one of those out
+    assert pooled_share(emap, pooled, written) == pytest.approx(2 / 3)
+    rep = rescored({"error_map": emap, "estimated_rmse_cm": 1.0, "pooled_map": pooled,
+                    "pooled_share": 0.75}, written)
+    assert rep["pooled_share"] == pytest.approx(2 / 3)
+    assert pooled_share(np.full((2, 1), np.nan), np.zeros((2, 1), bool)) is None
