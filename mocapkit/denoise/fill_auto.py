@@ -469,7 +469,8 @@ def pooled_share(emap: np.ndarray, pooled: np.ndarray, written: np.ndarray | Non
     given) charged an error no stretch of their own gap measured (``pooled``, (T, J)): the
     file's score for gaps like theirs stands in. On real occlusions those fills were 1.6-1.8x
     their estimate (real_gaps, 2026-12-06: long pooled gaps 2.43 / 2.72 cm true against 1.54 /
-    1.48 estimated), where fills judged on their own stretches were at or under theirs."""
+    1.48 estimated), where fills judged on their own stretches were at or under theirs in 4
+    of 6 classes of gap (interior / edge x length), 0.83 and 0.55x in the other two."""
     have = np.isfinite(emap) if written is None else np.isfinite(emap) & written
     return float(np.mean(pooled[have])) if have.any() else None
 

@@ -324,10 +324,16 @@ def method_list(ctx: Context) -> tuple[list[str], list[str]]:
     return names, notes
 
 
-def make_runner(name: str, motion: Motion) -> tuple[Callable[[Motion], tuple[np.ndarray, np.ndarray]], str]:
+#: what a runner returns: positions (T, J, 3), observed (T, J), the method's own error
+#: estimate (:func:`own_estimate`; None for a peer or a method without one)
+RunResult = tuple[np.ndarray, np.ndarray, "tuple[float, str] | None"]
+
+
+def make_runner(name: str, motion: Motion) -> tuple[Callable[[Motion], RunResult], str]:
     """A callable filling ``motion`` for method ``name`` and a description of what ran."""
     if name in PEER_FUNCS:
-        return PEER_FUNCS[name], name
+        peer = PEER_FUNCS[name]
+        return (lambda m: (*peer(m), None)), name
     from ... import denoise
 
     if name == "default":
@@ -335,15 +341,12 @@ def make_runner(name: str, motion: Motion) -> tuple[Callable[[Motion], tuple[np.
     else:
         meth = denoise.get(name)
 
-    def run(m: Motion) -> tuple[np.ndarray, np.ndarray]:
+    def run(m: Motion) -> RunResult:
         est = meth.denoise(m)
         if not isinstance(est, Motion) or est.positions.shape != m.positions.shape:
             shape = getattr(getattr(est, "positions", None), "shape", type(est).__name__)
             raise MocapError(f"returned {shape}, expected a Motion of shape {m.positions.shape}")
-        run.estimate = own_estimate(est)
-        return np.asarray(est.positions), np.asarray(est.observed)
-
-    run.estimate = None
+        return np.asarray(est.positions), np.asarray(est.observed), own_estimate(est)
 
     return run, repr(meth)
 
@@ -381,7 +384,6 @@ class Fill:
     zero: np.ndarray           # filled with exactly (0, 0, 0)
     measured_sse: float = 0.0  # squared 3-D error summed over the measured samples written
     n_measured: int = 0
-    estimate: tuple[float, str] | None = None     # own_estimate of the result
 
     def true_error(self, scope: str) -> float:
         """RMSE per coordinate (cm) over what an estimate of ``scope`` covers: the fills, or
@@ -460,6 +462,7 @@ class CaseResult:
     errors: dict[str, str] = field(default_factory=dict)
     seconds: dict[str, float] = field(default_factory=dict)
     ran: dict[str, str] = field(default_factory=dict)
+    estimates: dict[str, tuple[float, str]] = field(default_factory=dict)   # own_estimate
 
 
 def case_seed(seed: int, source: str, target: str) -> int:
@@ -479,17 +482,20 @@ def run_methods(case: CaseResult, truth: np.ndarray, inp: Motion, hidden: np.nda
                 case.ran[name] = f"{case.ran[same]} (= {same}, result reused)"
                 case.seconds[name] = case.seconds[same]
                 case.fills[name] = case.fills[same]
+                if same in case.estimates:
+                    case.estimates[name] = case.estimates[same]
                 continue
         try:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
                 runner, desc = make_runner(name, inp)
                 with Timer() as t:
-                    P, obs = runner(inp)
+                    P, obs, estimate = runner(inp)
             case.ran[name] = desc
             case.seconds[name] = t.seconds
             case.fills[name] = score_fill(truth, hidden, P, obs, box)
-            case.fills[name].estimate = getattr(runner, "estimate", None)
+            if estimate is not None:
+                case.estimates[name] = estimate
         except Exception as e:  # noqa: BLE001  (a crash is a result)
             msg = f"{type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''}"[:300]
             case.errors[name] = msg
@@ -554,8 +560,8 @@ def case_rows(case: CaseResult, methods: list[str]) -> Iterator[Row]:
         if s["n_filled"] == s["n_hidden"]:
             yield Row(PROTOCOL, case.clip, case.condition, name, "rmse_all_hidden", "cm", s["rmse"],
                       n=s["n_hidden"], extra=dict(base))
-        if f.estimate is not None and s["n_filled"]:
-            value, scope = f.estimate
+        if name in case.estimates and s["n_filled"]:
+            value, scope = case.estimates[name]
             true = f.true_error(scope)
             yield Row(PROTOCOL, case.clip, case.condition, name, "estimate_ratio", "x",
                       value / true if true > 0 else float("nan"),
@@ -625,13 +631,17 @@ def target_rows(cases: list[CaseResult], methods: list[str]) -> Iterator[Row]:
     cond = f"cases <= {SCORED_MAX_MISSING:g}% missing"
     scored = [c for c in cases if c.missing_pct <= SCORED_MAX_MISSING]
     for name in methods:
-        ratios, worst_case = [], ""
+        ratios, est, worst_case = [], [], ""
         for c in scored:
-            rows = [r for r in case_rows(c, [name]) if r.metric == "ratio_best_peer"]
-            if rows and np.isfinite(rows[0].value):
-                ratios.append(rows[0].value)
-                if rows[0].value >= max(ratios):
+            rows = {r.metric: r for r in case_rows(c, [name])}
+            r = rows.get("ratio_best_peer")
+            if r is not None and np.isfinite(r.value):
+                ratios.append(r.value)
+                if r.value >= max(ratios):
                     worst_case = f"{c.clip} / {c.condition}"
+            r = rows.get("estimate_ratio")
+            if r is not None and np.isfinite(r.value):
+                est.append(r.value)
         crashes = sum(name in c.errors for c in scored)
         n_f = sum(c.fills[name].n_filled for c in scored if name in c.fills)
         n_h = sum(c.fills[name].n_hidden for c in scored if name in c.fills)
@@ -645,8 +655,6 @@ def target_rows(cases: list[CaseResult], methods: list[str]) -> Iterator[Row]:
                       float(max(ratios)), n=len(ratios), extra={"case": worst_case})
             yield Row(PROTOCOL, "targets", cond, name, "cases_worse_than_best_peer", "cases",
                       float(sum(r > 1.0 + 1e-9 for r in ratios)), n=len(ratios))
-        est = [r.value for c in scored for r in case_rows(c, [name]) if r.metric == "estimate_ratio"
-               and np.isfinite(r.value)]
         if est:
             est_ = np.asarray(est)
             yield Row(PROTOCOL, "targets", cond, name, "estimate_within_1.5x", "%",
