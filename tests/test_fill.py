@@ -204,6 +204,38 @@ def test_pattern_fill_constant_offset_exact_and_donor_choice():
     np.testing.assert_allclose(X[60:140, 1], Q[60:140, 1], atol=1e-10)
 
 
+def test_pattern_fill_limits_leave_held_offsets_and_drifting_donors_missing():
+    T = 400
+    t = np.arange(T) / 100.0
+    donor = np.c_[30 * np.sin(3 * t), 100 * t, 10 * np.cos(5 * t)]
+    P = np.stack([donor, donor + [4.0, -2.0, 15.0], donor + [0.0, 20.0, 0.0], donor * 0.5], axis=1)
+    obs = np.ones((T, 4), bool)
+    obs[250:, 1] = False                                  # a 150-frame trailing gap
+    X, f = pattern_fill(P, obs, max_edge=100)
+    assert f[250:350, 1].all() and not f[350:, 1].any() and np.isnan(X[350:, 1]).all()
+    np.testing.assert_allclose(X[250:350, 1], P[250:350, 1], atol=1e-10)
+    obs[:] = True
+    obs[:150, 1] = False                                  # leading: filled next to its end
+    X, f = pattern_fill(P, obs, max_edge=100)
+    assert f[50:150, 1].all() and not f[:50, 1].any()
+    # the marker slides 12 cm away from every donor across an interior gap: left missing
+    # at a 10 cm limit, filled without it
+    Q = P.copy()
+    Q[:, 1] += (np.clip(t - 1.0, 0, 1) * 12.0)[:, None] * [1.0, 0.0, 0.0]
+    obs[:] = True
+    obs[100:200, 1] = False
+    X, f = pattern_fill(Q, obs, max_drift_cm=10.0)
+    assert not f.any() and np.isnan(X[100:200, 1]).all()
+    assert pattern_fill(Q, obs)[1][100:200, 1].all()
+    assert pattern_fill(Q, obs, max_drift_cm=13.0)[1][100:200, 1].all()
+    # the method's defaults: 1 s at an edge, 10 cm of drift (at 100 fps)
+    obs[:] = True
+    obs[250:, 1] = False
+    out = denoise.get("fill-pattern").denoise(_motion(P, obs))
+    assert out.filled[:, 1].sum() == 100
+    assert denoise.get("fill-pattern", max_edge_s=None).denoise(_motion(P, obs)).filled[:, 1].sum() == 150
+
+
 def test_pattern_fill_leaves_gap_without_donor_missing():
     rng = np.random.default_rng(6)
     P = rng.normal(size=(50, 3, 3))
@@ -381,6 +413,8 @@ def test_real_capture_hidden_blocks(shared_data, case, capsys):
     # 0.39 (60 %; linear there 29.0), pattern 2.1. Since the policy's self-validation
     # (2026-12-05, seventeenth session) tennis fill-pattern 1.86 cm at 62 %: two 100-frame
     # gaps it fills 3.2 / 3.7 cm off validate at 10.6 / 5.9 cm on the stretches next to them
+    # Since fill-pattern's limits (2026-12-06, nineteenth session: edge fills reach 1 s,
+    # interior gaps whose donor offset drifts > 10 cm per second left) tennis 2.51 cm at 67 %
     assert res["fill-pca"][1] > 0.9
     assert res["fill-pca"][0] < 0.2 * res["linear"][0]
     assert res["fill-rigid"][1] > 0.1
