@@ -8,7 +8,8 @@ Every model-based method is run twice on the same input, through its ``denoise``
 the default gap policy): once with the policy's ``misfit_factor`` switched off (the
 model's values written, as before 2026-12-06) and once with the default (the markers it
 moved more than twice the input's noise, where the input has no spike, written as
-measured: :func:`mocapkit.gaps.model_misfit`). Scores: RMSE (cm, per coordinate, every
+measured, and the samples it moved far where the input is smooth, one by one:
+:func:`mocapkit.gaps.model_misfit`). Scores: RMSE (cm, per coordinate, every
 sample) against the clean clip.
 
 * **CMU / HDM05 skeletons** -- the held-out test clips of ``benchmarks/shipped_models.py``
@@ -135,8 +136,9 @@ def render(doc: dict) -> str:
              "low-rank / dynamical and fitted to the clip) ran twice on the same input: `off` = "
              "its values written (the gap policy's `misfit_factor` switched off, as before 2026-12-06), `on` = the "
              "default (the markers it moved more than twice the input's noise where the input has no spike are "
-             "written as measured, `mocapkit.gaps.model_misfit`). RMSE in cm per coordinate over every sample, "
-             "against the clean clip; means over clips.", "",
+             "written as measured, and since 2026-12-06 (nineteenth session) the samples it moved more than 4 sqrt(3) "
+             "times the noise where the input is smooth, one by one; `mocapkit.gaps.model_misfit`). RMSE in cm per "
+             "coordinate over every sample, against the clean clip; means over clips.", "",
              "## Summary", "",
              f"- runs: {len(rows)}; results worse than their input with the model's values: {n_worse}; "
              f"with the default: {sum(r['on'] > r['input'] * 1.0001 for r in rows)}",

@@ -69,14 +69,58 @@ def test_spikes_keep_the_model_values():
     Q = truth + 0.4                                        # the model: spikes gone, 0.4 cm off everywhere
     Q[:, 1:] = P[:, 1:]                                    # markers 1-3 untouched
     obs = np.ones((T, J), bool)
-    back, rms = gaps.model_misfit(P, obs, Q, 0.05, 2.0)
+    back, rms, _ = gaps.model_misfit(P, obs, Q, 0.05, 2.0)
     # the spikes and the samples whose neighbours' cubic they throw off (2.5-10 cm) keep the model's value
     assert set(np.flatnonzero(~back[:, 0])) == {0, 2, 48, 49, 50, 51, 52} and not back[:, 1:].any()
     assert rms[0] == pytest.approx(0.4, abs=0.02) and np.all(rms[1:] == 0)
     obs[8:, 2] = False                                     # too few samples judged: not judged
     Q[:, 2] += 5.0
-    back, rms = gaps.model_misfit(P, obs, Q, 0.05, 2.0)
+    back, rms, _ = gaps.model_misfit(P, obs, Q, 0.05, 2.0)
     assert np.isnan(rms[2]) and not back[:, 2].any()
+
+
+def test_local_misfits_go_back_one_by_one():
+    """A model that fits a marker but for a few frames it moved far where the input is
+    smooth (beside a jump it smoothed across): those samples go back on their own, the
+    marker is judged without them and keeps the model's values elsewhere; a spike the
+    model removed stays removed."""
+    rng = np.random.default_rng(1)
+    T, J = 6000, 3                                         # local: on at most 0.5 % of a marker's samples
+    t = np.arange(T)[:, None, None] / 60.0
+    truth = np.concatenate([np.sin(t * (1 + j)) * 20.0 + j * 10.0 for j in range(J)], axis=1)
+    truth = np.broadcast_to(truth[..., :1], (T, J, 3)).copy()
+    truth[300:, 0] += 200.0                                # marker 0 jumps 2 m at frame 300
+    P = truth + rng.normal(0, 0.1, truth.shape)
+    P[100, 1] += 5.0                                       # a spike on marker 1
+    Q = truth + rng.normal(0, 0.03, truth.shape)           # the model: the noise mostly gone
+    ramp = np.clip((np.arange(T) - 290) / 20.0, 0, 1)[:, None] * 200.0
+    Q[280:320, 0] = truth[280:320, 0] - truth[280:320, 0] + truth[279, 0] + ramp[280:320]  # smoothed across
+    obs = np.ones((T, J), bool)
+    back, rms, local = gaps.model_misfit(P, obs, Q, 0.1, 2.0)
+    far = np.linalg.norm(Q - P, axis=2) > 4 * np.sqrt(3) * 0.1
+    assert local[:, 0].sum() > 10 and not local[:, 1:].any()
+    assert np.array_equal(back, local)                     # no marker given back as a whole
+    assert set(np.flatnonzero(local[:, 0])) <= set(np.flatnonzero(far[:, 0]))
+    assert not local[:270, 0].any() and not local[330:, 0].any()
+    assert rms[0] < 0.2 and not back[100, 1]               # judged without them; the spike stays removed
+    # the same model on a tenth of the take: too many to be local, the marker goes back whole
+    short = gaps.model_misfit(P[:600], obs[:600], Q[:600], 0.1, 2.0)[0]
+    assert short[:, 0].sum() > 500 and not short[:, 1:].any()
+    # the guard's report and its one line
+    from mocapkit.motion import Motion
+    from mocapkit.skeleton import Skeleton
+
+    sk = Skeleton(("a", "b", "c"), [-1] * 3, np.zeros((3, 3)))
+    d = type("Fitted", (), {"name": "fitted", "misfit_check": "fitted"})()
+    with warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always")
+        got = check_model_fit(d, Motion(P, sk, 60.0), Motion(Q, sk, 60.0))
+    info = d.last_report_["model_fit"]
+    assert info["markers"] == [] and info["local_samples"] == local.sum() and info["local_markers"] == 1
+    assert np.array_equal(got, local)
+    msg = str(w[-1].message)
+    assert f"{local.sum()} measured samples of 1 markers" in msg and "the input is smooth" in msg, msg
+    assert "written as measured" in msg
 
 
 def test_lou_chai_self_vs_other_behaviour(clip):

@@ -602,8 +602,10 @@ def check_model_fit(den: "Denoiser", inp: Motion, out: Motion, *, factor: float 
     Records ``den.last_report_["model_fit"]`` (the result's ``source["model_fit"]``)
     = {noise_cm, threshold_cm, markers (the names flagged), n_markers, kind (the method's
     ``misfit_check``), moved_rms_cm and worst_marker (the largest RMS move of a judged
-    marker, cm, and its name), samples (to give back), given_back, mismatch} and, when
-    ``mismatch`` and ``warn``, emits one TrainingMismatchWarning (a learned model) or
+    marker, cm, and its name), samples (to give back), given_back, mismatch (markers
+    flagged), local_samples / local_markers / local_threshold_cm / local_max_cm (the local
+    misfits on the other markers, given back one by one)} and, when ``mismatch`` or local
+    misfits and ``warn``, emits one TrainingMismatchWarning (a learned model) or
     ModelMisfitWarning (:func:`mocapkit.gaps.misfit_warning`; the guard leaves it to
     :func:`mocapkit.gaps.apply_policy`, which knows what it gave back). Returns the (T, J)
     samples to give back as measured, or None.
@@ -618,22 +620,28 @@ def check_model_fit(den: "Denoiser", inp: Motion, out: Motion, *, factor: float 
     >>> int(back.any(axis=0).sum()), model.last_report_["model_fit"]["markers"][:2]
     (31, ['root', 'lhipjoint'])
     """
-    from ..gaps import DEFAULT_POLICY, misfit_warning, model_misfit
+    from ..gaps import DEFAULT_POLICY, MISFIT_FLOOR_CM, MISFIT_LOCAL_FACTOR, misfit_warning, model_misfit
     from ..signal import estimate_noise
 
     sigma = estimate_noise(inp.matrix(copy=False), inp.matrix_mask(), pool="all", fallback=0.0)
     f = float(DEFAULT_POLICY.misfit_factor if factor is None else factor)
-    mask, rms = model_misfit(inp.positions, inp.observed, out.positions, sigma, f)
-    names = [inp.skeleton.names[j] for j in np.flatnonzero(mask.any(axis=0))]
+    mask, rms, local = model_misfit(inp.positions, inp.observed, out.positions, sigma, f)
+    whole = (mask & ~local).any(axis=0)            # markers judged misfits as a whole
+    names = [inp.skeleton.names[j] for j in np.flatnonzero(whole)]
+    alone = local & ~whole[None, :]                # samples given back one by one elsewhere
     judged = np.isfinite(rms).any()
     info = {"noise_cm": float(sigma), "threshold_cm": f * float(sigma), "markers": names,
             "n_markers": inp.n_joints, "kind": getattr(den, "misfit_check", None) or "learned",
             "moved_rms_cm": float(np.nanmax(rms)) if judged else 0.0,
             "worst_marker": inp.skeleton.names[int(np.nanargmax(rms))] if judged else None,
             "samples": int(mask.sum()) if give_back else 0, "given_back": bool(give_back),
-            "mismatch": bool(names)}
+            "mismatch": bool(names), "local_samples": int(alone.sum()),
+            "local_markers": int(alone.any(axis=0).sum()),
+            "local_threshold_cm": float(MISFIT_LOCAL_FACTOR * max(sigma, MISFIT_FLOOR_CM)),
+            "local_max_cm": float(np.linalg.norm(out.positions[alone] - inp.positions[alone], axis=1).max())
+            if alone.any() else 0.0}
     den.__dict__.setdefault("last_report_", {})["model_fit"] = info
-    if warn and names:
+    if warn and (names or alone.any()):
         misfit_warning(den.name, info, info["samples"], stacklevel=stacklevel + 1)
     return mask if give_back else None
 
