@@ -605,8 +605,9 @@ def check_model_fit(den: "Denoiser", inp: Motion, out: Motion, *, factor: float 
     marker, cm, and its name), samples (to give back), given_back, mismatch (markers
     flagged), local_samples / local_markers / local_threshold_cm / local_max_cm (the local
     misfits on the other markers, given back one by one)} and, when ``mismatch`` or local
-    misfits and ``warn``, emits one TrainingMismatchWarning (a learned model) or
-    ModelMisfitWarning (:func:`mocapkit.gaps.misfit_warning`; the guard leaves it to
+    misfits of 1 cm or more (:func:`mocapkit.gaps.local_said`) and ``warn``, emits one
+    TrainingMismatchWarning (a learned model) or ModelMisfitWarning
+    (:func:`mocapkit.gaps.misfit_warning`; the guard leaves it to
     :func:`mocapkit.gaps.apply_policy`, which knows what it gave back). Returns the (T, J)
     samples to give back as measured, or None.
 
@@ -620,7 +621,8 @@ def check_model_fit(den: "Denoiser", inp: Motion, out: Motion, *, factor: float 
     >>> int(back.any(axis=0).sum()), model.last_report_["model_fit"]["markers"][:2]
     (31, ['root', 'lhipjoint'])
     """
-    from ..gaps import DEFAULT_POLICY, MISFIT_FLOOR_CM, MISFIT_LOCAL_FACTOR, misfit_warning, model_misfit
+    from ..gaps import (DEFAULT_POLICY, MISFIT_FLOOR_CM, MISFIT_LOCAL_FACTOR, local_said, misfit_warning,
+                        model_misfit)
     from ..signal import estimate_noise
 
     sigma = estimate_noise(inp.matrix(copy=False), inp.matrix_mask(), pool="all", fallback=0.0)
@@ -641,7 +643,7 @@ def check_model_fit(den: "Denoiser", inp: Motion, out: Motion, *, factor: float 
             "local_max_cm": float(np.linalg.norm(out.positions[alone] - inp.positions[alone], axis=1).max())
             if alone.any() else 0.0}
     den.__dict__.setdefault("last_report_", {})["model_fit"] = info
-    if warn and (names or alone.any()):
+    if warn and (names or local_said(info)):
         misfit_warning(den.name, info, info["samples"], stacklevel=stacklevel + 1)
     return mask if give_back else None
 
