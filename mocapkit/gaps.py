@@ -700,7 +700,7 @@ MISFIT_LOCAL_REST = float(np.sqrt(2.0))
 #: local misfits all smaller than this (cm) are given back and counted in the report
 #: (``source["model_fit"]``) but not warned of: on a file measured to 30 um (ezc3d's
 #: Vicon.c3d) trnn moved 2 samples by 0.2 mm, no line a user needs
-MISFIT_LOCAL_WARN_CM = 1.0
+MISFIT_LOCAL_WARN_CM = 0.1
 
 
 def model_misfit(positions: np.ndarray, observed: np.ndarray, result: np.ndarray, noise_cm: float,

@@ -121,15 +121,15 @@ def test_local_misfits_go_back_one_by_one():
     msg = str(w[-1].message)
     assert f"{local.sum()} measured samples of 1 markers" in msg and "the input is smooth" in msg, msg
     assert "written as measured" in msg
-    # moves under 1 cm (gaps.MISFIT_LOCAL_WARN_CM) go back too, without a line
-    P2 = truth + rng.normal(0, 0.01, truth.shape)
+    # moves under 1 mm (gaps.MISFIT_LOCAL_WARN_CM) go back too, without a line
+    P2 = truth + rng.normal(0, 0.004, truth.shape)
     Q2 = truth.copy()
-    Q2[1000:1004, 2] += 0.5                                # a 0.9 cm bump where the input is smooth
+    Q2[1000:1004, 2] += 0.05                               # a 0.9 mm bump where the input is smooth
     with warnings.catch_warnings(record=True) as w:
         warnings.simplefilter("always")
         got = check_model_fit(d, Motion(P2, sk, 60.0), Motion(Q2, sk, 60.0))
     info = d.last_report_["model_fit"]
-    assert got[1000:1004, 2].all() and info["local_samples"] >= 4 and info["local_max_cm"] < 1.0
+    assert got[1000:1004, 2].all() and info["local_samples"] >= 4 and info["local_max_cm"] < 0.1
     assert not [x for x in w if "the model moved" in str(x.message)]
 
 

@@ -605,7 +605,7 @@ def check_model_fit(den: "Denoiser", inp: Motion, out: Motion, *, factor: float 
     marker, cm, and its name), samples (to give back), given_back, mismatch (markers
     flagged), local_samples / local_markers / local_threshold_cm / local_max_cm (the local
     misfits on the other markers, given back one by one)} and, when ``mismatch`` or local
-    misfits of 1 cm or more (:func:`mocapkit.gaps.local_said`) and ``warn``, emits one
+    misfits of 1 mm or more (:func:`mocapkit.gaps.local_said`) and ``warn``, emits one
     TrainingMismatchWarning (a learned model) or ModelMisfitWarning
     (:func:`mocapkit.gaps.misfit_warning`; the guard leaves it to
     :func:`mocapkit.gaps.apply_policy`, which knows what it gave back). Returns the (T, J)
