@@ -776,15 +776,14 @@ def model_misfit(positions: np.ndarray, observed: np.ndarray, result: np.ndarray
     cm (10 % of spikes raise the median: spikes kept); or a move 2-3 times the median
     move of the 5 frames about it: 0.98-0.99 cm (clean clips 0.11 -> 0.07, spikes 0.60
     -> 0.81-0.85).
-    Known limit (2026-12-06, eighteenth session): the test is one RMS per marker over the
-    whole take, so a take whose input jumps -- the CMU 135 trials joined back to back in
-    ``benchmarks/long_clip_segments.py``, steps of up to 2 m that no model follows -- has
-    every marker judged a misfit and all of trnn's / tsmc's denoising given back (97 % of
-    the squared move in 1 % of the samples, at the joins; 0.46 cm RMS move elsewhere
-    against a 1.0 cm threshold): the measured samples came back about as measured (0.874 cm
-    RMSE against the input's 0.865, away from the joins; 0.46 without the check), with a
-    warning line. Hence the local misfits (nineteenth session): the samples beside the
-    joins go back one by one and the rest is judged without them.
+    Why the local misfits (found 2026-12-06, eighteenth session): with one RMS per marker
+    over the whole take, a take whose input jumps -- the CMU 135 trials joined back to
+    back in ``benchmarks/long_clip_segments.py``, steps of up to 2 m that no model follows
+    -- had every marker judged a misfit and all of trnn's / tsmc's denoising given back
+    (97 % of the squared move in 1 % of the samples, at the joins; 0.46 cm RMS move
+    elsewhere against a 1.0 cm threshold): the measured samples came back about as
+    measured (0.874 cm RMSE against the input's 0.865, away from the joins). Now the
+    samples beside the joins go back one by one and the rest is judged without them.
     """
     P = np.asarray(positions, dtype=float)
     obs = np.asarray(observed, dtype=bool)
