@@ -236,6 +236,37 @@ def test_pattern_fill_limits_leave_held_offsets_and_drifting_donors_missing():
     assert denoise.get("fill-pattern", max_edge_s=None).denoise(_motion(P, obs)).filled[:, 1].sum() == 150
 
 
+def test_policy_leaves_unjudged_edge_gaps_of_drifting_fills():
+    """The gap policy's self-validation: an edge gap whose marker is not seen for the
+    gap's length beyond it has no stretch of its own; a fill that drifts from the seen
+    end (fill-pattern, interpolation, trnn / tsmc / dynammo) leaves it missing, one that
+    rebuilds each frame from the markers seen in it takes the file's score for edge gaps."""
+    from mocapkit.denoise.fill import FillPattern
+    from mocapkit.denoise.fill_auto import unvalidated_fills
+
+    T = 400
+    t = np.arange(T) / 100.0
+    donor = np.c_[30 * np.sin(3 * t), 100 * t, 10 * np.cos(5 * t)]
+    P = np.stack([donor + [4.0 * i, 2.0 * i, 15.0 - i] for i in range(5)], axis=1)
+    obs = np.ones((T, 5), bool)
+    obs[:60, 1] = False                       # judged: seen for 60+ frames after it
+    obs[:60, 2] = False                       # unjudged: seen for 30 frames, then gone
+    obs[90:, 2] = False
+    m = _motion(P, obs)
+    with gaps.use_policy(gaps.FILL_ALL):
+        out = FillPattern(max_edge_s=None, max_drift_cm=None).denoise(m)
+    assert out.filled[:60, 1].all() and out.filled[:60, 2].all()
+    bad = unvalidated_fills(FillPattern(max_edge_s=None, max_drift_cm=None), m, out, 5.0)
+    assert bad[:60, 2].all() and not bad[:60, 1].any()
+
+    class FrameWise(FillPattern):             # the same fills, judged as a frame-wise fill
+        fill_drifts = False
+
+    assert not unvalidated_fills(FrameWise(max_edge_s=None, max_drift_cm=None), m, out, 5.0)[:60].any()
+    assert all(denoise.get(n).fill_drifts for n in ("trnn", "tsmc", "dynammo", "fill-pattern"))
+    assert not any(denoise.get(n).fill_drifts for n in ("svt", "fill-rigid", "fill-pca"))
+
+
 def test_pattern_fill_leaves_gap_without_donor_missing():
     rng = np.random.default_rng(6)
     P = rng.normal(size=(50, 3, 3))

@@ -316,9 +316,11 @@ class Denoiser:
     #: per channel) or "markers" (other markers observed in the same frame)
     fill_evidence: ClassVar[str] = "interp"
     #: whether a fill's error grows with the gap's length even with other markers as
-    #: evidence (fill-pattern: a donor's shape offset to meet the gap's ends); fill-auto
-    #: then judges it, like an ``"interp"`` fill, only by gaps at least half as long as the
-    #: one it fills (:func:`mocapkit.denoise.fill_auto._pooled`)
+    #: evidence (fill-pattern: a donor's shape offset to meet the gap's ends; trnn, tsmc,
+    #: dynammo: a temporal model); fill-auto then judges it, like an ``"interp"`` fill, only
+    #: by gaps at least half as long as the one it fills
+    #: (:func:`mocapkit.denoise.fill_auto._pooled`), and the gap policy leaves its edge gaps
+    #: without a stretch of their own missing (:func:`mocapkit.denoise.fill_auto.unvalidated_fills`)
     fill_drifts: ClassVar[bool] = False
 
     #: constraints of every constructor parameter (:mod:`mocapkit.denoise.constraints`):
