@@ -239,7 +239,7 @@ def test_pattern_fill_limits_leave_held_offsets_and_drifting_donors_missing():
 def test_policy_leaves_unjudged_edge_gaps_of_drifting_fills():
     """The gap policy's self-validation: an edge gap whose marker is not seen for the
     gap's length beyond it has no stretch of its own; a fill that drifts from the seen
-    end (fill-pattern, interpolation, trnn / tsmc / dynammo) leaves it missing, one that
+    end (fill-pattern, trnn / tsmc / dynammo) leaves it missing, one that
     rebuilds each frame from the markers seen in it takes the file's score for edge gaps."""
     from mocapkit.denoise.fill import FillPattern
     from mocapkit.denoise.fill_auto import unvalidated_fills

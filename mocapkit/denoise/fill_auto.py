@@ -406,15 +406,16 @@ def unvalidated_fills(method: Denoiser, motion: Motion, out: Motion, limit_cm: f
     missing, whole plates hidden together), and a lab's own models, judged on short gaps,
     wrote 20-26 cm RMSE fills of long ones there (docs/results/own_markers.md).
     Edge gaps of a fill whose error grows with the distance from the gap's seen end
-    (``fill_evidence == "interp"`` or ``fill_drifts``: interpolation, fill-pattern, the
-    temporal models trnn, tsmc and dynammo) take no pooled score: with no stretch of their
-    own -- their marker is not seen for the gap's length beyond it -- they are left
-    missing. Found on real_gaps (2026-12-06, nineteenth session): trnn's fills of such
+    (``fill_drifts``: fill-pattern, the temporal models trnn, tsmc and dynammo) take no
+    pooled score: with no stretch of their own -- their marker is not seen for the gap's
+    length beyond it -- they are left missing. (Interpolation's edges are bounded by the
+    policy's edge horizon already, :func:`mocapkit.gaps.supported`; with it in the rule a
+    filter's 2-3 frame trailing gaps on 30 % random missing samples were left.) Found on real_gaps (2026-12-06, nineteenth session): trnn's fills of such
     gaps were 12.1 % gross (9.8 cm RMSE) against 0-0.8 % for every other kind. Measured
     there (40 cases; gross % / RMSE cm / filled samples, before -> after): trnn 1.27 /
     3.47 / 9,610 -> 0.59 / 2.59 / 9,038; tsmc 1.00 / 3.06 / 9,335 -> 0.45 / 2.32 / 8,495;
     dynammo 0.83 / 2.28 / 7,590 -> 0.37 / 1.95 / 7,013; fill-pattern 0.88 / 2.54 / 16,578 ->
-    0.01 / 1.48 / 13,212; kalman-cv 0 / 1.41 / 6,821 -> 0 / 1.41 / 6,790. For the fills
+    0.01 / 1.48 / 13,212. For the fills
     that rebuild each frame from the markers seen in it the pool is fair and stays:
     applied to them, fill-rigid lost 15 % of its fills and fill-pca 25 %, svt 5 %, none
     of them with fewer gross fills. Measured and not kept: only gaps whose marker is seen
@@ -463,7 +464,7 @@ def unvalidated_fills(method: Denoiser, motion: Motion, out: Motion, limit_cm: f
         err = np.where(cnt > 0, np.sqrt(np.maximum(sq / cnt - sigma ** 2, 0.0)), np.where(failed, np.inf, np.nan))
     # pooling bounded for every method: a 20-frame gap says nothing of a 500-frame one
     err = _pooled(err[:, None], cnt[:, None], gaps, PRIOR_FRAMES, np.array([True]))[:, 0]
-    if method.fill_evidence == "interp" or method.fill_drifts:
+    if method.fill_drifts:
         # an edge gap that no stretch of its own judged is left missing by a fill that drifts
         # from its one seen end: the pool's edge gaps had their marker seen beyond them, this
         # one has not (docstring)
