@@ -703,6 +703,12 @@ MISFIT_LOCAL_REST = float(np.sqrt(2.0))
 MISFIT_LOCAL_WARN_CM = 0.1
 
 
+def local_threshold(noise_cm: float) -> float:
+    """The 3-D move (cm) beyond which a measured sample is a local misfit
+    (:data:`MISFIT_LOCAL_FACTOR` x noise, the noise at least :data:`MISFIT_FLOOR_CM`)."""
+    return float(MISFIT_LOCAL_FACTOR * max(float(noise_cm), MISFIT_FLOOR_CM))
+
+
 def model_misfit(positions: np.ndarray, observed: np.ndarray, result: np.ndarray, noise_cm: float,
                  factor: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Measured samples a model moved beyond the noise: ((T, J) bool, (J,) RMS cm, (T, J) bool local).
@@ -800,7 +806,7 @@ def model_misfit(positions: np.ndarray, observed: np.ndarray, result: np.ndarray
     with np.errstate(invalid="ignore"):
         # the input smooth within 2 frames: a spike (or a pair of them) throws the cubic of
         # its neighbours off too
-        far = mv > MISFIT_LOCAL_FACTOR * max(sigma, MISFIT_FLOOR_CM)
+        far = mv > local_threshold(sigma)
         local = judged & far & (mv > MISFIT_LOCAL_CAUSE * _window_max(g))
     sq = np.square(np.where(judged, mv, 0.0))
     n, n_loc = judged.sum(axis=0), local.sum(axis=0)
@@ -813,11 +819,12 @@ def model_misfit(positions: np.ndarray, observed: np.ndarray, result: np.ndarray
     n_rest = rest.sum(axis=0)
     rms_rest = np.sqrt(np.where(rest, sq, 0.0).sum(axis=0) / np.maximum(3 * n_rest, 1))
     with np.errstate(invalid="ignore"):
-        own = (n_loc > 0) & (n_loc <= MISFIT_LOCAL_SHARE * n) & (rms_rest <= MISFIT_LOCAL_REST * max(sigma, MISFIT_FLOOR_CM))
+        own = ((n_loc > 0) & (n_loc <= MISFIT_LOCAL_SHARE * n)
+               & (rms_rest <= MISFIT_LOCAL_REST * max(sigma, MISFIT_FLOOR_CM)))
     rms = np.where(own, rms_rest, rms)
     rms = np.where(np.where(own, n_rest, n) >= MISFIT_MIN_SAMPLES, rms, np.nan)
     with np.errstate(invalid="ignore"):
-        spike |= ok & ~has_g & (mv > 4.0 * np.sqrt(3.0) * np.fmax(rms, sigma)[None, :])
+        spike |= ok & ~has_g & (mv > MISFIT_LOCAL_FACTOR * np.fmax(rms, sigma)[None, :])
         bad = rms > max(float(factor) * sigma, MISFIT_FLOOR_CM)
     return (ok & bad[None, :] & ~spike) | local, rms, local
 
@@ -836,9 +843,9 @@ def misfit_warning(method: str, info: dict, given: int, *, stacklevel: int = 3) 
 
     names = info["markers"]
     k, nk = (info.get("local_samples", 0), info.get("local_markers", 0)) if local_said(info) else (0, 0)
-    some = (f"{k} measured samples of {nk} {'other ' if names else ''}markers by {info['local_threshold_cm']:.2g}-"
-            f"{info['local_max_cm']:.2g} cm where the input is smooth (over 7 times its noise of about "
-            f"{info['noise_cm']:.2g} cm)") if k else ""
+    some = (f"{k} measured samples of {nk} {'other ' if names else ''}markers by "
+            f"{info['local_threshold_cm']:.2g}-{info['local_max_cm']:.2g} cm where the input is smooth "
+            f"(over {MISFIT_LOCAL_FACTOR:.1f} times its noise of about {info['noise_cm']:.2g} cm)") if k else ""
     if names:
         what = (f"{len(names)} of {info['n_markers']} markers ({', '.join(names[:4])}{' ...' if len(names) > 4 else ''}) "
                 f"by up to {info['moved_rms_cm']:.2g} cm RMS ({info['worst_marker']}) where the input's noise is "

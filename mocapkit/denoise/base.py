@@ -623,8 +623,7 @@ def check_model_fit(den: "Denoiser", inp: Motion, out: Motion, *, factor: float 
     >>> int(back.any(axis=0).sum()), model.last_report_["model_fit"]["markers"][:2]
     (31, ['root', 'lhipjoint'])
     """
-    from ..gaps import (DEFAULT_POLICY, MISFIT_FLOOR_CM, MISFIT_LOCAL_FACTOR, local_said, misfit_warning,
-                        model_misfit)
+    from ..gaps import DEFAULT_POLICY, local_said, local_threshold, misfit_warning, model_misfit
     from ..signal import estimate_noise
 
     sigma = estimate_noise(inp.matrix(copy=False), inp.matrix_mask(), pool="all", fallback=0.0)
@@ -641,7 +640,7 @@ def check_model_fit(den: "Denoiser", inp: Motion, out: Motion, *, factor: float 
             "samples": int(mask.sum()) if give_back else 0, "given_back": bool(give_back),
             "mismatch": bool(names), "local_samples": int(alone.sum()),
             "local_markers": int(alone.any(axis=0).sum()),
-            "local_threshold_cm": float(MISFIT_LOCAL_FACTOR * max(sigma, MISFIT_FLOOR_CM)),
+            "local_threshold_cm": local_threshold(sigma),
             "local_max_cm": float(np.linalg.norm(out.positions[alone] - inp.positions[alone], axis=1).max())
             if alone.any() else 0.0}
     den.__dict__.setdefault("last_report_", {})["model_fit"] = info

@@ -172,9 +172,7 @@ class TSMC(_MatrixCompletion):
 
     name = "tsmc"
     misfit_check = "fitted"
-    #: a temporal model (smoothness term / dynamics): its fill drifts from the gap's seen
-    #: ends, so an edge gap no stretch of its own judged is left missing (fill_auto.unvalidated_fills)
-    fill_drifts = True
+    fill_drifts = True              # a temporal model (Denoiser.fill_drifts)
     description = "thesis bilinear low-rank + sparse error + 2nd-difference smoothness (TSMC model, ALM)"
 
     _parameter_constraints = {**_MatrixCompletion._SHARED, "alpha": [_POSITIVE], "beta": [_NONNEG],
@@ -217,9 +215,7 @@ class TrNN(_MatrixCompletion):
 
     name = "trnn"
     misfit_check = "fitted"
-    #: a temporal model (smoothness term / dynamics): its fill drifts from the gap's seen
-    #: ends, so an edge gap no stretch of its own judged is left missing (fill_auto.unvalidated_fills)
-    fill_drifts = True
+    fill_drifts = True              # a temporal model (Denoiser.fill_drifts)
     description = "thesis truncated nuclear norm + sparse error + smoothness, single-loop ALM with DCT M-step"
 
     _parameter_constraints = {**_MatrixCompletion._SHARED, "r": [Interval(Integral, 0, None)],
@@ -266,9 +262,7 @@ class DynaMMo(Denoiser):
 
     name = "dynammo"
     misfit_check = "fitted"
-    #: a temporal model (smoothness term / dynamics): its fill drifts from the gap's seen
-    #: ends, so an edge gap no stretch of its own judged is left missing (fill_auto.unvalidated_fills)
-    fill_drifts = True
+    fill_drifts = True              # a temporal model (Denoiser.fill_drifts)
     fill_evidence = "markers"
     description = "DynaMMo: linear dynamical system with missing values fitted by EM (Kalman/RTS E-step)"
     keeps_observed = True

@@ -188,15 +188,25 @@ def _stretch_errors(X: np.ndarray, P: np.ndarray, hide, n_gaps: int) -> tuple[np
     return e, cnt
 
 
+def _gap_index(gaps: Sequence[Gap]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(joint, start, stop) of each gap as (n_gaps,) int arrays."""
+    return (np.array([g.joint for g in gaps], int), np.array([g.start for g in gaps], int),
+            np.array([g.stop for g in gaps], int))
+
+
+def _prefix_counts(mask: np.ndarray) -> np.ndarray:
+    """(T + 1, J) running count of True down each column of ``mask`` (T, J), from 0: the
+    count in frames a:b of column j is ``cs[b, j] - cs[a, j]``, for all gaps at once."""
+    return np.vstack([np.zeros((1, mask.shape[1]), int), np.cumsum(mask, axis=0)])
+
+
 def _coverage(fills: Sequence[np.ndarray], gaps: Sequence[Gap]) -> np.ndarray:
     """(n_gaps, n_candidates) True where a candidate's fill of the real file covers at
     least half of the gap's frames."""
-    j = np.array([g.joint for g in gaps])
-    a = np.array([g.start for g in gaps])
-    b = np.array([g.stop for g in gaps])
+    j, a, b = _gap_index(gaps)
     out = np.zeros((len(gaps), len(fills)), bool)
-    for k, X in enumerate(fills):           # frames covered, summed over each gap at once
-        cs = np.vstack([np.zeros((1, X.shape[1])), np.cumsum(np.isfinite(X).all(axis=2), axis=0)])
+    for k, X in enumerate(fills):
+        cs = _prefix_counts(np.isfinite(X).all(axis=2))
         out[:, k] = (cs[b, j] - cs[a, j]) >= 0.5 * (b - a)
     return out
 
@@ -258,10 +268,8 @@ def side_support(obs: np.ndarray, gaps: Sequence[Gap]) -> np.ndarray:
     T = obs.shape[0]
     if not len(gaps):
         return np.zeros(0)
-    cs = np.vstack([np.zeros((1, obs.shape[1]), int), np.cumsum(obs, axis=0)])
-    j = np.array([g.joint for g in gaps])
-    a = np.array([g.start for g in gaps])
-    b = np.array([g.stop for g in gaps])
+    cs = _prefix_counts(obs)
+    j, a, b = _gap_index(gaps)
     L = b - a
     before = np.where(a > 0, (cs[a, j] - cs[np.maximum(a - L, 0), j]) / L, np.inf)
     after = np.where(b < T, (cs[np.minimum(b + L, T), j] - cs[b, j]) / L, np.inf)
@@ -410,13 +418,14 @@ def unvalidated_fills(method: Denoiser, motion: Motion, out: Motion, limit_cm: f
     pooled score: with no stretch of their own -- their marker is not seen for the gap's
     length beyond it -- they are left missing. (Interpolation's edges are bounded by the
     policy's edge horizon already, :func:`mocapkit.gaps.supported`; with it in the rule a
-    filter's 2-3 frame trailing gaps on 30 % random missing samples were left.) Found on real_gaps (2026-12-06, nineteenth session): trnn's fills of such
-    gaps were 12.1 % gross (9.8 cm RMSE) against 0-0.8 % for every other kind. Measured
-    there (40 cases; gross % / RMSE cm / filled samples, before -> after): trnn 1.27 /
-    3.47 / 9,610 -> 0.59 / 2.59 / 9,038; tsmc 1.00 / 3.06 / 9,335 -> 0.45 / 2.32 / 8,495;
-    dynammo 0.83 / 2.28 / 7,590 -> 0.37 / 1.95 / 7,013; fill-pattern 0.88 / 2.54 / 16,578 ->
-    0.01 / 1.48 / 13,212. For the fills
-    that rebuild each frame from the markers seen in it the pool is fair and stays:
+    filter's 2-3 frame trailing gaps on 30 % random missing samples were left.) Found on
+    real_gaps (2026-12-06, nineteenth session): trnn's fills of such gaps were 12.1 %
+    gross (9.8 cm RMSE, 572 samples) against 0-3 % for every other kind (7,940 samples).
+    Measured there (40 cases; gross % / RMSE cm / filled samples, before -> after): trnn
+    1.27 / 3.47 / 9,610 -> 0.59 / 2.59 / 9,038; tsmc 1.00 / 3.06 / 9,335 -> 0.45 / 2.32 /
+    8,495; dynammo 0.83 / 2.28 / 7,590 -> 0.37 / 1.95 / 7,013; fill-pattern 0.88 / 2.54 /
+    16,578 -> 0.01 / 1.48 / 13,212. For the fills that rebuild each frame from the
+    markers seen in it the pool is fair and stays:
     applied to them, fill-rigid lost 15 % of its fills and fill-pca 25 %, svt 5 %, none
     of them with fewer gross fills. Measured and not kept: only gaps whose marker is seen
     in under half the frames beside them (:func:`side_support`; trnn 1.39 % gross: the
