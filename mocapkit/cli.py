@@ -351,8 +351,8 @@ def _pooled_note(share: float | None) -> str:
     if share is None or share < POOLED_WARN_SHARE:
         return ""
     return (f"; {100 * share:.0f} % of the fills had no observed stretch next to their own gap to be "
-            f"judged on, only the file's other gaps: the estimate may run low (on real occlusions "
-            f"such estimates were about half the true error)")
+            f"judged on, only the file's other gaps: the estimate may run low (on real occlusions, "
+            f"scaled for such fills, it was a median three quarters of the true error)")
 
 
 def _cm(x: float) -> str:

@@ -86,8 +86,8 @@ def test_train_then_denoise_with_model(clip, tmp_path, capsys):
 def test_denoise_says_when_the_fill_estimate_rests_on_the_files_other_gaps(shared_data, tmp_path, capsys):
     """The basket sprint's real gaps: most of auto's long fills have no observed stretch of
     their own gap to be judged on, so the fill-auto line says the estimate may run low
-    (on real occlusions such estimates were about half the true error); Eb015pr's few gaps
-    are judged on their own stretches, and the line says nothing of it."""
+    (on real occlusions, scaled for such fills, a median three quarters of the true error);
+    Eb015pr's few gaps are judged on their own stretches, and the line says nothing of it."""
     lines = {}
     for name in ("kineticstoolkit/kinematics_basket_sprint.c3d", "c3d_org/Eb015pr.c3d"):
         assert main(["denoise", str(shared_data / "markers" / name), str(tmp_path / "o.c3d"), "--force"]) == 0

@@ -273,6 +273,42 @@ def test_fill_auto_does_not_lend_interpolation_scores_to_a_flickering_marker(mon
     assert np.isnan(got[2, 0]) and got[2, 1] == 1.0     # bounded candidate: unvalidated
 
 
+def test_fill_auto_estimate_charges_pooled_fills_more(monkeypatch):
+    """A fill no stretch of its own gap judged is charged the file's score for gaps like it
+    times POOLED_ESTIMATE (1.5 interior, 1.8 edge: what such fills were off by against it on
+    real occlusions); fills judged on their own stretches keep their own score; the choice
+    and the fills themselves do not change."""
+    from mocapkit.denoise.fill_auto import POOLED_ESTIMATE
+
+    P = _walker(T=1200, J=8)
+    obs = np.ones(P.shape[:2], bool)
+    obs[100:1100, 0] = False                        # interior, no stretch of its own
+    obs[700:990, 3] = False                         # judged on its own stretches ...
+    obs[1000:, 3] = False                           # ... this edge gap is not
+    for j in (1, 2, 4, 5, 6, 7):
+        obs[200 + 100 * j:220 + 100 * j, j] = False
+        obs[1120:1150, j] = False
+    m = _markers(P).with_observed(obs)
+    fa = denoise.get("fill-auto", candidates=("linear", "spline", "fill-pca"), max_error_cm=5.0)
+    out = fa.denoise(m)
+    with monkeypatch.context() as mp:
+        mp.setattr("mocapkit.denoise.fill_auto.POOLED_ESTIMATE", (1.0, 1.0))
+        plain = fa.denoise(m)
+    np.testing.assert_array_equal(out.positions, plain.positions)
+    rep, rep0 = out.source["fill_auto"], plain.source["fill_auto"]
+    emap, emap0, pooled = rep["error_map"], rep0["error_map"], rep["pooled_map"]
+    have = np.isfinite(emap)
+    assert have[150:1050, 0].all() and pooled[150:1050, 0].all()
+    edge = have[1000:, 3]                            # (not where the other markers blink too)
+    assert edge.sum() > 100 and pooled[1000:, 3][edge].all()
+    np.testing.assert_allclose(emap[150:1050, 0], POOLED_ESTIMATE[0] * emap0[150:1050, 0])
+    np.testing.assert_allclose(emap[1000:, 3][edge], POOLED_ESTIMATE[1] * emap0[1000:, 3][edge])
+    own = have & ~pooled
+    assert own[700:990, 3].all()
+    np.testing.assert_array_equal(emap[own], emap0[own])
+    assert rep["estimated_rmse_cm"] > rep0["estimated_rmse_cm"]
+
+
 def test_fills_off_a_rigid_partner_are_left_missing():
     """The gap policy's rigid check: a fill more than rigid_margin_cm off the distance span
     a rigid partner measured in its frame keeps is left missing (it is that far off at

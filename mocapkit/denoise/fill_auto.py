@@ -498,9 +498,22 @@ def over_written(estimate: float, sq_map: np.ndarray, written: np.ndarray) -> fl
     return float(estimate * np.sqrt(np.mean(sq_map[kept], dtype=float) / np.mean(sq_map[have], dtype=float)))
 
 
+#: the estimate (not the choice) of a fill that no stretch of its own gap judged: the file's
+#: score for gaps like it times this, (interior, edge). Such gaps lack a stretch because
+#: their marker is seen little around them -- long or repeated occlusions, the ones the
+#: file's other gaps, whose marker was seen, do not represent. Measured on real_gaps
+#: (2026-12-06, twentieth session; fill-auto, 31 cases, 2,084 gaps; RMS over the fills,
+#: true / estimated): fills judged by a stretch of their own gap 1.00 (interior) and 0.61
+#: (edge); by the pool only 1.50 (interior, 378 gaps, 15,892 samples) and 1.81 (edge, 138
+#: gaps, 17,142 samples); per mask source 1.59 (basket sprint), 1.70 (BTS), 2.63
+#: (markers_analogs).
+POOLED_ESTIMATE = (1.5, 1.8)
+
 #: a ``pooled_share`` from which ``mocapkit denoise`` says the estimate may run low. On
 #: real_gaps (2026-12-06, auto, 37 cases) the 14 cases at or over it had their estimate
-#: within 1.5x of the true error in 6 (median estimate / true 0.52), the 21 under it in 16
+#: within 1.5x of the true error in 6 (median estimate / true 0.52; 0.74 with
+#: :data:`POOLED_ESTIMATE`, still 6 within 1.5x), the 23 under it in 16 (median 1.01 ->
+#: 1.05)
 POOLED_WARN_SHARE = 0.5
 
 
@@ -510,7 +523,9 @@ def pooled_share(emap: np.ndarray, pooled: np.ndarray, written: np.ndarray | Non
     file's score for gaps like theirs stands in. On real occlusions those fills were 1.6-1.8x
     their estimate (real_gaps, 2026-12-06: long pooled gaps 2.43 / 2.72 cm true against 1.54 /
     1.48 estimated), where fills judged on their own stretches were at or under theirs in 4
-    of 6 classes of gap (interior / edge x length), 0.83 and 0.55x in the other two."""
+    of 6 classes of gap (interior / edge x length), 0.83 and 0.55x in the other two; the
+    estimate now charges them that average (:data:`POOLED_ESTIMATE`), but case by case they
+    scatter far more than the fills judged on their own."""
     have = np.isfinite(emap) if written is None else np.isfinite(emap) & written
     return float(np.mean(pooled[have])) if have.any() else None
 
@@ -722,7 +737,10 @@ class FillAuto(Denoiser):
                 if take.any():
                     seg[take] = Xk[take]
                     codes[g.start:g.stop, g.joint][take] = k
-                    emap[g.start:g.stop, g.joint][take] = (e_all[gi, k] if np.isfinite(e_all[gi, k])
+                    # a fill judged by the file's other gaps only is charged their score
+                    # times what such fills were off by against it on real occlusions
+                    charge = 1.0 if judged[gi, k] else POOLED_ESTIMATE[g.kind != "interior"]
+                    emap[g.start:g.stop, g.joint][take] = (charge * e_all[gi, k] if np.isfinite(e_all[gi, k])
                                                            else np.nan)
                     pooled[g.start:g.stop, g.joint][take] = not judged[gi, k]
             if not np.isfinite(seg).any():
