@@ -397,6 +397,11 @@ def _print_auto(src: dict | None, report: dict | None = None) -> None:
         line += (f"; {off['frames']} frames write a bone more than {BONE_OFF_CM:g} cm off its length (worst "
                  f"{off['worst_cm']:.0f} cm, {off['joint']} at frame {off['frame']}): fills there are uncertain")
     print(line)
+    from .swaps import summary_line
+
+    swaps = summary_line(src.get("swaps"))
+    if swaps:
+        print(swaps)
 
 
 def cmd_train(a: argparse.Namespace) -> int:

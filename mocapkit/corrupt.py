@@ -30,6 +30,9 @@ Corruptions
 :func:`block_gaps`
     ``n_markers`` markers missing for ``length`` consecutive frames (thesis "continuous
     missing"), or whole joints for the whole clip (Lou & Chai's both-arms case).
+:func:`label_swaps`
+    pairs of nearby markers that trade labels for a stretch of frames (an optical
+    labeller's error; :mod:`mocapkit.swaps` puts them back).
 :func:`slra_noise`
     the SLRA paper's partial-frame noise (seed 004, eq. 7).
 :func:`combine` / :func:`parse_spec`
@@ -58,7 +61,7 @@ import numpy as np
 from .errors import MocapValueError
 from .motion import Motion
 
-__all__ = ["gaussian", "outliers", "missing", "block_gaps", "slra_noise", "combine",
+__all__ = ["gaussian", "outliers", "missing", "block_gaps", "label_swaps", "slra_noise", "combine",
            "parse_spec", "signal_power", "snr_to_sigma", "STEPS"]
 
 # ----------------------------------------------------------------------------------------
@@ -431,6 +434,63 @@ def block_gaps(motion: Motion, /, *, n_markers: int | None = None, length: int |
     return _result(motion, motion.positions, motion.observed & ~sel, step), sel
 
 
+def label_swaps(motion: Motion, /, *, n_swaps: int = 1, length: int = 30, max_distance_cm: float | None = 15.0,
+                seed: Any) -> tuple[Motion, np.ndarray]:
+    """Swap the labels of ``n_swaps`` pairs of markers for ``length`` consecutive frames.
+
+    An optical labeller's typical error (:mod:`mocapkit.swaps`): for each swap a start
+    frame is drawn (uniform in ``[0, T - length]``) and a marker, and it trades
+    trajectories with the marker nearest to it at that frame -- within
+    ``max_distance_cm`` (None: any distance; the swap is skipped where none is that near)
+    -- for ``length`` frames. Pairs are drawn independently; a swap that would touch a
+    marker already swapped in any of its frames is skipped. Both markers must be observed
+    throughout.
+
+    Returns
+    -------
+    (Motion, mask) : mask (T, J) bool, True on the samples now carrying the other
+        marker's trajectory.
+
+    >>> from mocapkit import datasets, io
+    >>> clip = io.read(datasets.bundled("16_15.amc"))
+    >>> swapped, mask = label_swaps(clip, n_swaps=2, length=20, seed=0)
+    >>> int(mask.sum()), int(mask.any(axis=0).sum())
+    (80, 4)
+    """
+    motion = _check_motion(motion)
+    rng = _rng(seed)
+    P, obs = motion.positions, motion.observed
+    T, J = obs.shape
+    try:
+        n_swaps, L = int(n_swaps), int(length)
+    except (TypeError, ValueError):
+        raise MocapValueError("n_swaps and length must be integers") from None
+    if n_swaps < 1:
+        raise MocapValueError(f"n_swaps must be >= 1, got {n_swaps}")
+    if not 1 <= L <= T:
+        raise MocapValueError(f"swap length must be between 1 and the clip length ({T} frames), got {length}")
+    if J < 2:
+        raise MocapValueError("a label swap needs at least two markers")
+    Q = np.array(P)
+    sel = np.zeros((T, J), dtype=bool)
+    for _ in range(n_swaps):
+        t0, a = int(rng.integers(0, T - L + 1)), int(rng.integers(0, J))
+        span = slice(t0, t0 + L)
+        ok = obs[span].all(axis=0) & ~sel[span].any(axis=0)
+        ok[a] = False
+        if not obs[span, a].all() or sel[span, a].any() or not ok.any():
+            continue
+        d = np.linalg.norm(P[t0] - P[t0, a], axis=1)
+        d[~ok] = np.inf
+        b = int(np.argmin(d))
+        if max_distance_cm is not None and d[b] > float(max_distance_cm):
+            continue
+        Q[span, a], Q[span, b] = P[span, b], P[span, a]
+        sel[span, [a, b]] = True
+    step = {"step": "label_swaps", "n_swaps": n_swaps, "length": L, "max_distance_cm": max_distance_cm}
+    return _result(motion, Q, obs, step), sel
+
+
 def slra_noise(motion: Motion, /, *, n_frames: int, mean: float = 1.0, sigma: float = 1.2,
                seed: Any, scale: float | None = None, eps: float | None = None) -> tuple[Motion, np.ndarray]:
     """SLRA partial-frame noise, Peng et al. (seed 004), Sec. 4.1, eq. (7).
@@ -505,9 +565,11 @@ STEPS: dict[str, Callable[..., tuple[Motion, np.ndarray]]] = {
     "outliers": outliers,
     "missing": missing,
     "block_gaps": block_gaps,
+    "label_swaps": label_swaps,
     "slra_noise": slra_noise,
 }
 _ALIASES = {"noise": "gaussian", "outlier": "outliers", "spikes": "outliers", "gaps": "block_gaps",
+            "swaps": "label_swaps",
             "gap": "block_gaps", "slra": "slra_noise"}
 
 

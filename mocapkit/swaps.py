@@ -1,0 +1,282 @@
+"""Label swaps: two markers that trade labels for a stretch of frames, found and put back.
+
+An optical system's labeller that confuses two markers -- a knee and a thigh marker as
+the leg bends, two hands as they pass -- writes each one's trajectory under the other's
+label for a while: both labels step at the swap, by the same distance in opposite
+directions, and step back at its end. Inside the stretch both trajectories are smooth
+and measured, so no smoother, spike test or gap fill repairs it: found on
+kineticstoolkit's tennis serve (2026-12-06, a swap of LASI and LFIN planted for 5-120
+frames), ``auto`` wrote both markers 28-34 cm off for the whole stretch, without a word.
+
+Detection (:func:`find_swaps`). Per marker, the constant-velocity residual
+``r_a(t) = |P_a(t) - (2 P_a(t-1) - P_a(t-2))|`` (3-D, cm; three consecutive measured
+frames) and its scale ``s_a``, the median of ``r_a`` over the take. A frame where
+``r_a(t) > max(floor_cm, factor s_a)`` is a *step* of ``a``. The step is a label swap with
+marker ``b`` (also measured at t-2, t-1, t) when exchanging the two samples at ``t``
+explains both markers' steps: each lands within that threshold of the other's prediction,
+and the two residuals after the exchange sum to at most ``ratio`` of the two before it.
+Two markers that pass within the noise of each other are no swap (neither steps).
+
+Repair (:func:`repair_swaps`). The events of each group of markers that swap with each
+other are applied in time order -- each exchanges which trajectory the two labels carry
+from its frame on -- and the labelling that holds on most frames of the group is taken as
+the right one. A stretch is put back only where both markers are measured throughout it
+and its two ends are events or the take's ends: a gap inside it may hide the swap back,
+so such a stretch is left as measured and reported (``unrepaired``).
+
+Limits: a swap whose step falls on a gap (a marker reappearing under the wrong label) is
+not seen, nor a label that jumps onto a marker whose own label is missing (one step, no
+partner); those are the outlier tests' and the gap policy's.
+
+>>> import numpy as np
+>>> from mocapkit import Motion, Skeleton
+>>> t = np.arange(200)[:, None] / 100.0
+>>> P = np.stack([np.hstack([100 * t, 0 * t, 100 + 0 * t]),
+...               np.hstack([100 * t, 20 + 0 * t, 100 + 0 * t]),
+...               np.hstack([100 * t, 0 * t, 140 + 0 * t])], axis=1)
+>>> Q = P.copy(); Q[80:120, [0, 1]] = P[80:120, [1, 0]]        # labels 0 and 1 swapped
+>>> m = Motion(Q, Skeleton(("A", "B", "C"), [-1, -1, -1], np.zeros((3, 3))), 100.0)
+>>> [(e.frame, e.a, e.b) for e in find_swaps(m.positions, m.observed)]
+[(80, 0, 1), (120, 0, 1)]
+>>> fixed, report = repair_swaps(m)
+>>> bool(np.allclose(fixed.positions, P)), report["repaired"]
+(True, [{'markers': ['A', 'B'], 'start': 80, 'stop': 120}])
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .motion import Motion
+
+__all__ = ["SwapEvent", "find_swaps", "repair_swaps", "summary_line", "SWAP_FACTOR", "SWAP_FLOOR_CM", "SWAP_RATIO"]
+
+#: a step: the constant-velocity residual over this many times the marker's median residual
+#: (Gaussian noise alone: the median is about 3.8 sigma, 4 x that ~6 times the chi(3) tail's
+#: 1e-8 point)
+SWAP_FACTOR = 4.0
+#: ... and over this (cm): smaller steps are within what a marker's noise and motion do
+SWAP_FLOOR_CM = 2.0
+#: the exchange must bring the two markers' residuals to this share of theirs before it
+SWAP_RATIO = 0.25
+
+
+@dataclass(frozen=True)
+class SwapEvent:
+    """Labels ``a`` and ``b`` trade trajectories from frame ``frame`` on (``step_cm``: the
+    larger of their two steps there)."""
+    frame: int
+    a: int
+    b: int
+    step_cm: float
+
+
+def _residuals(P: np.ndarray, observed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(T, J) constant-velocity residual (cm, NaN without three measured frames) and the
+    (T, J, 3) prediction ``2 P(t-1) - P(t-2)`` (NaN likewise)."""
+    T, J, _ = P.shape
+    pred = np.full(P.shape, np.nan)
+    ok = np.zeros((T, J), bool)
+    if T >= 3:
+        ok[2:] = observed[2:] & observed[1:-1] & observed[:-2]
+        pred[2:] = 2.0 * P[1:-1] - P[:-2]
+    pred[~ok] = np.nan
+    with np.errstate(invalid="ignore"):
+        r = np.sqrt(np.sum((P - pred) ** 2, axis=2))
+    return r, pred
+
+
+def find_swaps(positions: np.ndarray, observed: np.ndarray, *, factor: float = SWAP_FACTOR,
+               floor_cm: float = SWAP_FLOOR_CM, ratio: float = SWAP_RATIO) -> list[SwapEvent]:
+    """The label-swap events of a marker capture (module docstring), in time order.
+
+    ``positions`` (T, J, 3) cm, ``observed`` (T, J) bool. First the swaps that stand out
+    (a step over the threshold, explained by an exchange with another marker); then, for
+    each pair found, every frame at which that pair's exchange explains a step of at least
+    the pair's distance (:func:`_pair_toggles`): a swap out that falls just under the
+    threshold where its swap in did not (two markers about a threshold apart) would
+    otherwise leave the rest of the take exchanged. Vectorised over the frames; the loops
+    run over the steps found (a handful in a take) and the pairs.
+    """
+    P = np.asarray(positions, dtype=float)
+    obs = np.asarray(observed, dtype=bool) & np.isfinite(P).all(axis=2)
+    T, J = obs.shape
+    if T < 3 or J < 2:
+        return []
+    r, pred = _residuals(P, obs)
+    have = np.isfinite(r)
+    scale = np.zeros(J)
+    for j in np.flatnonzero(have.any(axis=0)):      # (a loop over markers, not frames)
+        scale[j] = np.median(r[have[:, j], j])
+    thr = np.maximum(float(floor_cm), float(factor) * scale)               # (J,)
+    with np.errstate(invalid="ignore"):
+        steps = np.argwhere(r > thr[None, :])
+    pairs: set[tuple[int, int]] = set()
+    for t, a in steps:
+        others = np.flatnonzero(have[t] & (np.arange(J) != a))
+        if not len(others):
+            continue
+        to_a = np.linalg.norm(P[t, others] - pred[t, a], axis=1)         # b's sample as a's
+        to_b = np.linalg.norm(P[t, a] - pred[t, others], axis=1)         # a's sample as b's
+        before = r[t, a] + r[t, others]
+        after = to_a + to_b
+        fits = (to_a <= thr[a]) & (to_b <= thr[others]) & (after <= float(ratio) * before)
+        if fits.any():
+            b = int(others[int(np.argmin(np.where(fits, after, np.inf)))])
+            pairs.add((min(int(a), b), max(int(a), b)))
+    events = []
+    for a, b in sorted(pairs):
+        for t, step in _pair_toggles(P, r, pred, a, b, scale, thr, float(ratio)):
+            events.append(SwapEvent(t, a, b, step))
+    return sorted(events, key=lambda e: (e.frame, e.a, e.b))
+
+
+def _pair_toggles(P: np.ndarray, r: np.ndarray, pred: np.ndarray, a: int, b: int, scale: np.ndarray,
+                  lim: np.ndarray, ratio: float) -> list[tuple[int, float]]:
+    """Frames at which exchanging markers ``a`` and ``b`` explains a step of both: each
+    sample within the other's threshold ``lim`` of its prediction, the residuals after the
+    exchange at most ``2 ratio`` of those before, the drop at least the two markers'
+    distance on the frame before (a true exchange drops by twice it), and that distance
+    over their two residual scales (markers closer than that are no pair a step can tell
+    apart). Returns (frame, the larger step in cm)."""
+    T = P.shape[0]
+    ok = np.isfinite(r[:, a]) & np.isfinite(r[:, b])
+    before = r[:, a] + r[:, b]
+    with np.errstate(invalid="ignore"):
+        after = (np.linalg.norm(P[:, b] - pred[:, a], axis=1) + np.linalg.norm(P[:, a] - pred[:, b], axis=1))
+        apart = np.full(T, np.nan)
+        apart[1:] = np.linalg.norm(P[:-1, a] - P[:-1, b], axis=1)
+        fit_a = np.linalg.norm(P[:, b] - pred[:, a], axis=1) <= lim[a]
+        fit_b = np.linalg.norm(P[:, a] - pred[:, b], axis=1) <= lim[b]
+        hit = (ok & fit_a & fit_b & (after <= 2.0 * ratio * before) & (before - after >= apart)
+               & (apart > scale[a] + scale[b]))
+    return [(int(t), float(max(r[t, a], r[t, b]))) for t in np.flatnonzero(hit)]
+
+
+#: reference markers per marker of a pair for the geometry test (:func:`_stretch_states`)
+SWAP_REFS = 3
+#: a stretch is told apart by the geometry test when its distances to the reference markers
+#: fit one labelling at most this share as far off as the other
+SWAP_GEOMETRY = 0.25
+
+
+def _stretch_states(P: np.ndarray, obs: np.ndarray, a: int, b: int, bounds: np.ndarray) -> np.ndarray:
+    """Per stretch ``bounds[i]:bounds[i+1]`` of markers ``a`` and ``b`` (both measured
+    throughout it): +1 exchanged, -1 as labelled, 0 undecided, by their distances to
+    reference markers -- the :data:`SWAP_REFS` steadiest partners of each (robust spread
+    of the distance over the take) -- against those distances' medians over the take. A
+    label that carries the other marker keeps the other marker's distances."""
+    import warnings
+
+    T, J = obs.shape
+    others = np.setdiff1d(np.arange(J), [a, b])
+    n = len(bounds) - 1
+    out = np.zeros(n, int)
+    if not len(others):
+        return out
+
+    def dist(x: int) -> np.ndarray:
+        d = np.linalg.norm(P[:, others] - P[:, x:x + 1], axis=2)          # (T, K)
+        d[~(obs[:, others] & obs[:, x:x + 1])] = np.nan
+        return d
+
+    da, db = dist(a), dist(b)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")            # all-NaN columns: markers never seen together
+        Da, Db = np.nanmedian(da, axis=0), np.nanmedian(db, axis=0)
+        sa = 1.4826 * np.nanmedian(np.abs(da - Da), axis=0)
+        sb = 1.4826 * np.nanmedian(np.abs(db - Db), axis=0)
+        pick = np.union1d(np.argsort(np.where(np.isfinite(sa), sa, np.inf))[:SWAP_REFS],
+                          np.argsort(np.where(np.isfinite(sb), sb, np.inf))[:SWAP_REFS])
+        pick = pick[np.isfinite(sa[pick]) & np.isfinite(sb[pick])]
+        if not len(pick):
+            return out
+        scale = np.maximum(sa[pick] + sb[pick], 0.1)                      # cm
+        for i in range(n):                         # (a loop over a pair's stretches: a handful)
+            s, e = int(bounds[i]), int(bounds[i + 1])
+            if e <= s or not obs[s:e][:, [a, b]].all():
+                continue
+            ma, mb = np.nanmedian(da[s:e, pick], axis=0), np.nanmedian(db[s:e, pick], axis=0)
+            same = np.nansum((np.abs(ma - Da[pick]) + np.abs(mb - Db[pick])) / scale)
+            swap = np.nansum((np.abs(ma - Db[pick]) + np.abs(mb - Da[pick])) / scale)
+            if swap < SWAP_GEOMETRY * same:
+                out[i] = 1
+            elif same < SWAP_GEOMETRY * swap:
+                out[i] = -1
+    return out
+
+
+def repair_swaps(motion: Motion, **options) -> tuple[Motion, dict]:
+    """``motion`` with its label swaps put back (module docstring), and a report.
+
+    Per pair of markers with swap events (:func:`find_swaps`): the events cut the take
+    into stretches of alternate labelling, and the labelling that holds on most frames is
+    taken as the right one. A stretch of the other labelling is put back when both
+    markers are measured throughout it and its distances to the markers' steadiest
+    partners do not say it is labelled right (:func:`_stretch_states`): a false event, or
+    a missed one, would otherwise exchange the rest of the take -- the geometry of a long
+    stretch tells, and a short one costs little.
+
+    ``options`` go to :func:`find_swaps`. Report: ``events`` (frame, marker names, step
+    cm), ``repaired`` (stretches put back: markers, start, stop frame), ``unrepaired``
+    (stretches of the other labelling left as measured: a gap inside, or distances that
+    say it is labelled right). Returns ``motion`` itself when nothing was put back.
+    """
+    P = np.asarray(motion.positions)
+    obs = np.asarray(motion.observed) & np.isfinite(P).all(axis=2)
+    names = list(motion.skeleton.names)
+    events = find_swaps(P, obs, **options)
+    report: dict = {"events": [{"frame": e.frame, "markers": [names[e.a], names[e.b]], "step_cm": e.step_cm}
+                               for e in events], "repaired": [], "unrepaired": []}
+    if not events:
+        return motion, report
+    T = P.shape[0]
+    filled = np.asarray(motion.filled)
+    out_P, out_filled = P.copy(), filled.copy()
+    for a, b in sorted({(e.a, e.b) for e in events}):
+        bounds = np.unique(np.concatenate([[0, T], [e.frame for e in events if (e.a, e.b) == (a, b)]]))
+        parity = np.arange(len(bounds) - 1) % 2
+        frames = np.diff(bounds)
+        wrong = int(frames[parity == 1].sum() > frames[parity == 0].sum())     # the minority
+        states = _stretch_states(out_P, obs, a, b, bounds)
+        who = [names[a], names[b]]
+        for i in np.flatnonzero(parity != wrong):
+            s, e = int(bounds[i]), int(bounds[i + 1])
+            if states[i] == -1 or not obs[s:e][:, [a, b]].all():
+                report["unrepaired"].append({"markers": who, "start": s, "stop": e})
+                continue
+            out_P[s:e, [a, b]] = out_P[s:e, [b, a]]
+            out_filled[s:e, [a, b]] = out_filled[s:e, [b, a]]
+            report["repaired"].append({"markers": who, "start": s, "stop": e})
+    if not report["repaired"]:
+        return motion, report
+    src = dict(motion.source)
+    src["swaps"] = report
+    return Motion(out_P, motion.skeleton, motion.fps, obs, src, out_filled), report
+
+
+def summary_line(report: dict | None) -> str | None:
+    """One line for a user: the swaps put back and those left (None when no event).
+
+    >>> summary_line({"events": [1, 2], "repaired": [{"markers": ["A", "B"], "start": 80, "stop": 120}],
+    ...               "unrepaired": []})
+    'label swaps: 1 stretch put back (A/B frames 80-119)'
+    """
+    if not report or not report.get("events"):
+        return None
+
+    def spans(items: list[dict]) -> str:
+        shown = ", ".join(f"{'/'.join(x['markers'])} frames {x['start']}-{x['stop'] - 1}" for x in items[:4])
+        return shown + (", ..." if len(items) > 4 else "")
+
+    rep, left = report.get("repaired", []), report.get("unrepaired", [])
+    parts = []
+    if rep:
+        parts.append(f"{len(rep)} stretch{'es' if len(rep) > 1 else ''} put back ({spans(rep)})")
+    if left:
+        parts.append(f"{len(left)} left as measured (a gap inside, or their distances to their partners "
+                     f"say they are labelled right: {spans(left)})")
+    if not parts:
+        parts.append(f"{len(report['events'])} label step(s) seen, nothing put back")
+    return "label swaps: " + "; ".join(parts)

@@ -1,0 +1,115 @@
+"""Label swaps (mocapkit.swaps): found, put back, never the rest of a take; through auto and the CLI."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from mocapkit import Motion, Skeleton, corrupt, denoise, io
+from mocapkit.errors import MocapValueError
+from mocapkit.swaps import find_swaps, repair_swaps, summary_line
+
+
+def _three(T: int = 200) -> np.ndarray:
+    """Three markers walking along x (cm): A, B 20 cm to its side, C 40 cm above A."""
+    t = np.arange(T)[:, None] / 100.0
+    z = 0 * t
+    return np.stack([np.hstack([100 * t, z, 100 + z]), np.hstack([100 * t, 20 + z, 100 + z]),
+                     np.hstack([100 * t, z, 140 + z])], axis=1)
+
+
+def _markers(P: np.ndarray, fps: float = 100.0) -> Motion:
+    J = P.shape[1]
+    sk = Skeleton(tuple(f"M{j}" for j in range(J)), -np.ones(J, dtype=int), np.zeros((J, 3)))
+    return Motion(P, sk, fps, source={"format": "c3d"})
+
+
+def test_a_swap_is_found_at_both_ends_and_put_back_exactly():
+    P = _three()
+    Q = P.copy()
+    Q[80:120, [0, 1]] = P[80:120, [1, 0]]
+    m = _markers(Q)
+    assert [(e.frame, e.a, e.b) for e in find_swaps(m.positions, m.observed)] == [(80, 0, 1), (120, 0, 1)]
+    fixed, rep = repair_swaps(m)
+    np.testing.assert_array_equal(fixed.positions, P)
+    assert rep["repaired"] == [{"markers": ["M0", "M1"], "start": 80, "stop": 120}] and not rep["unrepaired"]
+    assert fixed.source["swaps"] is rep
+    assert summary_line(rep) == "label swaps: 1 stretch put back (M0/M1 frames 80-119)"
+    # nothing to find: the motion itself comes back
+    same, rep0 = repair_swaps(_markers(P))
+    assert rep0["events"] == [] and np.array_equal(same.positions, P) and summary_line(rep0) is None
+
+
+def test_a_swap_whose_end_is_hidden_never_exchanges_the_rest_of_the_take():
+    """The labels come back inside a gap of one marker: the swap back is not seen, and
+    the stretch from the swap to the take's end (or the labelled part before it, the
+    minority here) is not put back where the distances say it is labelled right: no
+    sample outside the real swap moves."""
+    P = _three()
+    Q = P.copy()
+    Q[110:150, [0, 1]] = P[110:150, [1, 0]]
+    Q[145:155, 1] = np.nan                          # the swap back falls in this gap
+    m = _markers(Q)
+    assert [e.frame for e in find_swaps(m.positions, m.observed)] == [110]
+    fixed, rep = repair_swaps(m)
+    out = np.asarray(fixed.positions)
+    keep = np.ones(len(P), bool)
+    keep[110:150] = False
+    np.testing.assert_array_equal(out[keep], Q[keep])
+    assert not rep["repaired"] and rep["unrepaired"]
+
+
+def test_noise_alone_and_markers_passing_each_other_are_no_swap():
+    rng = np.random.default_rng(0)
+    P = _three(400) + rng.normal(0, 0.3, (400, 3, 3))
+    P[:, 1, 1] = 20 * np.cos(np.linspace(0, 3 * np.pi, 400))        # B crosses A's path
+    assert find_swaps(P, np.ones((400, 3), bool)) == []
+
+
+def test_label_swaps_corruption():
+    P = _three(300)
+    m = _markers(P)
+    sw, mask = corrupt.label_swaps(m, n_swaps=1, length=30, max_distance_cm=25.0, seed=3)
+    assert mask.sum() == 60 and mask.any(axis=0).sum() == 2
+    changed = ~np.all(np.asarray(sw.positions) == P, axis=2)
+    assert np.array_equal(changed, mask)
+    fixed, _ = repair_swaps(sw)
+    np.testing.assert_array_equal(fixed.positions, P)
+    # nearer than max_distance_cm only: C is 40 cm from A, 45 from B
+    _, none = corrupt.label_swaps(_markers(P[:, [0, 2]]), n_swaps=3, length=30, max_distance_cm=25.0, seed=0)
+    assert not none.any()
+    with pytest.raises(MocapValueError):
+        corrupt.label_swaps(m, n_swaps=1, length=301, seed=0)
+    with pytest.raises(MocapValueError):
+        corrupt.label_swaps(_markers(P[:, :1]), n_swaps=1, length=5, seed=0)
+
+
+def test_auto_puts_swaps_back_and_says_so(tmp_path, capsys):
+    """The default method on a marker capture: the swapped stretch comes back as measured
+    (a noise-free capture is kept as measured), the report and the CLI say so."""
+    from mocapkit.cli import main
+
+    rng = np.random.default_rng(1)
+    base = _three(300)
+    P = np.concatenate([base, base + rng.normal(0, 10, (1, 3, 3)) + [0, 0, -60]], axis=1)   # 6 markers
+    Q = P.copy()
+    Q[100:130, [0, 1]] = P[100:130, [1, 0]]
+    m = _markers(Q)
+    out = denoise.get("auto").denoise(m)
+    np.testing.assert_allclose(out.positions, P, atol=1e-9)
+    assert out.source["auto"]["swaps"]["repaired"] == [{"markers": ["M0", "M1"], "start": 100, "stop": 130}]
+    src = tmp_path / "swapped.trc"
+    io.write(m, src)
+    assert main(["denoise", str(src), str(tmp_path / "clean.trc")]) == 0
+    assert "label swaps: 1 stretch put back (M0/M1 frames 100-129)" in capsys.readouterr().out
+
+
+def test_real_capture_planted_swaps_come_back(shared_data):
+    """kineticstoolkit's tennis serve (39 markers, 50 Hz): nothing found as it is; three
+    swaps of nearby markers for 30 frames all put back exactly."""
+    m = io.read(shared_data / "markers" / "kineticstoolkit" / "kinematics_tennis_serve.c3d")
+    assert find_swaps(m.positions, m.observed) == []
+    sw, planted = corrupt.label_swaps(m, n_swaps=3, length=30, seed=4)
+    assert planted.any(axis=0).sum() == 6
+    fixed, rep = repair_swaps(sw)
+    np.testing.assert_array_equal(fixed.positions, m.positions)
+    assert len(rep["repaired"]) == 3
