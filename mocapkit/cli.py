@@ -227,6 +227,14 @@ def cmd_info(a: argparse.Namespace) -> int:
 
         diag = diagnose(m)
         info["diagnosis"] = diag.as_dict()
+        from .denoise import is_marker_capture
+
+        if is_marker_capture(m):
+            from .swaps import find_swaps
+
+            ev = find_swaps(m.positions, m.observed)
+            info["label_swap_steps"] = [{"frame": e.frame, "markers": [m.skeleton.names[e.a], m.skeleton.names[e.b]],
+                                         "step_cm": round(e.step_cm, 1)} for e in ev]
     if a.gaps:
         from .gaps import find_gaps, gap_table
 
@@ -243,6 +251,9 @@ def cmd_info(a: argparse.Namespace) -> int:
         print(json.dumps(info, indent=1, default=str))
     else:
         for k, v in info.items():
+            if k == "label_swap_steps":
+                v = (f"{len(v)} (" + ", ".join(f"{'/'.join(x['markers'])} at frame {x['frame']}" for x in v[:4])
+                     + (", ..." if len(v) > 4 else "") + "; `mocapkit denoise` puts the swaps back)") if v else "none"
             if k != "diagnosis":
                 print(f"{k:>16}: {v}")
         for line in (diag.lines() if diag is not None else []):

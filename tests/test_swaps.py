@@ -101,6 +101,8 @@ def test_auto_puts_swaps_back_and_says_so(tmp_path, capsys):
     io.write(m, src)
     assert main(["denoise", str(src), str(tmp_path / "clean.trc")]) == 0
     assert "label swaps: 1 stretch put back (M0/M1 frames 100-129)" in capsys.readouterr().out
+    assert main(["info", str(src), "--diagnose"]) == 0
+    assert "label_swap_steps: 2 (M0/M1 at frame 100, M0/M1 at frame 130;" in capsys.readouterr().out
 
 
 def test_real_capture_planted_swaps_come_back(shared_data):
