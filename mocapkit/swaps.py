@@ -17,12 +17,21 @@ explains both markers' steps: each lands within that threshold of the other's pr
 and the two residuals after the exchange sum to at most ``ratio`` of the two before it.
 Two markers that pass within the noise of each other are no swap (neither steps).
 
-Repair (:func:`repair_swaps`). The events of each group of markers that swap with each
-other are applied in time order -- each exchanges which trajectory the two labels carry
-from its frame on -- and the labelling that holds on most frames of the group is taken as
-the right one. A stretch is put back only where both markers are measured throughout it
-and its two ends are events or the take's ends: a gap inside it may hide the swap back,
-so such a stretch is left as measured and reported (``unrepaired``).
+Repair (:func:`repair_swaps`). Per pair, the events cut the take into stretches of
+alternate labelling, and the labelling that holds on most frames is taken as the right
+one. A stretch of the other labelling is exchanged back when both markers are measured
+throughout it and their distances to their steadiest partners do not say it is labelled
+right: a false event, or a missed one (a swap back inside a gap), would otherwise
+exchange the rest of the take; with the check it costs at most that short stretch.
+
+Measured (2026-12-06, ``benchmarks/label_swaps.py``, docs/results/swaps.md; swaps of a
+marker with its nearest neighbour within 15 cm, 3-100 frames, planted in 7 real captures,
+1,032 cases): 1,784 of 2,110 put back exactly -- 90-100 % without noise, 83-98 % with 0.1
+cm, 36-81 % with 0.5 cm per coordinate --, 2 cases one frame worse than before, no event
+on any shared marker file as it is. The first version, by events alone (the majority
+labelling, no geometry check), put 1,502 samples wrong where 174 had been on 3-frame
+swaps: a relaxed event of a tennis serve's elbow pair, or a missed swap back, exchanged
+the rest of the take.
 
 Limits: a swap whose step falls on a gap (a marker reappearing under the wrong label) is
 not seen, nor a label that jumps onto a marker whose own label is missing (one step, no
@@ -44,6 +53,7 @@ partner); those are the outlier tests' and the gap policy's.
 """
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -144,13 +154,13 @@ def _pair_toggles(P: np.ndarray, r: np.ndarray, pred: np.ndarray, a: int, b: int
     ok = np.isfinite(r[:, a]) & np.isfinite(r[:, b])
     before = r[:, a] + r[:, b]
     with np.errstate(invalid="ignore"):
-        after = (np.linalg.norm(P[:, b] - pred[:, a], axis=1) + np.linalg.norm(P[:, a] - pred[:, b], axis=1))
+        to_a = np.linalg.norm(P[:, b] - pred[:, a], axis=1)             # b's sample as a's
+        to_b = np.linalg.norm(P[:, a] - pred[:, b], axis=1)
+        after = to_a + to_b
         apart = np.full(T, np.nan)
         apart[1:] = np.linalg.norm(P[:-1, a] - P[:-1, b], axis=1)
-        fit_a = np.linalg.norm(P[:, b] - pred[:, a], axis=1) <= lim[a]
-        fit_b = np.linalg.norm(P[:, a] - pred[:, b], axis=1) <= lim[b]
-        hit = (ok & fit_a & fit_b & (after <= 2.0 * ratio * before) & (before - after >= apart)
-               & (apart > scale[a] + scale[b]))
+        hit = (ok & (to_a <= lim[a]) & (to_b <= lim[b]) & (after <= 2.0 * ratio * before)
+               & (before - after >= apart) & (apart > scale[a] + scale[b]))
     return [(int(t), float(max(r[t, a], r[t, b]))) for t in np.flatnonzero(hit)]
 
 
@@ -167,8 +177,6 @@ def _stretch_states(P: np.ndarray, obs: np.ndarray, a: int, b: int, bounds: np.n
     reference markers -- the :data:`SWAP_REFS` steadiest partners of each (robust spread
     of the distance over the take) -- against those distances' medians over the take. A
     label that carries the other marker keeps the other marker's distances."""
-    import warnings
-
     T, J = obs.shape
     others = np.setdiff1d(np.arange(J), [a, b])
     n = len(bounds) - 1
