@@ -8,7 +8,8 @@ length (3, 10, 30, 100 frames), :func:`mocapkit.corrupt.label_swaps` plants 3 sw
 marker with the one nearest to it at the swap's start (within 15 cm: what a labeller
 confuses); then Gaussian noise of 0, 0.1 or 0.5 cm per coordinate, and optionally a real
 occlusion mask (a ``real-gaps`` mask source's missing samples, laid over as that protocol
-does). Scored:
+does) -- with a mask, also swaps that start where a marker reappears after a gap
+(``label_swaps(at_gaps=True)``). Scored:
 
 * ``put back``: planted swaps whose every sample carries its own marker's trajectory
   after :func:`mocapkit.swaps.repair_swaps`;
@@ -83,10 +84,10 @@ def run(data: Path, seeds: int) -> dict:
                     if seed == 0:                       # nothing planted: what is found is false
                         false_rows.append({"target": name, "mask": mkey, "noise_cm": noise,
                                            "events": len(find_swaps(base.positions, base.observed))})
-                    for L in LENGTHS:
+                    for L, at_gaps in [(L, g) for L in LENGTHS for g in ((False,) if src is None else (False, True))]:
                         if L >= tgt.n_frames // 2:
                             continue
-                        sw, planted, swaps = _plant(base, L, seed)
+                        sw, planted, swaps = _plant(base, L, seed, at_gaps)
                         if not swaps:
                             continue
                         fixed, rep = repair_swaps(sw)
@@ -95,6 +96,7 @@ def run(data: Path, seeds: int) -> dict:
                         back = sum(bool(own[sel].all()) for sel in swaps)
                         runs = swaps
                         rows.append({"target": name, "mask": mkey, "noise_cm": noise, "seed": seed, "length": L,
+                                     "at_gaps": at_gaps,
                                      "planted": len(runs), "put_back": back,
                                      "planted_samples": int(planted.sum()),
                                      "wrong_after": int((~own).sum()),
@@ -105,12 +107,12 @@ def run(data: Path, seeds: int) -> dict:
     return {"rows": rows, "auto": auto_rows, "false": false_rows}
 
 
-def _plant(base, L: int, seed: int):
+def _plant(base, L: int, seed: int, at_gaps: bool = False):
     """Up to :data:`N_SWAPS` swaps, each of a pair of markers no other swap touches: the
     swapped motion, the union of their masks and each one's mask."""
     sw, planted, swaps = base, np.zeros(base.observed.shape, bool), []
     for i in range(N_SWAPS):
-        nxt, pm = corrupt.label_swaps(sw, n_swaps=1, length=L, max_distance_cm=MAX_DISTANCE_CM,
+        nxt, pm = corrupt.label_swaps(sw, n_swaps=1, length=L, max_distance_cm=MAX_DISTANCE_CM, at_gaps=at_gaps,
                                       seed=np.random.SeedSequence([seed, L, i]))
         if not pm.any() or (pm.any(axis=0) & planted.any(axis=0)).any():
             continue
@@ -153,14 +155,16 @@ def to_markdown(res: dict, seconds: float) -> str:
           f"{sum(r['planted'] for r in rows)} swaps put back, "
           f"{sum(r['wrong_after'] > r['planted_samples'] for r in rows)} cases worse after.", "",
           "## Planted swaps put back", "",
-          "| mask | noise (cm) | length (frames) | cases | swaps planted | put back | % | samples wrong before | after | cases worse after | events found | stretches left as measured |",
-          "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
-    keys = sorted({(r["mask"] or "", r["noise_cm"], r["length"]) for r in rows})
-    for mk, nz, L in keys:
-        sel = [r for r in rows if (r["mask"] or "") == mk and r["noise_cm"] == nz and r["length"] == L]
+          "| mask | swap starts | noise (cm) | length (frames) | cases | swaps planted | put back | % | samples wrong before | after | cases worse after | events found | stretches left as measured |",
+          "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    keys = sorted({(r["mask"] or "", r.get("at_gaps", False), r["noise_cm"], r["length"]) for r in rows})
+    for mk, ag, nz, L in keys:
+        sel = [r for r in rows if (r["mask"] or "") == mk and r.get("at_gaps", False) == ag
+               and r["noise_cm"] == nz and r["length"] == L]
         p = sum(r["planted"] for r in sel)
         b = sum(r["put_back"] for r in sel)
-        md.append(f"| {mk or 'none'} | {nz:g} | {L} | {len(sel)} | {p} | {b} | {100 * b / max(p, 1):.0f} | "
+        md.append(f"| {mk or 'none'} | {'at a gap end' if ag else 'anywhere'} | {nz:g} | {L} | {len(sel)} | {p} | {b} | "
+                  f"{100 * b / max(p, 1):.0f} | "
                   f"{sum(r['planted_samples'] for r in sel)} | {sum(r['wrong_after'] for r in sel)} | "
                   f"{sum(r['wrong_after'] > r['planted_samples'] for r in sel)} | "
                   f"{sum(r['events'] for r in sel)} | {sum(r['unrepaired'] for r in sel)} |")

@@ -435,7 +435,7 @@ def block_gaps(motion: Motion, /, *, n_markers: int | None = None, length: int |
 
 
 def label_swaps(motion: Motion, /, *, n_swaps: int = 1, length: int = 30, max_distance_cm: float | None = 15.0,
-                seed: Any) -> tuple[Motion, np.ndarray]:
+                at_gaps: bool = False, seed: Any) -> tuple[Motion, np.ndarray]:
     """Swap the labels of ``n_swaps`` pairs of markers for ``length`` consecutive frames.
 
     An optical labeller's typical error (:mod:`mocapkit.swaps`): for each swap a start
@@ -444,7 +444,10 @@ def label_swaps(motion: Motion, /, *, n_swaps: int = 1, length: int = 30, max_di
     ``max_distance_cm`` (None: any distance; the swap is skipped where none is that near)
     -- for ``length`` frames. Pairs are drawn independently; a swap that would touch a
     marker already swapped in any of its frames is skipped. Both markers must be observed
-    throughout.
+    throughout. ``at_gaps``: each swap starts where a marker reappears after a gap (the
+    labeller's most common moment: it gives the reappearing marker its neighbour's label),
+    drawn among the gap ends with ``length`` observed frames after them, the other marker
+    observed for the two frames before too.
 
     Returns
     -------
@@ -473,10 +476,20 @@ def label_swaps(motion: Motion, /, *, n_swaps: int = 1, length: int = 30, max_di
         raise MocapValueError("a label swap needs at least two markers")
     Q = np.array(P)
     sel = np.zeros((T, J), dtype=bool)
+    ends = np.argwhere(obs[1:] & ~obs[:-1]) + [1, 0] if at_gaps else None     # (t, a) reappearing
+    if ends is not None:
+        ends = ends[ends[:, 0] <= T - L]
     for _ in range(n_swaps):
-        t0, a = int(rng.integers(0, T - L + 1)), int(rng.integers(0, J))
+        if ends is None:
+            t0, a = int(rng.integers(0, T - L + 1)), int(rng.integers(0, J))
+        elif len(ends):
+            t0, a = (int(x) for x in ends[int(rng.integers(0, len(ends)))])
+        else:
+            break
         span = slice(t0, t0 + L)
         ok = obs[span].all(axis=0) & ~sel[span].any(axis=0)
+        if ends is not None:
+            ok &= obs[max(t0 - 2, 0):t0].all(axis=0) & (t0 >= 2)
         ok[a] = False
         if not obs[span, a].all() or sel[span, a].any() or not ok.any():
             continue
@@ -487,7 +500,8 @@ def label_swaps(motion: Motion, /, *, n_swaps: int = 1, length: int = 30, max_di
             continue
         Q[span, a], Q[span, b] = P[span, b], P[span, a]
         sel[span, [a, b]] = True
-    step = {"step": "label_swaps", "n_swaps": n_swaps, "length": L, "max_distance_cm": max_distance_cm}
+    step = {"step": "label_swaps", "n_swaps": n_swaps, "length": L, "max_distance_cm": max_distance_cm,
+            "at_gaps": bool(at_gaps)}
     return _result(motion, Q, obs, step), sel
 
 

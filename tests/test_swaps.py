@@ -58,6 +58,27 @@ def test_a_swap_whose_end_is_hidden_never_exchanges_the_rest_of_the_take():
     assert not rep["repaired"] and rep["unrepaired"]
 
 
+def test_a_marker_reappearing_under_its_neighbours_label_is_put_back():
+    """Marker 0 is occluded for 20 frames and comes back under marker 1's label (and 1's
+    label onto 0's path) until the labels come back 40 frames later: the step of 1 where 0
+    reappears, with 0's sample where 1 goes on, and the swap back, put it back."""
+    P = _three(300)
+    Q = P.copy()
+    Q[80:100, 0] = np.nan
+    Q[100:140, [0, 1]] = P[100:140, [1, 0]]
+    m = _markers(Q)
+    assert [e.frame for e in find_swaps(m.positions, m.observed)] == [100, 140]
+    fixed, rep = repair_swaps(m)
+    want = P.copy()
+    want[80:100, 0] = np.nan
+    np.testing.assert_array_equal(fixed.positions, want)
+    assert rep["repaired"] == [{"markers": ["M0", "M1"], "start": 100, "stop": 140}]
+    # planted so by the corruption too
+    sw, mask = corrupt.label_swaps(m.with_positions(np.where(np.isnan(Q), np.nan, P)), n_swaps=1, length=40,
+                                   max_distance_cm=25.0, at_gaps=True, seed=0)
+    assert mask[100:140].any(axis=1).all() and not mask[:100].any()
+
+
 def test_noise_alone_and_markers_passing_each_other_are_no_swap():
     rng = np.random.default_rng(0)
     P = _three(400) + rng.normal(0, 0.3, (400, 3, 3))
