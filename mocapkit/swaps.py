@@ -111,8 +111,8 @@ def find_swaps(positions: np.ndarray, observed: np.ndarray, *, factor: float = S
     each pair found, every frame at which that pair's exchange explains a step of at least
     the pair's distance (:func:`_pair_toggles`): a swap out that falls just under the
     threshold where its swap in did not (two markers about a threshold apart) would
-    otherwise leave the rest of the take exchanged. Vectorised over the frames; the loops
-    run over the steps found (a handful in a take) and the pairs.
+    otherwise leave the rest of the take exchanged. Vectorised over the frames and the
+    steps (blocks of 4,096); the loops run over the pairs and the reappearances.
     """
     P = np.asarray(positions, dtype=float)
     obs = np.asarray(observed, dtype=bool) & np.isfinite(P).all(axis=2)
@@ -128,18 +128,18 @@ def find_swaps(positions: np.ndarray, observed: np.ndarray, *, factor: float = S
     with np.errstate(invalid="ignore"):
         steps = np.argwhere(r > thr[None, :])
     pairs: set[tuple[int, int]] = set()
-    for t, a in steps:
-        others = np.flatnonzero(have[t] & (np.arange(J) != a))
-        if not len(others):
-            continue
-        to_a = np.linalg.norm(P[t, others] - pred[t, a], axis=1)         # b's sample as a's
-        to_b = np.linalg.norm(P[t, a] - pred[t, others], axis=1)         # a's sample as b's
-        before = r[t, a] + r[t, others]
-        after = to_a + to_b
-        fits = (to_a <= thr[a]) & (to_b <= thr[others]) & (after <= float(ratio) * before)
-        if fits.any():
-            b = int(others[int(np.argmin(np.where(fits, after, np.inf)))])
-            pairs.add((min(int(a), b), max(int(a), b)))
+    for blk in range(0, len(steps), 4096):         # every step against every marker at once
+        t, a = steps[blk:blk + 4096].T
+        with np.errstate(invalid="ignore"):
+            to_a = np.linalg.norm(P[t] - pred[t, a][:, None], axis=2)       # (N, J): b's sample as a's
+            to_b = np.linalg.norm(P[t, a][:, None] - pred[t], axis=2)       # a's sample as b's
+            before = r[t, a][:, None] + r[t]
+            after = to_a + to_b
+            fits = (have[t] & (np.arange(J)[None, :] != a[:, None]) & (to_a <= thr[a][:, None])
+                    & (to_b <= thr[None, :]) & (after <= float(ratio) * before))
+        hit = fits.any(axis=1)
+        b = np.argmin(np.where(fits, after, np.inf), axis=1)
+        pairs.update((min(int(x), int(y)), max(int(x), int(y))) for x, y in zip(a[hit], b[hit]))
     events = []
     # a marker that reappears after a gap under the label of a neighbour: the neighbour's
     # label steps onto the reappearing marker's path there, and the reappearing label sits
