@@ -18,8 +18,8 @@ does) -- with a mask, also swaps that start where a marker reappears after a gap
 * ``false events``: swap events found on the same capture with nothing planted (same
   noise and mask);
 * ``auto``: RMSE (cm, per coordinate) on the swapped samples of ``mocapkit denoise``'s
-  default (``auto``) with the repair against the same without it, on the noise-free
-  captures without a mask.
+  default (``auto``) with the repair (every method's guard does it on a marker capture)
+  against the same with ``--keep-swaps``, on the noise-free captures without a mask.
 
 Writes the Markdown file and a JSON file beside it. Nothing in the Markdown is typed by
 hand.
@@ -123,19 +123,15 @@ def _plant(base, L: int, seed: int, at_gaps: bool = False):
 
 def _auto(sw, truth_motion, planted, name, L, seed) -> dict:
     """auto's RMSE (cm) on the swapped samples, with the repair and without it."""
-    import mocapkit.denoise.auto as A
+    from mocapkit.gaps import use_policy
 
     P0 = np.asarray(truth_motion.positions)
     res = {}
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         res["with"] = np.asarray(denoise.get("auto").denoise(sw).positions)
-        real = A.repair_swaps
-        A.repair_swaps = lambda m: (m, None)
-        try:
+        with use_policy(swaps=False):                  # --keep-swaps
             res["without"] = np.asarray(denoise.get("auto").denoise(sw).positions)
-        finally:
-            A.repair_swaps = real
 
     def rmse(X):
         d = (X - P0)[planted]

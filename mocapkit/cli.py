@@ -339,6 +339,11 @@ def cmd_denoise(a: argparse.Namespace) -> int:
     if not a.quiet:
         print(f"wrote {a.output} ({method.name}, {m.n_frames} frames in {dt:.2f} s, "
               f"{m.n_frames / max(dt, 1e-9):.0f} frames/s)")
+        from .swaps import summary_line
+
+        swaps = summary_line(out.source.get("swaps"))
+        if swaps:
+            print(swaps)
         if not m.observed.all():
             print(gaps.summary_line(out.source.get("gap_report")))
         _print_auto(out.source.get("auto"), out.source.get("gap_report"))
@@ -408,11 +413,6 @@ def _print_auto(src: dict | None, report: dict | None = None) -> None:
         line += (f"; {off['frames']} frames write a bone more than {BONE_OFF_CM:g} cm off its length (worst "
                  f"{off['worst_cm']:.0f} cm, {off['joint']} at frame {off['frame']}): fills there are uncertain")
     print(line)
-    from .swaps import summary_line
-
-    swaps = summary_line(src.get("swaps"))
-    if swaps:
-        print(swaps)
 
 
 def cmd_train(a: argparse.Namespace) -> int:
@@ -742,7 +742,8 @@ def _policy_changes(a: argparse.Namespace) -> dict:
     """The gap-policy changes the switches of :func:`_policy_options` ask for."""
     return {**({"max_gap_s": a.max_gap} if a.max_gap else {}),
             **({"move_margin_cm": None, "misfit_factor": None} if a.keep_moves else {}),
-            **({"validate_cm": None} if a.keep_unvalidated else {})}
+            **({"validate_cm": None} if a.keep_unvalidated else {}),
+            **({"swaps": False} if a.keep_swaps else {})}
 
 
 def _policy_options(s: argparse.ArgumentParser) -> None:
@@ -756,6 +757,10 @@ def _policy_options(s: argparse.ArgumentParser) -> None:
                         "stretch by more than 5 cm with no spike to remove, or where a model-based method moved "
                         "a marker by more than twice the input's noise (by default those are written as "
                         "measured, with a warning)")
+    s.add_argument("--keep-swaps", action="store_true",
+                   help="on a marker file, leave label swaps (two markers that traded labels for a "
+                        "stretch of frames) as read; by default they are put back before the method "
+                        "runs, and a line says where")
     s.add_argument("--keep-unvalidated", action="store_true",
                    help="write a method's fills of gaps longer than 2 frames even where its own "
                         "self-validation on the file (observed stretches next to each gap hidden and "

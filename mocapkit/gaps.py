@@ -126,7 +126,10 @@ class GapPolicy:
         (:func:`mocapkit.denoise.fill_auto.unvalidated_fills`: the method runs twice more);
         None = no check. Methods that validate their own fills (``auto``, ``fill-auto``:
         their ``max_fill_error_cm`` / ``max_error_cm``) are not run again.
-    restrict : False fills everything (the papers' synthetic protocols).
+    swaps : on a marker capture, label swaps (two markers that traded labels for a stretch,
+        :mod:`mocapkit.swaps`) are put back before the method runs; False = as read.
+    restrict : False fills everything (the papers' synthetic protocols), and puts no swap
+        back.
     """
 
     max_gap_s: float | None = None
@@ -139,6 +142,7 @@ class GapPolicy:
     move_margin_cm: float | None = 5.0
     misfit_factor: float | None = 2.0
     validate_cm: float | None = 5.0
+    swaps: bool = True
     restrict: bool = True
 
     def __post_init__(self) -> None:

@@ -38,6 +38,9 @@ exchanged the rest of the take; with the geometry check but stretches to the tak
 put back where it was undecided, 3 cases were worse (a wrist pair's swap in hidden by 0.5
 cm noise: its swap back exchanged the last 117 frames).
 
+Every method runs after :func:`repair_swaps` on a marker capture (the shared guard,
+:mod:`mocapkit.denoise.base`; :attr:`mocapkit.gaps.GapPolicy.swaps`, ``--keep-swaps``).
+
 Limits: a swap whose step falls on a gap of both markers is not seen, nor a label that
 jumps onto a marker whose own label is missing (one step, no partner); those are the
 outlier tests' and the gap policy's.

@@ -104,9 +104,12 @@ def test_label_swaps_corruption():
         corrupt.label_swaps(_markers(P[:, :1]), n_swaps=1, length=5, seed=0)
 
 
-def test_auto_puts_swaps_back_and_says_so(tmp_path, capsys):
-    """The default method on a marker capture: the swapped stretch comes back as measured
-    (a noise-free capture is kept as measured), the report and the CLI say so."""
+def test_every_method_sees_swaps_put_back_and_the_cli_says_so(tmp_path, capsys):
+    """The shared guard puts swaps back on a marker capture before any method runs: the
+    default (a noise-free capture is kept as measured) and a filter alike; the report
+    (``source["swaps"]``) and the CLI say so; ``--keep-swaps`` and the papers' fill-all
+    policy leave them as read."""
+    from mocapkit import gaps
     from mocapkit.cli import main
 
     rng = np.random.default_rng(1)
@@ -117,11 +120,20 @@ def test_auto_puts_swaps_back_and_says_so(tmp_path, capsys):
     m = _markers(Q)
     out = denoise.get("auto").denoise(m)
     np.testing.assert_allclose(out.positions, P, atol=1e-9)
-    assert out.source["auto"]["swaps"]["repaired"] == [{"markers": ["M0", "M1"], "start": 100, "stop": 130}]
+    assert out.source["swaps"]["repaired"] == [{"markers": ["M0", "M1"], "start": 100, "stop": 130}]
+    lin = denoise.get("linear").denoise(m)                  # nothing to fill: the samples as repaired
+    np.testing.assert_array_equal(lin.positions, P)
+    with gaps.use_policy(swaps=False):
+        np.testing.assert_array_equal(denoise.get("linear").denoise(m).positions, Q)
+    with gaps.use_policy(gaps.FILL_ALL):
+        np.testing.assert_array_equal(denoise.get("linear").denoise(m).positions, Q)
     src = tmp_path / "swapped.trc"
     io.write(m, src)
     assert main(["denoise", str(src), str(tmp_path / "clean.trc")]) == 0
     assert "label swaps: 1 stretch put back (M0/M1 frames 100-129)" in capsys.readouterr().out
+    assert main(["denoise", str(src), str(tmp_path / "kept.trc"), "--keep-swaps"]) == 0
+    assert "label swaps" not in capsys.readouterr().out
+    np.testing.assert_allclose(io.read(tmp_path / "kept.trc").positions, Q, atol=1e-3)
     assert main(["info", str(src), "--diagnose"]) == 0
     assert "label_swap_steps: 2 (M0/M1 at frame 100, M0/M1 at frame 130;" in capsys.readouterr().out
 

@@ -153,7 +153,6 @@ import numpy as np
 from ..diagnose import SPIKE_RATE, diagnose, diagnosis_of, robust_fit, used_columns
 from ..gaps import gap_lengths
 from ..motion import Motion
-from ..swaps import repair_swaps
 from ..signal import estimate_noise
 from ..solvers import lowrank as _lr
 from ..solvers.gcv_spline import _BISQUARE, ROBUST_MIN_SCALE, cutoff_hz, gcv_smooth, residual_scale
@@ -241,13 +240,6 @@ class Auto(Denoiser):
     def denoise(self, motion: Motion) -> Motion:
         from ..solvers._linalg import blas_limit
 
-        from . import is_marker_capture
-
-        swaps = None
-        if is_marker_capture(motion):
-            # two labels that traded trajectories: put back first, so that every later step
-            # sees each marker's own path (mocapkit.swaps)
-            motion, swaps = repair_swaps(motion)
         with blas_limit():          # many small solves: one BLAS thread is fastest
             jumps = _jumps(motion)
             if jumps or motion.n_frames > 1.5 * PIECE_FRAMES:
@@ -257,8 +249,6 @@ class Auto(Denoiser):
                 codes = src.pop("fill_codes", None)
                 res = motion.with_matrix(out, handover=True).with_source(auto=src)
                 res = res if codes is None else res.with_source(fill_codes=codes)
-        if swaps is not None and swaps["events"]:
-            res = res.with_source(auto={**res.source["auto"], "swaps": swaps})
         return res
 
     def _after_policy(self, out: Motion) -> Motion:

@@ -13,7 +13,9 @@ Every method is one class deriving from :class:`Denoiser`, registered with
 
 The base class wraps every subclass's ``denoise`` once (:func:`_guard`, as scikit-learn
 wraps ``transform`` for ``set_output``) so the rules shared by all methods live in one
-place: the input is moved near the origin before the method and back after it (when it lies
+place: on a marker capture, label swaps (two markers that traded labels for a stretch) are
+put back first (:mod:`mocapkit.swaps`; :attr:`mocapkit.gaps.GapPolicy.swaps`); the input is
+moved near the origin before the method and back after it (when it lies
 more than 50 m away, by whole 10 m steps: data in a normal capture volume is untouched
 and a clip 100 m away gives the same result shifted), a never-observed joint gets a placeholder the method may use
 and is returned missing, and the result goes through :func:`mocapkit.gaps.apply_policy`
@@ -239,11 +241,22 @@ def _guard(fn):
 
         self._validate_params("denoise()")
         self.last_report_ = {}
-        work, off = _prepare(motion)
-        work, idx = _as_trained(self, work)
         from ..gaps import current_policy
 
         pol = current_policy()
+        swaps = None
+        if pol.restrict and pol.swaps:
+            from . import is_marker_capture
+
+            if is_marker_capture(motion):
+                from ..swaps import repair_swaps
+
+                # two markers that traded labels: put back before any method sees them, so
+                # that each works on each marker's own path (mocapkit.swaps); the rest of
+                # the guard judges the method against the input so repaired
+                motion, swaps = repair_swaps(motion)
+        work, off = _prepare(motion)
+        work, idx = _as_trained(self, work)
         limit = pol.validate_cm if pol.restrict else None
         token = _INSIDE.set(1)
         try:
@@ -279,6 +292,8 @@ def _guard(fn):
         fit = self.last_report_.get("model_fit") if self.misfit_check and getattr(self, "warn", True) else None
         out = self._after_policy(apply_policy(motion, raw, evidence=self.fill_evidence, method=self.name,
                                               unvalidated=unvalidated, misfit=misfit, fit=fit))
+        if swaps is not None and swaps["events"]:
+            out = out.with_source(swaps=swaps)
         return out.with_source(**self.last_report_) if self.last_report_ else out
 
     denoise._gap_policy_guard = True
