@@ -216,7 +216,10 @@ def process_one(in_path: str, out_path: str, method: str, params: dict[str, Any]
         io.write(out, out_path, overwrite=True, **opts)
         # what a user reads in the CLI's lines, in the log and manifest: what was left
         # missing or given back as measured, and why; the warnings also shown as they came
-        notes = [summary_line(out.source.get("gap_report"))] if not m.observed.all() else []
+        from .swaps import summary_line as swaps_line
+
+        notes = [x for x in [swaps_line(out.source.get("swaps"))] if x]
+        notes += [summary_line(out.source.get("gap_report"))] if not m.observed.all() else []
         notes += [f"warning: {w.message}" for w in caught if issubclass(w.category, MocapWarning)]
         for w in caught:
             warnings.showwarning(w.message, w.category, w.filename, w.lineno)

@@ -148,3 +148,17 @@ def test_real_capture_planted_swaps_come_back(shared_data):
     fixed, rep = repair_swaps(sw)
     np.testing.assert_array_equal(fixed.positions, m.positions)
     assert len(rep["repaired"]) == 3
+
+
+def test_batch_note_says_where_swaps_were_put_back(tmp_path):
+    from mocapkit.batch import process_one
+
+    P = _three(300)
+    Q = P.copy()
+    Q[100:130, [0, 1]] = P[100:130, [1, 0]]
+    src = tmp_path / "swapped.trc"
+    io.write(_markers(Q), src)
+    res = process_one(str(src), str(tmp_path / "out.trc"), "linear", {}, None)
+    assert res["status"] == "ok" and "label swaps: 1 stretch put back (M0/M1 frames 100-129)" in res["note"]
+    res = process_one(str(src), str(tmp_path / "kept.trc"), "linear", {}, None, {"swaps": False})
+    assert res["status"] == "ok" and "label swaps" not in res["note"]
