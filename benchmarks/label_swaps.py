@@ -17,6 +17,9 @@ does) -- with a mask, also swaps that start where a marker reappears after a gap
   planted ones left, and any the repair moved that were right);
 * ``false events``: swap events found on the same capture with nothing planted (same
   noise and mask);
+* ``kinect``: the body-side flips :func:`mocapkit.swaps.repair_side_flips` finds and puts
+  back in the 567 MSR-Action3D Kinect skeletons as they are (no truth: the summed step
+  of the joints into each flip frame, before and after);
 * ``auto``: RMSE (cm, per coordinate) on the swapped samples of ``mocapkit denoise``'s
   default (``auto``) with the repair (every method's guard does it on a marker capture)
   against the same with ``--keep-swaps``, on the noise-free captures without a mask.
@@ -104,7 +107,27 @@ def run(data: Path, seeds: int) -> dict:
                         if noise == 0.0 and src is None and seed < 2:
                             auto_rows.append(_auto(sw, tgt, planted, name, L, seed))
         print(f"{name}: done", file=sys.stderr, flush=True)
-    return {"rows": rows, "auto": auto_rows, "false": false_rows}
+    return {"rows": rows, "auto": auto_rows, "false": false_rows, "kinect": _kinect(data)}
+
+
+def _kinect(data: Path) -> list[dict]:
+    """Body-side flips found and put back in the MSR-Action3D Kinect skeletons as they
+    are (:func:`mocapkit.swaps.repair_side_flips`): per file with a flip, the frames and the
+    summed per-joint step at them before and after."""
+    from mocapkit import io
+    from mocapkit.swaps import repair_side_flips
+
+    out = []
+    for f in sorted((data / "msr_action3d" / "skeleton3d").glob("*.txt")):
+        m = io.read(f)
+        fixed, rep = repair_side_flips(m)
+        if not rep["flips"]:
+            continue
+        P, Q = np.asarray(m.positions), np.asarray(fixed.positions)
+        step = lambda X: float(sum(np.linalg.norm(X[t] - X[t - 1], axis=1).sum() for t in rep["flips"]))  # noqa: E731
+        out.append({"file": f.name, "frames": m.n_frames, "flips": rep["flips"],
+                    "pairs_put_back": len(rep["repaired"]), "step_before_cm": step(P), "step_after_cm": step(Q)})
+    return out
 
 
 def _plant(base, L: int, seed: int, at_gaps: bool = False):
@@ -170,6 +193,16 @@ def to_markdown(res: dict, seconds: float) -> str:
     for mk, nz in sorted({(r["mask"] or "", r["noise_cm"]) for r in fr}):
         sel = [r for r in fr if (r["mask"] or "") == mk and r["noise_cm"] == nz]
         md.append(f"| {mk or 'none'} | {nz:g} | {len(sel)} | {sum(r['events'] for r in sel)} |")
+    kr = res.get("kinect") or []
+    md += ["", "## Body-side flips in the MSR-Action3D Kinect skeletons, as they are", "",
+           "`mocapkit.swaps.repair_side_flips` on the 567 files (every method runs after it on a Kinect "
+           f"file): flips in {len(kr)}. The step is the sum over the joints of their 3-D move into the "
+           "flip frame (cm; at 15 fps a joint also moves several cm a frame by itself).", "",
+           "| file | frames | flips at | left-right pairs put back | step before | after |",
+           "|---|---:|---|---:|---:|---:|"]
+    for r in kr:
+        md.append(f"| {r['file']} | {r['frames']} | {', '.join(map(str, r['flips']))} | {r['pairs_put_back']} | "
+                  f"{r['step_before_cm']:.0f} | {r['step_after_cm']:.0f} |")
     ar = res["auto"]
     if ar:
         md += ["", "## `auto` on the swapped samples (noise-free, no mask; RMSE cm per coordinate)", "",

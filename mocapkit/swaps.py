@@ -45,7 +45,12 @@ serve as it is among them). Of the swaps missed without noise or mask, half are 
 and a thumb 1.7-1.8 cm apart, under the 2 cm floor; the others' swap back fell in a fast
 stroke and was not seen, so the labelling was left as it was.
 
-Every method runs after :func:`repair_swaps` on a marker capture (the shared guard,
+A Kinect skeleton's body-side flip -- the tracker puts every left joint under the right
+label as the subject turns -- is the same event on every left-right pair at once:
+:func:`repair_side_flips`.
+
+Every method runs after :func:`repair_swaps` on a marker capture, and after
+:func:`repair_side_flips` on a Kinect skeleton (the shared guard,
 :mod:`mocapkit.denoise.base`; :attr:`mocapkit.gaps.GapPolicy.swaps`, ``--keep-swaps``).
 
 Limits: a swap whose step falls on a gap of both markers is not seen, nor a label that
@@ -75,7 +80,7 @@ import numpy as np
 
 from .motion import Motion
 
-__all__ = ["SwapEvent", "find_swaps", "repair_swaps", "summary_line", "SWAP_FACTOR", "SWAP_FLOOR_CM", "SWAP_RATIO"]
+__all__ = ["SwapEvent", "find_swaps", "repair_swaps", "repair_side_flips", "summary_line", "SWAP_FACTOR", "SWAP_FLOOR_CM", "SWAP_RATIO"]
 
 #: a step: the constant-velocity residual over this many times the marker's median residual
 #: (Gaussian noise alone: the median is about 3.8 sigma, 4 x that ~6 times the chi(3) tail's
@@ -113,10 +118,13 @@ def _residuals(P: np.ndarray, observed: np.ndarray) -> tuple[np.ndarray, np.ndar
 
 
 def find_swaps(positions: np.ndarray, observed: np.ndarray, *, factor: float = SWAP_FACTOR,
-               floor_cm: float = SWAP_FLOOR_CM, ratio: float = SWAP_RATIO) -> list[SwapEvent]:
+               floor_cm: float = SWAP_FLOOR_CM, ratio: float = SWAP_RATIO,
+               partner: np.ndarray | None = None) -> list[SwapEvent]:
     """The label-swap events of a marker capture (module docstring), in time order.
 
-    ``positions`` (T, J, 3) cm, ``observed`` (T, J) bool. First the swaps that stand out
+    ``positions`` (T, J, 3) cm, ``observed`` (T, J) bool. ``partner`` (J,): the one marker
+    each may swap with (itself: none), e.g. a skeleton's left-right mirror
+    (:func:`mocapkit.frames.mirror_permutation`); None: any. First the swaps that stand out
     (a step over the threshold, explained by an exchange with another marker); then, for
     each pair found, every frame at which that pair's exchange explains a step of at least
     the pair's distance (:func:`_pair_toggles`): a swap out that falls just under the
@@ -145,7 +153,9 @@ def find_swaps(positions: np.ndarray, observed: np.ndarray, *, factor: float = S
             to_b = np.linalg.norm(P[t, a][:, None] - pred[t], axis=2)       # a's sample as b's
             before = r[t, a][:, None] + r[t]
             after = to_a + to_b
-            fits = (have[t] & (np.arange(J)[None, :] != a[:, None]) & (to_a <= thr[a][:, None])
+            allowed = (np.arange(J)[None, :] != a[:, None]) if partner is None else \
+                (np.arange(J)[None, :] == partner[a][:, None]) & (partner[a] != a)[:, None]
+            fits = (have[t] & allowed & (to_a <= thr[a][:, None])
                     & (to_b <= thr[None, :]) & (after <= float(ratio) * before))
         hit = fits.any(axis=1)
         b = np.argmin(np.where(fits, after, np.inf), axis=1)
@@ -157,7 +167,7 @@ def find_swaps(positions: np.ndarray, observed: np.ndarray, *, factor: float = S
     # path, is not seen over its gap)
     for t, a in np.argwhere(obs[1:] & ~obs[:-1]) + [1, 0]:
         cand = np.flatnonzero(have[t] & (r[t] > thr))
-        cand = cand[cand != a]
+        cand = cand[cand != a] if partner is None else cand[(cand == partner[a]) & (cand != a)]
         if not len(cand):
             continue
         to_b = np.linalg.norm(P[t, a] - pred[t, cand], axis=1)           # a's sample as b's
@@ -196,6 +206,9 @@ def _pair_toggles(P: np.ndarray, r: np.ndarray, pred: np.ndarray, a: int, b: int
     return [(int(t), float(max(r[t, a], r[t, b]))) for t in np.flatnonzero(hit)]
 
 
+#: left-right pairs of a skeleton swapping at the same frame that make a body-side flip
+#: (:func:`repair_side_flips`)
+FLIP_PAIRS = 2
 #: reference markers per marker of a pair for the geometry test (:func:`_stretch_states`)
 SWAP_REFS = 3
 #: a stretch is told apart by the geometry test when its distances to the reference markers
@@ -203,14 +216,18 @@ SWAP_REFS = 3
 SWAP_GEOMETRY = 0.25
 
 
-def _stretch_states(P: np.ndarray, obs: np.ndarray, a: int, b: int, bounds: np.ndarray) -> np.ndarray:
+def _stretch_states(P: np.ndarray, obs: np.ndarray, a: int, b: int, bounds: np.ndarray,
+                    exclude: np.ndarray | None = None) -> np.ndarray:
     """Per stretch ``bounds[i]:bounds[i+1]`` of markers ``a`` and ``b`` (both measured
     throughout it): +1 exchanged, -1 as labelled, 0 undecided, by their distances to
     reference markers -- the :data:`SWAP_REFS` steadiest partners of each (robust spread
     of the distance over the take) -- against those distances' medians over the take. A
-    label that carries the other marker keeps the other marker's distances."""
+    label that carries the other marker keeps the other marker's distances. Markers in
+    ``exclude`` (those in a swap of their own: their labels may be exchanged too, as in a
+    body-side flip, where every left joint's distance to the others on its side holds)
+    are no references."""
     T, J = obs.shape
-    others = np.setdiff1d(np.arange(J), [a, b])
+    others = np.setdiff1d(np.arange(J), [a, b] if exclude is None else np.union1d([a, b], exclude))
     n = len(bounds) - 1
     out = np.zeros(n, int)
     if not len(others):
@@ -258,8 +275,8 @@ def repair_swaps(motion: Motion, **options) -> tuple[Motion, dict]:
     a missed one, would otherwise exchange the rest of the take -- the geometry of a long
     stretch tells, and a short one costs little.
 
-    ``options`` go to :func:`find_swaps`. Report: ``events`` (frame, marker names, step
-    cm), ``repaired`` (stretches put back: markers, start, stop frame), ``unrepaired``
+    ``options`` go to :func:`find_swaps` (``partner``: whom each marker may swap with).
+    Report: ``events`` (frame, marker names, step cm), ``repaired`` (stretches put back: markers, start, stop frame), ``unrepaired``
     (stretches of the other labelling left as measured: a gap inside, or distances that
     say it is labelled right). Returns ``motion`` itself when nothing was put back.
     """
@@ -274,12 +291,13 @@ def repair_swaps(motion: Motion, **options) -> tuple[Motion, dict]:
     T = P.shape[0]
     filled = np.asarray(motion.filled)
     out_P, out_filled = P.copy(), filled.copy()
+    swapping = np.array(sorted({e.a for e in events} | {e.b for e in events}))
     for a, b in sorted({(e.a, e.b) for e in events}):
         bounds = np.unique(np.concatenate([[0, T], [e.frame for e in events if (e.a, e.b) == (a, b)]]))
         parity = np.arange(len(bounds) - 1) % 2
         frames = np.diff(bounds)
         wrong = int(frames[parity == 1].sum() > frames[parity == 0].sum())     # the minority
-        states = _stretch_states(out_P, obs, a, b, bounds)
+        states = _stretch_states(out_P, obs, a, b, bounds, exclude=swapping)
         who = [names[a], names[b]]
         for i in np.flatnonzero(parity != wrong):
             s, e = int(bounds[i]), int(bounds[i + 1])
@@ -288,6 +306,73 @@ def repair_swaps(motion: Motion, **options) -> tuple[Motion, dict]:
             # where they say it is exchanged
             closed = 0 < s and e < T
             if states[i] == -1 or (states[i] == 0 and not closed) or not obs[s:e][:, [a, b]].all():
+                report["unrepaired"].append({"markers": who, "start": s, "stop": e})
+                continue
+            out_P[s:e, [a, b]] = out_P[s:e, [b, a]]
+            out_filled[s:e, [a, b]] = out_filled[s:e, [b, a]]
+            report["repaired"].append({"markers": who, "start": s, "stop": e})
+    if not report["repaired"]:
+        return motion, report
+    src = dict(motion.source)
+    src["swaps"] = report
+    return Motion(out_P, motion.skeleton, motion.fps, obs, src, out_filled), report
+
+
+def repair_side_flips(motion: Motion, **options) -> tuple[Motion, dict]:
+    """``motion`` with a depth camera's body-side flips put back, and a report.
+
+    A skeleton tracker that loses which side of the body faces it (Kinect, as the subject
+    turns) writes every left joint under the right label and the other way round from one
+    frame on. Per left-right pair of the skeleton (:func:`mocapkit.frames.mirror_permutation`),
+    :func:`find_swaps` finds the frames where the pair's exchange explains a step of both
+    (``partner`` = the mirror); a frame where at least :data:`FLIP_PAIRS` pairs do so is a
+    flip. Each pair's own steps at the flips cut the take into stretches of alternate
+    sides, and those of the side that holds on fewer frames are exchanged back (a flip may
+    take the arms and not the legs). The distance test of :func:`repair_swaps` is not
+    used: distances cannot tell a mirrored body from a right one; what stands for it is
+    that several pairs step together. A stretch with a missing joint is left
+    (``unrepaired``).
+
+    ``options`` go to :func:`find_swaps`. Report: ``events`` (as :func:`repair_swaps`),
+    ``flips`` (frames), ``repaired`` / ``unrepaired`` (stretches: the pair's joints, start,
+    stop). Returns ``motion`` itself when nothing was put back or the
+    skeleton has no left-right pairs.
+
+    Measured (2026-12-06, the 567 MSR-Action3D skeleton files): flips in 7 files, all
+    put back; e.g. a17_s03_e02, whose first 6 frames had the two sides exchanged.
+    """
+    from .frames import mirror_permutation
+
+    names = list(motion.skeleton.names)
+    report: dict = {"events": [], "flips": [], "repaired": [], "unrepaired": []}
+    mirror = mirror_permutation(motion.skeleton)
+    if mirror is None or (mirror == np.arange(len(names))).all():
+        return motion, report
+    P = np.asarray(motion.positions)
+    obs = np.asarray(motion.observed) & np.isfinite(P).all(axis=2)
+    events = find_swaps(P, obs, partner=mirror, **options)
+    report["events"] = [{"frame": e.frame, "markers": [names[e.a], names[e.b]], "step_cm": e.step_cm}
+                        for e in events]
+    frames, counts = np.unique([e.frame for e in events], return_counts=True)
+    flips = frames[counts >= FLIP_PAIRS] if len(events) else np.zeros(0, int)
+    report["flips"] = [int(f) for f in flips]
+    if not len(flips):
+        return motion, report
+    T = P.shape[0]
+    out_P, out_filled = P.copy(), np.asarray(motion.filled).copy()
+    for a, b in sorted({(e.a, e.b) for e in events}):
+        # this pair's own steps at the flips (a flip may take the arms and not the legs)
+        mine = [e.frame for e in events if (e.a, e.b) == (a, b) and e.frame in set(report["flips"])]
+        if not mine:
+            continue
+        bounds = np.unique(np.concatenate([[0, T], mine]))
+        parity = np.arange(len(bounds) - 1) % 2
+        lengths = np.diff(bounds)
+        wrong = int(lengths[parity == 1].sum() > lengths[parity == 0].sum())
+        for i in np.flatnonzero(parity != wrong):
+            s, e = int(bounds[i]), int(bounds[i + 1])
+            who = [names[a], names[b]]
+            if not obs[s:e][:, [a, b]].all():
                 report["unrepaired"].append({"markers": who, "start": s, "stop": e})
                 continue
             out_P[s:e, [a, b]] = out_P[s:e, [b, a]]
@@ -316,6 +401,9 @@ def summary_line(report: dict | None) -> str | None:
 
     rep, left = report.get("repaired", []), report.get("unrepaired", [])
     parts = []
+    if report.get("flips"):
+        parts.append(f"body-side flip(s) at frame {', '.join(map(str, report['flips'][:6]))}"
+                     + (", ..." if len(report["flips"]) > 6 else ""))
     if rep:
         parts.append(f"{len(rep)} stretch{'es' if len(rep) > 1 else ''} put back ({spans(rep)})")
     if left:

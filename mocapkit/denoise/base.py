@@ -248,13 +248,18 @@ def _guard(fn):
         if pol.restrict and pol.swaps:
             from . import is_marker_capture
 
-            if is_marker_capture(motion):
-                from ..swaps import repair_swaps
+            from ..swaps import repair_swaps
 
+            if is_marker_capture(motion):
                 # two markers that traded labels: put back before any method sees them, so
                 # that each works on each marker's own path (mocapkit.swaps); the rest of
                 # the guard judges the method against the input so repaired
                 motion, swaps = repair_swaps(motion)
+            elif motion.source.get("format") == "kinect":
+                from ..swaps import repair_side_flips
+
+                # a depth camera's body-side flip: every left joint under the right label
+                motion, swaps = repair_side_flips(motion)
         work, off = _prepare(motion)
         work, idx = _as_trained(self, work)
         limit = pol.validate_cm if pol.restrict else None
