@@ -235,6 +235,10 @@ def cmd_info(a: argparse.Namespace) -> int:
             ev = find_swaps(m.positions, m.observed)
             info["label_swap_steps"] = [{"frame": e.frame, "markers": [m.skeleton.names[e.a], m.skeleton.names[e.b]],
                                          "step_cm": round(e.step_cm, 1)} for e in ev]
+        elif m.source.get("format") == "kinect":
+            from .swaps import repair_side_flips
+
+            info["side_flips"] = repair_side_flips(m)[1]["flips"]
     if a.gaps:
         from .gaps import find_gaps, gap_table
 
@@ -251,6 +255,9 @@ def cmd_info(a: argparse.Namespace) -> int:
         print(json.dumps(info, indent=1, default=str))
     else:
         for k, v in info.items():
+            if k == "side_flips":
+                v = (f"at frame {', '.join(map(str, v))} (the tracker exchanged the body's sides; "
+                     f"`mocapkit denoise` puts them back)") if v else "none"
             if k == "label_swap_steps":
                 v = (f"{len(v)} (" + ", ".join(f"{'/'.join(x['markers'])} at frame {x['frame']}" for x in v[:4])
                      + (", ..." if len(v) > 4 else "") + "; `mocapkit denoise` puts the swaps back)") if v else "none"

@@ -164,7 +164,7 @@ def test_batch_note_says_where_swaps_were_put_back(tmp_path):
     assert res["status"] == "ok" and "label swaps" not in res["note"]
 
 
-def test_a_body_side_flip_of_a_kinect_skeleton_is_put_back(shared_data):
+def test_a_body_side_flip_of_a_kinect_skeleton_is_put_back(shared_data, capsys):
     """MSR-Action3D a17_s03_e02: the tracker starts with the two sides exchanged and
     flips at frame 6 (every arm and leg pair steps across the body at once). Every method
     on the Kinect file sees the first 6 frames put back; the distance test of the marker
@@ -187,6 +187,11 @@ def test_a_body_side_flip_of_a_kinect_skeleton_is_put_back(shared_data):
     assert step(Q) < 0.5 * step(P)
     out = denoise.get("gaussian").denoise(m)
     assert out.source["swaps"]["flips"] == [6]
+    from mocapkit.cli import main
+
+    path = shared_data / "msr_action3d" / "skeleton3d" / "a17_s03_e02_skeleton3D.txt"
+    assert main(["info", str(path), "--diagnose"]) == 0
+    assert "side_flips: at frame 6 (the tracker exchanged the body's sides" in capsys.readouterr().out
 
 
 def test_side_flips_of_a_synthetic_skeleton():
