@@ -293,29 +293,51 @@ def repair_swaps(motion: Motion, **options) -> tuple[Motion, dict]:
     out_P, out_filled = P.copy(), filled.copy()
     swapping = np.array(sorted({e.a for e in events} | {e.b for e in events}))
     for a, b in sorted({(e.a, e.b) for e in events}):
-        bounds = np.unique(np.concatenate([[0, T], [e.frame for e in events if (e.a, e.b) == (a, b)]]))
-        parity = np.arange(len(bounds) - 1) % 2
-        frames = np.diff(bounds)
-        wrong = int(frames[parity == 1].sum() > frames[parity == 0].sum())     # the minority
+        bounds, minority = _minority([e.frame for e in events if (e.a, e.b) == (a, b)], T)
         states = _stretch_states(out_P, obs, a, b, bounds, exclude=swapping)
-        who = [names[a], names[b]]
-        for i in np.flatnonzero(parity != wrong):
+        for i in minority:
             s, e = int(bounds[i]), int(bounds[i + 1])
             # between two events: put back unless the distances say it is labelled right;
             # running to an end of the take (one event: the other may be missed), only
             # where they say it is exchanged
             closed = 0 < s and e < T
-            if states[i] == -1 or (states[i] == 0 and not closed) or not obs[s:e][:, [a, b]].all():
-                report["unrepaired"].append({"markers": who, "start": s, "stop": e})
-                continue
-            out_P[s:e, [a, b]] = out_P[s:e, [b, a]]
-            out_filled[s:e, [a, b]] = out_filled[s:e, [b, a]]
-            report["repaired"].append({"markers": who, "start": s, "stop": e})
+            _exchange(out_P, out_filled, obs, a, b, s, e, names, report,
+                      ok=not (states[i] == -1 or (states[i] == 0 and not closed)))
+    return _result(motion, out_P, out_filled, obs, report)
+
+
+def _minority(frames, T: int) -> tuple[np.ndarray, np.ndarray]:
+    """The stretches cut by the event ``frames`` (and the take's ends) and the indices of
+    those of the labelling that holds on fewer frames (the one taken as wrong)."""
+    bounds = np.unique(np.concatenate([[0, T], np.asarray(frames, int)]))
+    parity = np.arange(len(bounds) - 1) % 2
+    lengths = np.diff(bounds)
+    wrong = int(lengths[parity == 1].sum() > lengths[parity == 0].sum())
+    return bounds, np.flatnonzero(parity != wrong)
+
+
+def _exchange(P: np.ndarray, filled: np.ndarray, obs: np.ndarray, a: int, b: int, s: int, e: int,
+              names: list, report: dict, ok: bool = True) -> None:
+    """Exchange markers ``a`` and ``b`` over frames ``s:e`` in place (when ``ok`` and both are
+    measured throughout) and report it as repaired, else as unrepaired."""
+    who = [names[a], names[b]]
+    if not ok or not obs[s:e][:, [a, b]].all():
+        report["unrepaired"].append({"markers": who, "start": s, "stop": e})
+        return
+    P[s:e, [a, b]] = P[s:e, [b, a]]
+    filled[s:e, [a, b]] = filled[s:e, [b, a]]
+    report["repaired"].append({"markers": who, "start": s, "stop": e})
+
+
+def _result(motion: Motion, P: np.ndarray, filled: np.ndarray, obs: np.ndarray, report: dict
+            ) -> tuple[Motion, dict]:
+    """``motion`` itself when nothing was put back, else the repaired one with the report
+    in its source."""
     if not report["repaired"]:
         return motion, report
     src = dict(motion.source)
     src["swaps"] = report
-    return Motion(out_P, motion.skeleton, motion.fps, obs, src, out_filled), report
+    return Motion(P, motion.skeleton, motion.fps, obs, src, filled), report
 
 
 def repair_side_flips(motion: Motion, **options) -> tuple[Motion, dict]:
@@ -365,24 +387,10 @@ def repair_side_flips(motion: Motion, **options) -> tuple[Motion, dict]:
         mine = [e.frame for e in events if (e.a, e.b) == (a, b) and e.frame in set(report["flips"])]
         if not mine:
             continue
-        bounds = np.unique(np.concatenate([[0, T], mine]))
-        parity = np.arange(len(bounds) - 1) % 2
-        lengths = np.diff(bounds)
-        wrong = int(lengths[parity == 1].sum() > lengths[parity == 0].sum())
-        for i in np.flatnonzero(parity != wrong):
-            s, e = int(bounds[i]), int(bounds[i + 1])
-            who = [names[a], names[b]]
-            if not obs[s:e][:, [a, b]].all():
-                report["unrepaired"].append({"markers": who, "start": s, "stop": e})
-                continue
-            out_P[s:e, [a, b]] = out_P[s:e, [b, a]]
-            out_filled[s:e, [a, b]] = out_filled[s:e, [b, a]]
-            report["repaired"].append({"markers": who, "start": s, "stop": e})
-    if not report["repaired"]:
-        return motion, report
-    src = dict(motion.source)
-    src["swaps"] = report
-    return Motion(out_P, motion.skeleton, motion.fps, obs, src, out_filled), report
+        bounds, minority = _minority(mine, T)
+        for i in minority:
+            _exchange(out_P, out_filled, obs, a, b, int(bounds[i]), int(bounds[i + 1]), names, report)
+    return _result(motion, out_P, out_filled, obs, report)
 
 
 def summary_line(report: dict | None) -> str | None:
