@@ -103,7 +103,8 @@ def run(data: Path, seeds: int) -> dict:
                                      "planted": len(runs), "put_back": back,
                                      "planted_samples": int(planted.sum()),
                                      "wrong_after": int((~own).sum()),
-                                     "events": len(rep["events"]), "unrepaired": len(rep["unrepaired"])})
+                                     "events": len(rep["events"]),
+                                     "unrepaired": len(rep["unrepaired"]) + len(rep.get("doubtful", []))})
                         if noise == 0.0 and src is None and seed < 2:
                             auto_rows.append(_auto(sw, tgt, planted, name, L, seed))
         print(f"{name}: done", file=sys.stderr, flush=True)

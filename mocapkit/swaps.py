@@ -276,16 +276,19 @@ def repair_swaps(motion: Motion, **options) -> tuple[Motion, dict]:
     stretch tells, and a short one costs little.
 
     ``options`` go to :func:`find_swaps` (``partner``: whom each marker may swap with).
-    Report: ``events`` (frame, marker names, step cm), ``repaired`` (stretches put back: markers, start, stop frame), ``unrepaired``
-    (stretches of the other labelling left as measured: a gap inside, or distances that
-    say it is labelled right). Returns ``motion`` itself when nothing was put back.
+    Report: ``events`` (frame, marker names, step cm), ``repaired`` (stretches put back:
+    markers, start, stop frame), ``unrepaired`` (stretches between two events left as
+    measured: a gap inside, or distances that say it is labelled right -- a likely swap the
+    repair could not take, which the CLI names), ``doubtful`` (stretches from one event to
+    an end of the take left as measured: one step of a pair is no evidence of a swap).
+    Returns ``motion`` itself when nothing was put back.
     """
     P = np.asarray(motion.positions)
     obs = np.asarray(motion.observed) & np.isfinite(P).all(axis=2)
     names = list(motion.skeleton.names)
     events = find_swaps(P, obs, **options)
     report: dict = {"events": [{"frame": e.frame, "markers": [names[e.a], names[e.b]], "step_cm": e.step_cm}
-                               for e in events], "repaired": [], "unrepaired": []}
+                               for e in events], "repaired": [], "unrepaired": [], "doubtful": []}
     if not events:
         return motion, report
     T = P.shape[0]
@@ -302,7 +305,8 @@ def repair_swaps(motion: Motion, **options) -> tuple[Motion, dict]:
             # where they say it is exchanged
             closed = 0 < s and e < T
             _exchange(out_P, out_filled, obs, a, b, s, e, names, report,
-                      ok=not (states[i] == -1 or (states[i] == 0 and not closed)))
+                      ok=not (states[i] == -1 or (states[i] == 0 and not closed)),
+                      left="unrepaired" if closed else "doubtful")
     return _result(motion, out_P, out_filled, obs, report)
 
 
@@ -317,12 +321,12 @@ def _minority(frames, T: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _exchange(P: np.ndarray, filled: np.ndarray, obs: np.ndarray, a: int, b: int, s: int, e: int,
-              names: list, report: dict, ok: bool = True) -> None:
+              names: list, report: dict, ok: bool = True, left: str = "unrepaired") -> None:
     """Exchange markers ``a`` and ``b`` over frames ``s:e`` in place (when ``ok`` and both are
-    measured throughout) and report it as repaired, else as unrepaired."""
+    measured throughout) and report it as repaired, else under ``left``."""
     who = [names[a], names[b]]
     if not ok or not obs[s:e][:, [a, b]].all():
-        report["unrepaired"].append({"markers": who, "start": s, "stop": e})
+        report[left].append({"markers": who, "start": s, "stop": e})
         return
     P[s:e, [a, b]] = P[s:e, [b, a]]
     filled[s:e, [a, b]] = filled[s:e, [b, a]]
@@ -418,5 +422,5 @@ def summary_line(report: dict | None) -> str | None:
         parts.append(f"{len(left)} left as measured (a gap inside, or their distances to their partners "
                      f"say they are labelled right: {spans(left)})")
     if not parts:
-        parts.append(f"{len(report['events'])} label step(s) seen, nothing put back")
+        return None                                # a lone step of a pair: no evidence of a swap
     return "label swaps: " + "; ".join(parts)

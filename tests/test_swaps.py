@@ -55,7 +55,8 @@ def test_a_swap_whose_end_is_hidden_never_exchanges_the_rest_of_the_take():
     keep = np.ones(len(P), bool)
     keep[110:150] = False
     np.testing.assert_array_equal(out[keep], Q[keep])
-    assert not rep["repaired"] and rep["unrepaired"]
+    assert not rep["repaired"] and not rep["unrepaired"] and rep["doubtful"]
+    assert summary_line(rep) is None                 # one step of a pair: no line
 
 
 def test_a_marker_reappearing_under_its_neighbours_label_is_put_back():
