@@ -20,6 +20,8 @@ does) -- with a mask, also swaps that start where a marker reappears after a gap
 * ``kinect``: the body-side flips :func:`mocapkit.swaps.repair_side_flips` finds and puts
   back in the 567 MSR-Action3D Kinect skeletons as they are (no truth: the summed step
   of the joints into each flip frame, before and after);
+* ``speed``: CPU time of :func:`mocapkit.swaps.repair_swaps` on a 59,900-frame, 78-marker
+  take;
 * ``auto``: RMSE (cm, per coordinate) on the swapped samples of ``mocapkit denoise``'s
   default (``auto``) with the repair (every method's guard does it on a marker capture)
   against the same with ``--keep-swaps``, on the noise-free captures without a mask.
@@ -97,10 +99,8 @@ def run(data: Path, seeds: int) -> dict:
                         out = np.where(fixed.observed[..., None], np.asarray(fixed.positions), np.nan)
                         own = _carried(truth, out)
                         back = sum(bool(own[sel].all()) for sel in swaps)
-                        runs = swaps
                         rows.append({"target": name, "mask": mkey, "noise_cm": noise, "seed": seed, "length": L,
-                                     "at_gaps": at_gaps,
-                                     "planted": len(runs), "put_back": back,
+                                     "at_gaps": at_gaps, "planted": len(swaps), "put_back": back,
                                      "planted_samples": int(planted.sum()),
                                      "wrong_after": int((~own).sum()),
                                      "events": len(rep["events"]),
@@ -108,7 +108,25 @@ def run(data: Path, seeds: int) -> dict:
                         if noise == 0.0 and src is None and seed < 2:
                             auto_rows.append(_auto(sw, tgt, planted, name, L, seed))
         print(f"{name}: done", file=sys.stderr, flush=True)
-    return {"rows": rows, "auto": auto_rows, "false": false_rows, "kinect": _kinect(data)}
+    return {"rows": rows, "auto": auto_rows, "false": false_rows, "kinect": _kinect(data), "speed": _speed(data)}
+
+
+def _speed(data: Path) -> dict:
+    """CPU seconds (median of 3) of :func:`repair_swaps` on kineticstoolkit's two-player
+    tennis serve tiled 100 times (59,900 frames x 78 markers, one BLAS thread)."""
+    from mocapkit import io
+
+    m = io.read(data / "markers" / "kineticstoolkit" / "kinematics_tennis_serve_2players.c3d")
+    P = np.concatenate([np.asarray(m.positions)] * 100)
+    obs = np.concatenate([m.observed] * 100)
+    big = m.with_positions(np.where(obs[..., None], P, np.nan))
+    ts = []
+    for _ in range(3):
+        t0 = time.process_time()
+        repair_swaps(big)
+        ts.append(time.process_time() - t0)
+    sec = float(np.median(ts))
+    return {"frames": big.n_frames, "markers": big.n_joints, "seconds": sec, "frames_per_s": big.n_frames / sec}
 
 
 def _kinect(data: Path) -> list[dict]:
@@ -204,6 +222,12 @@ def to_markdown(res: dict, seconds: float) -> str:
     for r in kr:
         md.append(f"| {r['file']} | {r['frames']} | {', '.join(map(str, r['flips']))} | {r['pairs_put_back']} | "
                   f"{r['step_before_cm']:.0f} | {r['step_after_cm']:.0f} |")
+    sp = res.get("speed")
+    if sp:
+        md += ["", "## Speed", "",
+               f"`repair_swaps` on kineticstoolkit's two-player tennis serve tiled 100 times ({sp['frames']:,} "
+               f"frames x {sp['markers']} markers; the tile joins are whole-body jumps): {sp['seconds']:.2f} CPU s, "
+               f"{sp['frames_per_s']:,.0f} frames/s (median of 3, one BLAS thread)."]
     ar = res["auto"]
     if ar:
         md += ["", "## `auto` on the swapped samples (noise-free, no mask; RMSE cm per coordinate)", "",

@@ -227,18 +227,13 @@ def cmd_info(a: argparse.Namespace) -> int:
 
         diag = diagnose(m)
         info["diagnosis"] = diag.as_dict()
-        from .denoise import is_marker_capture
+        from .swaps import repair_labels
 
-        if is_marker_capture(m):
-            from .swaps import find_swaps
-
-            ev = find_swaps(m.positions, m.observed)
-            info["label_swap_steps"] = [{"frame": e.frame, "markers": [m.skeleton.names[e.a], m.skeleton.names[e.b]],
-                                         "step_cm": round(e.step_cm, 1)} for e in ev]
-        elif m.source.get("format") == "kinect":
-            from .swaps import repair_side_flips
-
-            info["side_flips"] = repair_side_flips(m)[1]["flips"]
+        rep = repair_labels(m)[1]
+        if rep is not None and "flips" in rep:          # a Kinect skeleton
+            info["side_flips"] = rep["flips"]
+        elif rep is not None:
+            info["label_swap_steps"] = [{**e, "step_cm": round(e["step_cm"], 1)} for e in rep["events"]]
     if a.gaps:
         from .gaps import find_gaps, gap_table
 

@@ -80,7 +80,7 @@ import numpy as np
 
 from .motion import Motion
 
-__all__ = ["SwapEvent", "find_swaps", "repair_swaps", "repair_side_flips", "summary_line", "SWAP_FACTOR", "SWAP_FLOOR_CM", "SWAP_RATIO"]
+__all__ = ["SwapEvent", "find_swaps", "repair_swaps", "repair_side_flips", "repair_labels", "summary_line", "SWAP_FACTOR", "SWAP_FLOOR_CM", "SWAP_RATIO"]
 
 #: a step: the constant-velocity residual over this many times the marker's median residual
 #: (Gaussian noise alone: the median is about 3.8 sigma, 4 x that ~6 times the chi(3) tail's
@@ -153,9 +153,7 @@ def find_swaps(positions: np.ndarray, observed: np.ndarray, *, factor: float = S
             to_b = np.linalg.norm(P[t, a][:, None] - pred[t], axis=2)       # a's sample as b's
             before = r[t, a][:, None] + r[t]
             after = to_a + to_b
-            allowed = (np.arange(J)[None, :] != a[:, None]) if partner is None else \
-                (np.arange(J)[None, :] == partner[a][:, None]) & (partner[a] != a)[:, None]
-            fits = (have[t] & allowed & (to_a <= thr[a][:, None])
+            fits = (have[t] & _allowed(a, J, partner) & (to_a <= thr[a][:, None])
                     & (to_b <= thr[None, :]) & (after <= float(ratio) * before))
         hit = fits.any(axis=1)
         b = np.argmin(np.where(fits, after, np.inf), axis=1)
@@ -165,23 +163,32 @@ def find_swaps(positions: np.ndarray, observed: np.ndarray, *, factor: float = S
     # label steps onto the reappearing marker's path there, and the reappearing label sits
     # where the neighbour's path goes on (the other half, the reappearing marker's own
     # path, is not seen over its gap)
-    for t, a in np.argwhere(obs[1:] & ~obs[:-1]) + [1, 0]:
-        cand = np.flatnonzero(have[t] & (r[t] > thr))
-        cand = cand[cand != a] if partner is None else cand[(cand == partner[a]) & (cand != a)]
-        if not len(cand):
-            continue
-        to_b = np.linalg.norm(P[t, a] - pred[t, cand], axis=1)           # a's sample as b's
-        fits = (to_b <= thr[cand]) & (to_b <= float(ratio) * r[t, cand])
-        if fits.any():
-            b = int(cand[int(np.argmin(np.where(fits, to_b, np.inf)))])
-            pair = (min(int(a), b), max(int(a), b))
-            pairs.add(pair)
-            events.append(SwapEvent(int(t), pair[0], pair[1], float(r[t, b])))
+    back = np.argwhere(obs[1:] & ~obs[:-1]) + [1, 0]                      # (t, a) reappearing
+    for blk in range(0, len(back), 4096):
+        t, a = back[blk:blk + 4096].T
+        with np.errstate(invalid="ignore"):
+            to_b = np.linalg.norm(P[t, a][:, None] - pred[t], axis=2)       # (N, J): a's sample as b's
+            fits = (have[t] & (r[t] > thr[None, :]) & _allowed(a, J, partner)
+                    & (to_b <= thr[None, :]) & (to_b <= float(ratio) * r[t]))
+        hit = np.flatnonzero(fits.any(axis=1))
+        b = np.argmin(np.where(fits, to_b, np.inf), axis=1)
+        for i in hit:
+            x, y = int(a[i]), int(b[i])
+            pairs.add((min(x, y), max(x, y)))
+            events.append(SwapEvent(int(t[i]), min(x, y), max(x, y), float(r[t[i], y])))
     for a, b in sorted(pairs):
         for t, step in _pair_toggles(P, r, pred, a, b, scale, thr, float(ratio)):
             events.append(SwapEvent(t, a, b, step))
     uniq = {(e.frame, e.a, e.b): e for e in events}
     return sorted(uniq.values(), key=lambda e: (e.frame, e.a, e.b))
+
+
+def _allowed(a: np.ndarray, J: int, partner: np.ndarray | None) -> np.ndarray:
+    """(N, J) the markers each of ``a`` (N,) may swap with: any other, or its ``partner``."""
+    others = np.arange(J)[None, :]
+    if partner is None:
+        return others != a[:, None]
+    return (others == partner[a][:, None]) & (partner[a] != a)[:, None]
 
 
 def _pair_toggles(P: np.ndarray, r: np.ndarray, pred: np.ndarray, a: int, b: int, scale: np.ndarray,
@@ -395,6 +402,20 @@ def repair_side_flips(motion: Motion, **options) -> tuple[Motion, dict]:
         for i in minority:
             _exchange(out_P, out_filled, obs, a, b, int(bounds[i]), int(bounds[i + 1]), names, report)
     return _result(motion, out_P, out_filled, obs, report)
+
+
+def repair_labels(motion: Motion) -> tuple[Motion, dict | None]:
+    """The label repair that fits the capture: :func:`repair_swaps` on a marker capture
+    (:func:`mocapkit.denoise.is_marker_capture`), :func:`repair_side_flips` on a Kinect
+    skeleton, none on another skeleton (its joints are forward kinematics of one body:
+    no label to trade). Returns the motion and the report (None: not looked at)."""
+    from .denoise import is_marker_capture
+
+    if is_marker_capture(motion):
+        return repair_swaps(motion)
+    if motion.source.get("format") == "kinect":
+        return repair_side_flips(motion)
+    return motion, None
 
 
 def summary_line(report: dict | None) -> str | None:

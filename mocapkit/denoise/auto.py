@@ -243,13 +243,11 @@ class Auto(Denoiser):
         with blas_limit():          # many small solves: one BLAS thread is fastest
             jumps = _jumps(motion)
             if jumps or motion.n_frames > 1.5 * PIECE_FRAMES:
-                res = self._denoise_pieces(motion, jumps)
-            else:
-                out, src, _ = self._denoise(motion)
-                codes = src.pop("fill_codes", None)
-                res = motion.with_matrix(out, handover=True).with_source(auto=src)
-                res = res if codes is None else res.with_source(fill_codes=codes)
-        return res
+                return self._denoise_pieces(motion, jumps)
+            out, src, _ = self._denoise(motion)
+            codes = src.pop("fill_codes", None)
+            res = motion.with_matrix(out, handover=True).with_source(auto=src)
+            return res if codes is None else res.with_source(fill_codes=codes)
 
     def _after_policy(self, out: Motion) -> Motion:
         """The estimate over what is written: the gap policy may leave fills missing (off a

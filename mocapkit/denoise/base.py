@@ -246,20 +246,12 @@ def _guard(fn):
         pol = current_policy()
         swaps = None
         if pol.restrict and pol.swaps:
-            from . import is_marker_capture
+            from ..swaps import repair_labels
 
-            from ..swaps import repair_swaps
-
-            if is_marker_capture(motion):
-                # two markers that traded labels: put back before any method sees them, so
-                # that each works on each marker's own path (mocapkit.swaps); the rest of
-                # the guard judges the method against the input so repaired
-                motion, swaps = repair_swaps(motion)
-            elif motion.source.get("format") == "kinect":
-                from ..swaps import repair_side_flips
-
-                # a depth camera's body-side flip: every left joint under the right label
-                motion, swaps = repair_side_flips(motion)
+            # labels two markers traded (a Kinect skeleton's sides): put back before any
+            # method sees them, so that each works on each marker's own path; the rest of
+            # the guard judges the method against the input so repaired
+            motion, swaps = repair_labels(motion)
         work, off = _prepare(motion)
         work, idx = _as_trained(self, work)
         limit = pol.validate_cm if pol.restrict else None

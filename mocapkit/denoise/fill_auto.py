@@ -188,6 +188,17 @@ def _stretch_errors(X: np.ndarray, P: np.ndarray, hide, n_gaps: int) -> tuple[np
     return e, cnt
 
 
+def _hidden(obs: np.ndarray, hide, along: Sequence[np.ndarray] | None = None) -> np.ndarray:
+    """``obs`` (T, J) with the stretches of ``hide`` (gap index, joint, start, stop) hidden,
+    and with each the markers ``along[gap index]`` over the same frames."""
+    mask = obs.copy()
+    for gi, j, a, b in hide:
+        mask[a:b, j] = False
+        if along is not None:
+            mask[a:b, along[gi]] = False
+    return mask
+
+
 def _gap_index(gaps: Sequence[Gap]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(joint, start, stop) of each gap as (n_gaps,) int arrays."""
     return (np.array([g.joint for g in gaps], int), np.array([g.start for g in gaps], int),
@@ -363,10 +374,6 @@ def _pooled(err: np.ndarray, n: np.ndarray, gaps: Sequence[Gap], n0: float,
 SHORT_FRAMES = 2
 #: fill-auto's default ``prior_frames``, used by :func:`unvalidated_fills` too
 PRIOR_FRAMES = 20.0
-#: :func:`unvalidated_fills`: a fill that drifts (``fill_drifts``) is also judged on each
-#: interior gap's own frames hidden in up to three neighbouring markers (fill-auto's round
-#: 3), and its gap takes the worse of that and its own stretches' score
-NEIGHBOUR_ROUND = True
 #: longest gap (s) whose fill :func:`unvalidated_fills` keeps when nothing on the file
 #: judged the method on a gap at least half as long
 UNJUDGED_S = 1.0
@@ -435,8 +442,7 @@ def unvalidated_fills(method: Denoiser, motion: Motion, out: Motion, limit_cm: f
     in under half the frames beside them (:func:`side_support`; trnn 1.39 % gross: the
     edge gaps at fault were seen in more).
     The same fills are judged on each interior gap's own frames too, hidden in up to
-    three neighbouring markers seen throughout it (:func:`_neighbour_hides`, one more run;
-    :data:`NEIGHBOUR_ROUND`): the stretch next to a gap may be quiet when the gap is not,
+    three neighbouring markers seen throughout it (:func:`_neighbour_hides`, one more run): the stretch next to a gap may be quiet when the gap is not,
     and trnn's remaining gross fills were all in gaps judged so. A gap takes the worse of
     the two scores (the neighbours' alone where it had none). Measured on real_gaps
     (2026-12-06, twentieth session; 37 scored cases; RMSE cm / gross % / coverage %,
@@ -462,19 +468,20 @@ def unvalidated_fills(method: Denoiser, motion: Motion, out: Motion, limit_cm: f
     sq = np.zeros(len(gaps))                        # squared error x frames, per gap
     cnt = np.zeros(len(gaps))
     failed = np.zeros(len(gaps), bool)
+
+    def run(hide, along=None):
+        """The method's (RMSE, frames) per gap on the stretches ``hide`` (_stretch_errors)."""
+        with warnings.catch_warnings():           # the real run has said what it had to say
+            warnings.simplefilter("ignore")
+            X = _candidate_fill(method, motion.with_observed(_hidden(obs, hide, along)))
+        return _stretch_errors(X, P, hide, len(gaps))
+
     # the markers missing over most of each gap go with its stretch (docstring)
     along = [np.flatnonzero((~obs[g.start:g.stop]).mean(axis=0) >= 0.5) for g in gaps]
     for hide in _hides(obs, gaps, 2):
         if not hide:
             continue
-        mask = obs.copy()
-        for gi, j, a, b in hide:
-            mask[a:b, along[gi]] = False
-            mask[a:b, j] = False
-        with warnings.catch_warnings():           # the real run has said what it had to say
-            warnings.simplefilter("ignore")
-            X = _candidate_fill(method, motion.with_observed(mask))
-        e, c = _stretch_errors(X, P, hide, len(gaps))
+        e, c = run(hide, along)
         failed |= np.isinf(e) & ~covers            # cannot fill a stretch, nor the real gap
         ok = np.isfinite(e)                         # inf where it covers the gap: no evidence
         sq[ok] += c[ok] * e[ok] ** 2
@@ -486,19 +493,14 @@ def unvalidated_fills(method: Denoiser, motion: Motion, out: Motion, limit_cm: f
         err = np.where(cnt > 0, np.sqrt(np.maximum(sq / cnt - sigma ** 2, 0.0)), np.where(failed, np.inf, np.nan))
     # pooling bounded for every method: a 20-frame gap says nothing of a 500-frame one
     err = _pooled(err[:, None], cnt[:, None], gaps, PRIOR_FRAMES, np.array([True]))[:, 0]
-    if method.fill_drifts and NEIGHBOUR_ROUND:
-        hide = _neighbour_hides(P, obs, gaps)
-        if hide:
-            mask = obs.copy()
-            for _, j, a, b in hide:
-                mask[a:b, j] = False
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")
-                X = _candidate_fill(method, motion.with_observed(mask))
-            e, c = _stretch_errors(X, P, hide, len(gaps))
-            with np.errstate(invalid="ignore"):
-                e = np.where(c > 0, np.sqrt(np.maximum(e ** 2 - sigma ** 2, 0.0)), np.nan)
-            err = np.where(np.isfinite(e) & (c > 0), np.fmax(err, e), err)
+    hide = _neighbour_hides(P, obs, gaps) if method.fill_drifts else []
+    if hide:
+        # a drifting fill on the gap's own frames in its neighbours too: the worse score
+        # counts (docstring)
+        e, c = run(hide)
+        with np.errstate(invalid="ignore"):
+            e = np.where(np.isfinite(e) & (c > 0), np.sqrt(np.maximum(e ** 2 - sigma ** 2, 0.0)), np.nan)
+        err = np.where(np.isfinite(e), np.fmax(err, e), err)
     if method.fill_drifts:
         # an edge gap that no stretch of its own judged is left missing by a fill that drifts
         # from its one seen end: the pool's edge gaps had their marker seen beyond them, this
@@ -667,10 +669,7 @@ class FillAuto(Denoiser):
             if not hide:
                 continue
             neighbour_round = interp and r == len(rounds) - 1
-            mask = obs.copy()
-            for _, j, a, b in hide:
-                mask[a:b, j] = False
-            trial = motion.with_observed(mask)
+            trial = motion.with_observed(_hidden(obs, hide))
             for k, (_, m) in enumerate(methods):
                 if neighbour_round and k not in interp:
                     continue                 # neighbours hidden: cross-marker fills lose donors
