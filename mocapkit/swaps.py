@@ -40,7 +40,7 @@ cm noise: its swap back exchanged the last 117 frames). Also measured and not ke
 step factor 3 instead of 4 (0.5 cm noise 65 -> 67 % put back, nothing else moved); the
 exchanged samples allowed 4 x the running median of the residuals of the 11 frames about
 them off their predictions rather than the take's threshold, for fast strokes (2,304 ->
-2,326 put back, but events on 12 captures with nothing planted instead of 2, the tennis
+2,326 put back, but 12 events with nothing planted instead of 2, the tennis
 serve as it is among them). Of the swaps missed without noise or mask, half are of a hand
 and a thumb 1.7-1.8 cm apart, under the 2 cm floor; the others' swap back fell in a fast
 stroke and was not seen, so the labelling was left as it was.
