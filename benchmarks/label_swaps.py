@@ -9,7 +9,10 @@ marker with the one nearest to it at the swap's start (within 15 cm: what a labe
 confuses); then Gaussian noise of 0, 0.1 or 0.5 cm per coordinate, and optionally a real
 occlusion mask (a ``real-gaps`` mask source's missing samples, laid over as that protocol
 does) -- with a mask, also swaps that start where a marker reappears after a gap
-(``label_swaps(at_gaps=True)``). Scored:
+(``label_swaps(at_gaps=True)``); and, in the same cases, 3 label jumps
+(:func:`mocapkit.corrupt.label_jumps`: a label takes its nearest neighbour's marker, within
+15 cm, for the swap length while its own marker is hidden; the neighbour's label is
+missing meanwhile). Scored:
 
 * ``put back``: planted swaps whose every sample carries its own marker's trajectory
   after :func:`mocapkit.swaps.repair_swaps`;
@@ -89,24 +92,33 @@ def run(data: Path, seeds: int) -> dict:
                     if seed == 0:                       # nothing planted: what is found is false
                         false_rows.append({"target": name, "mask": mkey, "noise_cm": noise,
                                            "events": len(find_swaps(base.positions, base.observed))})
-                    for L, at_gaps in [(L, g) for L in LENGTHS for g in ((False,) if src is None else (False, True))]:
+                    kinds = ("anywhere",) if src is None else ("anywhere", "at a gap end")
+                    for L, kind in [(L, k) for L in LENGTHS for k in kinds + ("jump",)]:
                         if L >= tgt.n_frames // 2:
                             continue
-                        sw, planted, swaps = _plant(base, L, seed, at_gaps)
+                        sw, planted, swaps = _plant(base, L, seed, kind)
                         if not swaps:
                             continue
                         fixed, rep = repair_swaps(sw)
                         out = np.where(fixed.observed[..., None], np.asarray(fixed.positions), np.nan)
                         own = _carried(truth, out)
-                        back = sum(bool(own[sel].all()) for sel in swaps)
+                        if kind == "jump":
+                            # wrong: a sample written that is not its marker's; the jumping
+                            # label's own samples were lost with its hidden marker
+                            wrong = np.isfinite(out).all(axis=2) & ~own
+                            back = sum(bool(~wrong[a].any() and own[b].all()) for a, b in swaps)
+                            wrong_after = int(wrong.sum())
+                        else:
+                            back = sum(bool(own[sel].all()) for sel in swaps)
+                            wrong_after = int((~own).sum())
                         rows.append({"target": name, "mask": mkey, "noise_cm": noise, "seed": seed, "length": L,
-                                     "at_gaps": at_gaps, "planted": len(swaps), "put_back": back,
+                                     "kind": kind, "planted": len(swaps), "put_back": back,
                                      "planted_samples": int(planted.sum()),
-                                     "wrong_after": int((~own).sum()),
+                                     "wrong_after": wrong_after,
                                      "events": len(rep["events"]),
                                      "unrepaired": len(rep["unrepaired"]) + len(rep.get("doubtful", []))})
                         if noise == 0.0 and src is None and seed < 2:
-                            auto_rows.append(_auto(sw, tgt, planted, name, L, seed))
+                            auto_rows.append(_auto(sw, tgt, planted, name, L, seed, kind))
         print(f"{name}: done", file=sys.stderr, flush=True)
     return {"rows": rows, "auto": auto_rows, "false": false_rows, "kinect": _kinect(data), "speed": _speed(data)}
 
@@ -149,22 +161,34 @@ def _kinect(data: Path) -> list[dict]:
     return out
 
 
-def _plant(base, L: int, seed: int, at_gaps: bool = False):
-    """Up to :data:`N_SWAPS` swaps, each of a pair of markers no other swap touches: the
-    swapped motion, the union of their masks and each one's mask."""
+def _plant(base, L: int, seed: int, kind: str = "anywhere"):
+    """Up to :data:`N_SWAPS` swaps (``kind`` 'anywhere', 'at a gap end') or label jumps
+    ('jump'), each of a pair of markers no other one touches: the corrupted motion, the
+    union of the samples carrying another marker's trajectory, and per swap its mask (per
+    jump: the jumping label's mask and the mask of the samples its neighbour lost)."""
     sw, planted, swaps = base, np.zeros(base.observed.shape, bool), []
     for i in range(N_SWAPS):
-        nxt, pm = corrupt.label_swaps(sw, n_swaps=1, length=L, max_distance_cm=MAX_DISTANCE_CM, at_gaps=at_gaps,
-                                      seed=np.random.SeedSequence([seed, L, i]))
-        if not pm.any() or (pm.any(axis=0) & planted.any(axis=0)).any():
+        ss = np.random.SeedSequence([seed, L, i])
+        if kind == "jump":
+            nxt, pm = corrupt.label_jumps(sw, n_jumps=1, length=L, max_distance_cm=MAX_DISTANCE_CM, seed=ss)
+            lost = sw.observed & ~nxt.observed
+            touched = pm | lost
+        else:
+            nxt, pm = corrupt.label_swaps(sw, n_swaps=1, length=L, max_distance_cm=MAX_DISTANCE_CM,
+                                          at_gaps=kind == "at a gap end", seed=ss)
+            touched = pm
+        if not pm.any() or (touched.any(axis=0) & planted.any(axis=0)).any():
             continue
-        sw, planted = nxt, planted | pm
-        swaps.append(pm)
+        sw, planted = nxt, planted | touched
+        swaps.append((pm, lost) if kind == "jump" else pm)
+    if kind == "jump":                             # (the planted count: the jumping labels' samples)
+        planted = np.any([a for a, _ in swaps], axis=0) if swaps else planted
     return sw, planted, swaps
 
 
-def _auto(sw, truth_motion, planted, name, L, seed) -> dict:
-    """auto's RMSE (cm) on the swapped samples, with the repair and without it."""
+def _auto(sw, truth_motion, planted, name, L, seed, kind="anywhere") -> dict:
+    """auto's RMSE (cm) on the swapped samples, with the repair and without it (where it
+    wrote them: a jumping label's frames are a gap for the fill after the repair)."""
     from mocapkit.gaps import use_policy
 
     P0 = np.asarray(truth_motion.positions)
@@ -178,8 +202,9 @@ def _auto(sw, truth_motion, planted, name, L, seed) -> dict:
     def rmse(X):
         d = (X - P0)[planted]
         return float(np.sqrt(np.nanmean(d ** 2)))
-    return {"target": name, "length": L, "seed": seed, "input": rmse(np.asarray(sw.positions)),
-            "auto_with_repair": rmse(res["with"]), "auto_without": rmse(res["without"])}
+    return {"target": name, "length": L, "seed": seed, "kind": kind, "input": rmse(np.asarray(sw.positions)),
+            "auto_with_repair": rmse(res["with"]), "auto_without": rmse(res["without"]),
+            "written_with_repair": float(np.isfinite(res["with"][planted]).all(axis=1).mean())}
 
 
 def to_markdown(res: dict, seconds: float) -> str:
@@ -189,19 +214,27 @@ def to_markdown(res: dict, seconds: float) -> str:
           "protocol in the script's docstring. A swap is *put back* when every one of its samples "
           "carries its own marker's trajectory after the repair; a case is *worse after* when "
           "more samples carry another marker's trajectory after the repair than before it. "
-          f"Over all {len(rows)} cases: {sum(r['put_back'] for r in rows)} of "
-          f"{sum(r['planted'] for r in rows)} swaps put back, "
-          f"{sum(r['wrong_after'] > r['planted_samples'] for r in rows)} cases worse after.", "",
+          "A label jump (`corrupt.label_jumps`: a label carries its neighbour's marker while its own "
+          "is hidden, the neighbour's label missing meanwhile) is put back when its samples are the "
+          "neighbour's again and the jumping label writes none that is not its own (it is left "
+          "missing there, for the fill). "
+          f"Over all {len(rows)} cases: "
+          + "; ".join(f"{sum(r['put_back'] for r in rows if (r['kind'] == 'jump') == j)} of "
+                      f"{sum(r['planted'] for r in rows if (r['kind'] == 'jump') == j)} {'jumps' if j else 'swaps'} "
+                      f"put back, {sum(r['wrong_after'] > r['planted_samples'] for r in rows if (r['kind'] == 'jump') == j)} "
+                      "cases worse after" for j in (False, True)) + ".", "",
           "## Planted swaps put back", "",
-          "| mask | swap starts | noise (cm) | length (frames) | cases | swaps planted | put back | % | samples wrong before | after | cases worse after | events found | stretches left as measured |",
+          "| mask | planted | noise (cm) | length (frames) | cases | swaps planted | put back | % | samples wrong before | after | cases worse after | events found | stretches left as measured |",
           "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
-    keys = sorted({(r["mask"] or "", r.get("at_gaps", False), r["noise_cm"], r["length"]) for r in rows})
-    for mk, ag, nz, L in keys:
-        sel = [r for r in rows if (r["mask"] or "") == mk and r.get("at_gaps", False) == ag
+    order = {"anywhere": 0, "at a gap end": 1, "jump": 2}
+    keys = sorted({(r["mask"] or "", order[r["kind"]], r["noise_cm"], r["length"]) for r in rows})
+    for mk, ko, nz, L in keys:
+        kind = next(k for k, v in order.items() if v == ko)
+        sel = [r for r in rows if (r["mask"] or "") == mk and r["kind"] == kind
                and r["noise_cm"] == nz and r["length"] == L]
         p = sum(r["planted"] for r in sel)
         b = sum(r["put_back"] for r in sel)
-        md.append(f"| {mk or 'none'} | {'at a gap end' if ag else 'anywhere'} | {nz:g} | {L} | {len(sel)} | {p} | {b} | "
+        md.append(f"| {mk or 'none'} | {'a label jump' if kind == 'jump' else kind} | {nz:g} | {L} | {len(sel)} | {p} | {b} | "
                   f"{100 * b / max(p, 1):.0f} | "
                   f"{sum(r['planted_samples'] for r in sel)} | {sum(r['wrong_after'] for r in sel)} | "
                   f"{sum(r['wrong_after'] > r['planted_samples'] for r in sel)} | "
@@ -231,12 +264,20 @@ def to_markdown(res: dict, seconds: float) -> str:
     ar = res["auto"]
     if ar:
         md += ["", "## `auto` on the swapped samples (noise-free, no mask; RMSE cm per coordinate)", "",
-               "| length (frames) | cases | input | auto without the repair | auto with it |",
-               "|---:|---:|---:|---:|---:|"]
-        for L in sorted({r["length"] for r in ar}):
-            sel = [r for r in ar if r["length"] == L]
-            m = {k: float(np.sqrt(np.mean([r[k] ** 2 for r in sel]))) for k in ("input", "auto_without", "auto_with_repair")}
-            md.append(f"| {L} | {len(sel)} | {m['input']:.2f} | {m['auto_without']:.2f} | {m['auto_with_repair']:.3f} |")
+               "On a label jump the samples scored are the jumping label's: with the repair they are a gap "
+               "that auto fills where its validation allows (written: the share it filled).", "",
+               "| planted | length (frames) | cases | input | auto without the repair | auto with it | written with it |",
+               "|---|---:|---:|---:|---:|---:|---:|"]
+        for kind in ("anywhere", "jump"):
+            for L in sorted({r["length"] for r in ar}):
+                sel = [r for r in ar if r["length"] == L and r.get("kind", "anywhere") == kind]
+                if not sel:
+                    continue
+                m = {k: float(np.sqrt(np.nanmean([r[k] ** 2 for r in sel])))
+                     for k in ("input", "auto_without", "auto_with_repair")}
+                w = np.mean([r.get("written_with_repair", 1.0) for r in sel])
+                md.append(f"| {'a swap' if kind == 'anywhere' else 'a label jump'} | {L} | {len(sel)} | "
+                          f"{m['input']:.2f} | {m['auto_without']:.2f} | {m['auto_with_repair']:.3f} | {100 * w:.0f} % |")
     return "\n".join(md) + "\n"
 
 

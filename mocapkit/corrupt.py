@@ -33,6 +33,9 @@ Corruptions
 :func:`label_swaps`
     pairs of nearby markers that trade labels for a stretch of frames (an optical
     labeller's error; :mod:`mocapkit.swaps` puts them back).
+:func:`label_jumps`
+    a label that takes a neighbour's marker while its own is hidden, the neighbour's label
+    missing meanwhile (:func:`mocapkit.swaps.find_jumps`).
 :func:`slra_noise`
     the SLRA paper's partial-frame noise (seed 004, eq. 7).
 :func:`combine` / :func:`parse_spec`
@@ -61,7 +64,7 @@ import numpy as np
 from .errors import MocapValueError
 from .motion import Motion
 
-__all__ = ["gaussian", "outliers", "missing", "block_gaps", "label_swaps", "slra_noise", "combine",
+__all__ = ["gaussian", "outliers", "missing", "block_gaps", "label_swaps", "label_jumps", "slra_noise", "combine",
            "parse_spec", "signal_power", "snr_to_sigma", "STEPS"]
 
 # ----------------------------------------------------------------------------------------
@@ -505,6 +508,68 @@ def label_swaps(motion: Motion, /, *, n_swaps: int = 1, length: int = 30, max_di
     return _result(motion, Q, obs, step), sel
 
 
+def label_jumps(motion: Motion, /, *, n_jumps: int = 1, length: int = 30, max_distance_cm: float | None = 15.0,
+                seed: Any) -> tuple[Motion, np.ndarray]:
+    """A label that takes its neighbour's marker for ``length`` frames while its own is hidden.
+
+    An optical labeller's other typical error (:func:`mocapkit.swaps.find_jumps`): marker
+    ``a`` is hidden, and its label goes to the marker ``b`` nearest to it (within
+    ``max_distance_cm``; None: any distance), still seen; ``b``'s own label is missing
+    meanwhile. For each jump a start frame (uniform in ``[2, T - length - 1]``) and a
+    marker ``a`` are drawn; over the ``length`` frames ``a`` carries ``b``'s samples and
+    ``b`` is missing; ``a``'s own samples are lost, as the hidden marker's are. Both markers
+    must be observed from two frames before to one frame after the stretch, and no other
+    jump may touch them there; a jump that cannot be placed is skipped.
+
+    Returns
+    -------
+    (Motion, mask) : mask (T, J) bool, True on the samples now carrying the other
+        marker's trajectory (the missing ones are in the Motion's ``observed``).
+
+    >>> from mocapkit import datasets, io
+    >>> clip = io.read(datasets.bundled("16_15.amc"))
+    >>> jumped, mask = label_jumps(clip, n_jumps=2, length=20, seed=0)
+    >>> int(mask.sum()), int((~jumped.observed).sum())
+    (40, 40)
+    """
+    motion = _check_motion(motion)
+    rng = _rng(seed)
+    P, obs = motion.positions, motion.observed
+    T, J = obs.shape
+    try:
+        n_jumps, L = int(n_jumps), int(length)
+    except (TypeError, ValueError):
+        raise MocapValueError("n_jumps and length must be integers") from None
+    if n_jumps < 1:
+        raise MocapValueError(f"n_jumps must be >= 1, got {n_jumps}")
+    if not 1 <= L <= T - 3:
+        raise MocapValueError(f"jump length must be between 1 and the clip length less 3 ({T - 3} frames), "
+                              f"got {length}")
+    if J < 2:
+        raise MocapValueError("a label jump needs at least two markers")
+    Q, O = np.array(P), np.array(obs)
+    sel = np.zeros((T, J), dtype=bool)
+    for _ in range(n_jumps):
+        t0, a = int(rng.integers(2, T - L)), int(rng.integers(0, J))
+        around = slice(t0 - 2, t0 + L + 1)
+        ok = obs[around].all(axis=0) & ~sel[around].any(axis=0)
+        if not ok[a]:
+            continue
+        ok[a] = False
+        d = np.linalg.norm(P[t0] - P[t0, a], axis=1)
+        d[~ok] = np.inf
+        b = int(np.argmin(d))
+        if not np.isfinite(d[b]) or (max_distance_cm is not None and d[b] > float(max_distance_cm)):
+            continue
+        span = slice(t0, t0 + L)
+        Q[span, a], Q[span, b], O[span, b] = P[span, b], np.nan, False
+        sel[around, b] = True                      # (no other jump touches the pair there)
+        sel[around, a] = True
+    mask = sel & O & (Q != np.asarray(P)).any(axis=2)
+    step = {"step": "label_jumps", "n_jumps": n_jumps, "length": L, "max_distance_cm": max_distance_cm}
+    return _result(motion, Q, O, step), mask
+
+
 def slra_noise(motion: Motion, /, *, n_frames: int, mean: float = 1.0, sigma: float = 1.2,
                seed: Any, scale: float | None = None, eps: float | None = None) -> tuple[Motion, np.ndarray]:
     """SLRA partial-frame noise, Peng et al. (seed 004), Sec. 4.1, eq. (7).
@@ -580,10 +645,11 @@ STEPS: dict[str, Callable[..., tuple[Motion, np.ndarray]]] = {
     "missing": missing,
     "block_gaps": block_gaps,
     "label_swaps": label_swaps,
+    "label_jumps": label_jumps,
     "slra_noise": slra_noise,
 }
 _ALIASES = {"noise": "gaussian", "outlier": "outliers", "spikes": "outliers", "gaps": "block_gaps",
-            "swaps": "label_swaps",
+            "swaps": "label_swaps", "jumps": "label_jumps",
             "gap": "block_gaps", "slra": "slra_noise"}
 
 

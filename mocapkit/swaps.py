@@ -19,9 +19,9 @@ Two markers that pass within the noise of each other are no swap (neither steps)
 
 Repair (:func:`repair_swaps`). Per pair, the events cut the take into stretches of
 alternate labelling, and the labelling that holds on most frames is taken as the right
-one. A stretch of the other labelling is exchanged back when both markers are measured
-throughout it and their distances to their steadiest partners do not say it is labelled
-right -- for a stretch that runs to an end of the take, only where they say it is
+one. A stretch of the other labelling is exchanged back -- samples and missing flags --
+when no frame of it has both markers missing (there a swap back could hide unseen) and
+their distances to their steadiest partners do not say it is labelled right -- for a stretch that runs to an end of the take, only where they say it is
 exchanged: a false event, or a missed one (a swap back inside a gap, or noise hiding its
 step), would otherwise exchange the rest of the take; with the check it costs at most a
 short stretch between two events.
@@ -53,9 +53,17 @@ Every method runs after :func:`repair_swaps` on a marker capture, and after
 :func:`repair_side_flips` on a Kinect skeleton (the shared guard,
 :mod:`mocapkit.denoise.base`; :attr:`mocapkit.gaps.GapPolicy.swaps`, ``--keep-swaps``).
 
-Limits: a swap whose step falls on a gap of both markers is not seen, nor a label that
-jumps onto a marker whose own label is missing (one step, no partner); those are the
-outlier tests' and the gap policy's.
+A label that jumps onto a neighbour whose own label goes missing -- the labeller, its
+marker hidden, takes the nearest marker still seen -- is the same exchange with one marker
+hidden: its ends are found where one label vanishes or reappears as the other steps onto
+its path, and putting the stretch back gives the neighbour its samples and leaves the
+jumping label missing there, a gap for the fill. Found in a real capture:
+kineticstoolkit's basket sprint, where ForearmL:Marker1 takes Marker4's place at frame
+732 as Marker4's label vanishes (to 0.1 cm), and the two labels stay exchanged from frame
+1038 to the end -- the distances to the elbow say so (27 against 21 cm).
+
+Limits: a swap whose step falls on a gap of both markers is not seen, nor a jump whose
+other end is hidden too; those are the outlier tests' and the gap policy's.
 
 >>> import numpy as np
 >>> from mocapkit import Motion, Skeleton
@@ -129,8 +137,13 @@ def find_swaps(positions: np.ndarray, observed: np.ndarray, *, factor: float = S
     each pair found, every frame at which that pair's exchange explains a step of at least
     the pair's distance (:func:`_pair_toggles`): a swap out that falls just under the
     threshold where its swap in did not (two markers about a threshold apart) would
-    otherwise leave the rest of the take exchanged. Vectorised over the frames and the
-    steps (blocks of 4,096); the loops run over the pairs and the reappearances.
+    otherwise leave the rest of the take exchanged. Also the exchanges with one marker
+    hidden: a marker that reappears after a gap under a neighbour's label (the neighbour's
+    label steps there, onto its path), and a label that vanishes while another takes up its
+    path at that frame (steps onto it, or reappears on it) -- a labeller that gives a
+    hidden marker's label to its neighbour, whose own label then goes missing. Vectorised
+    over the frames and the steps (blocks of 4,096); the loops run over the pairs and the
+    events found.
     """
     P = np.asarray(positions, dtype=float)
     obs = np.asarray(observed, dtype=bool) & np.isfinite(P).all(axis=2)
@@ -176,11 +189,40 @@ def find_swaps(positions: np.ndarray, observed: np.ndarray, *, factor: float = S
             x, y = int(a[i]), int(b[i])
             pairs.add((min(x, y), max(x, y)))
             events.append(SwapEvent(int(t[i]), min(x, y), max(x, y), float(r[t[i], y])))
+    # a label that vanishes while another takes up its path at that frame: the other label
+    # steps onto it (a labeller gives a hidden marker's label to the neighbour whose label
+    # then goes missing, and back when the hidden marker shows), or reappears on it
+    gone = np.argwhere(~obs[2:] & obs[1:-1] & obs[:-2]) + [2, 0]          # (t, x) vanishing
+    for blk in range(0, len(gone), 4096):
+        t, x = gone[blk:blk + 4096].T
+        q = 2.0 * P[t - 1, x] - P[t - 2, x]                                 # x's path at t
+        with np.errstate(invalid="ignore"):
+            to_x = np.linalg.norm(P[t] - q[:, None], axis=2)                # (N, J): each sample as x's
+            took = (have[t] & (r[t] > thr[None, :]) & (to_x <= float(ratio) * r[t])) | (obs[t] & ~obs[t - 1])
+            fits = took & _allowed(x, J, partner) & (to_x <= thr[x][:, None])
+        hit = np.flatnonzero(fits.any(axis=1))
+        y = np.argmin(np.where(fits, to_x, np.inf), axis=1)
+        for i in hit:
+            u, v = int(x[i]), int(y[i])
+            # a label reappearing on the other's path (no step to weigh): only markers that
+            # keep further apart than their two thresholds (hand and fingers under noise
+            # pass through each other's allowance)
+            if not obs[t[i] - 1, v] and not _apart(P, obs, u, v) > thr[u] + thr[v]:
+                continue
+            pairs.add((min(u, v), max(u, v)))
+            events.append(SwapEvent(int(t[i]), min(u, v), max(u, v), float(np.nan_to_num(r[t[i], v]))))
     for a, b in sorted(pairs):
         for t, step in _pair_toggles(P, r, pred, a, b, scale, thr, float(ratio)):
             events.append(SwapEvent(t, a, b, step))
     uniq = {(e.frame, e.a, e.b): e for e in events}
     return sorted(uniq.values(), key=lambda e: (e.frame, e.a, e.b))
+
+
+def _apart(P: np.ndarray, obs: np.ndarray, a: int, b: int) -> float:
+    """Median distance (cm) of markers ``a`` and ``b`` over the frames both are measured
+    (0 when never)."""
+    both = obs[:, a] & obs[:, b]
+    return float(np.median(np.linalg.norm(P[both, a] - P[both, b], axis=1))) if both.any() else 0.0
 
 
 def _allowed(a: np.ndarray, J: int, partner: np.ndarray | None) -> np.ndarray:
@@ -225,8 +267,8 @@ SWAP_GEOMETRY = 0.25
 
 def _stretch_states(P: np.ndarray, obs: np.ndarray, a: int, b: int, bounds: np.ndarray,
                     exclude: np.ndarray | None = None) -> np.ndarray:
-    """Per stretch ``bounds[i]:bounds[i+1]`` of markers ``a`` and ``b`` (both measured
-    throughout it): +1 exchanged, -1 as labelled, 0 undecided, by their distances to
+    """Per stretch ``bounds[i]:bounds[i+1]`` of markers ``a`` and ``b`` (never both missing
+    at a frame of it; one hidden throughout: the other's distances alone): +1 exchanged, -1 as labelled, 0 undecided, by their distances to
     reference markers -- the :data:`SWAP_REFS` steadiest partners of each (robust spread
     of the distance over the take) -- against those distances' medians over the take. A
     label that carries the other marker keeps the other marker's distances. Markers in
@@ -259,11 +301,12 @@ def _stretch_states(P: np.ndarray, obs: np.ndarray, a: int, b: int, bounds: np.n
         scale = np.maximum(sa[pick] + sb[pick], 0.1)                      # cm
         for i in range(n):                         # (a loop over a pair's stretches: a handful)
             s, e = int(bounds[i]), int(bounds[i + 1])
-            if e <= s or not obs[s:e][:, [a, b]].all():
+            if e <= s or _both_hidden(obs, a, b, s, e):
                 continue
+            # (a marker hidden over the whole stretch: the other one's distances alone)
             ma, mb = np.nanmedian(da[s:e, pick], axis=0), np.nanmedian(db[s:e, pick], axis=0)
-            same = np.nansum((np.abs(ma - Da[pick]) + np.abs(mb - Db[pick])) / scale)
-            swap = np.nansum((np.abs(ma - Db[pick]) + np.abs(mb - Da[pick])) / scale)
+            same = np.nansum(np.abs(ma - Da[pick]) / scale) + np.nansum(np.abs(mb - Db[pick]) / scale)
+            swap = np.nansum(np.abs(ma - Db[pick]) / scale) + np.nansum(np.abs(mb - Da[pick]) / scale)
             if swap < SWAP_GEOMETRY * same:
                 out[i] = 1
             elif same < SWAP_GEOMETRY * swap:
@@ -276,8 +319,8 @@ def repair_swaps(motion: Motion, **options) -> tuple[Motion, dict]:
 
     Per pair of markers with swap events (:func:`find_swaps`): the events cut the take
     into stretches of alternate labelling, and the labelling that holds on most frames is
-    taken as the right one. A stretch of the other labelling is put back when both
-    markers are measured throughout it and its distances to the markers' steadiest
+    taken as the right one. A stretch of the other labelling is put back when no frame of
+    it has both markers missing and its distances to the markers' steadiest
     partners do not say it is labelled right (:func:`_stretch_states`): a false event, or
     a missed one, would otherwise exchange the rest of the take -- the geometry of a long
     stretch tells, and a short one costs little.
@@ -285,7 +328,7 @@ def repair_swaps(motion: Motion, **options) -> tuple[Motion, dict]:
     ``options`` go to :func:`find_swaps` (``partner``: whom each marker may swap with).
     Report: ``events`` (frame, marker names, step cm), ``repaired`` (stretches put back:
     markers, start, stop frame), ``unrepaired`` (stretches between two events left as
-    measured: a gap inside, or distances that say it is labelled right -- a likely swap the
+    measured: both markers missing at a frame inside, or distances that say it is labelled right -- a likely swap the
     repair could not take, which the CLI names), ``doubtful`` (stretches from one event to
     an end of the take left as measured: one step of a pair is no evidence of a swap).
     Returns ``motion`` itself when nothing was put back.
@@ -329,15 +372,27 @@ def _minority(frames, T: int) -> tuple[np.ndarray, np.ndarray]:
 
 def _exchange(P: np.ndarray, filled: np.ndarray, obs: np.ndarray, a: int, b: int, s: int, e: int,
               names: list, report: dict, ok: bool = True, left: str = "unrepaired") -> None:
-    """Exchange markers ``a`` and ``b`` over frames ``s:e`` in place (when ``ok`` and both are
-    measured throughout) and report it as repaired, else under ``left``."""
+    """Exchange markers ``a`` and ``b`` over frames ``s:e`` in place -- samples, observed
+    and filled flags -- when ``ok`` and no frame has both hidden (there a swap back could
+    hide), and report it as repaired (with the markers ``hidden`` in part of it after the
+    exchange: gaps for the fill), else under ``left``."""
     who = [names[a], names[b]]
-    if not ok or not obs[s:e][:, [a, b]].all():
+    if not ok or _both_hidden(obs, a, b, s, e):
         report[left].append({"markers": who, "start": s, "stop": e})
         return
-    P[s:e, [a, b]] = P[s:e, [b, a]]
-    filled[s:e, [a, b]] = filled[s:e, [b, a]]
-    report["repaired"].append({"markers": who, "start": s, "stop": e})
+    for X in (P, filled, obs):
+        X[s:e, [a, b]] = X[s:e, [b, a]]
+    entry = {"markers": who, "start": s, "stop": e}
+    hidden = [names[x] for x in (a, b) if not obs[s:e, x].all()]
+    if hidden:
+        entry["hidden"] = hidden
+    report["repaired"].append(entry)
+
+
+def _both_hidden(obs: np.ndarray, a: int, b: int, s: int, e: int) -> bool:
+    """Whether markers ``a`` and ``b`` are both missing at a frame of ``s:e``: a change of
+    labels there is not seen (with one of them measured, its label's path shows it)."""
+    return bool((~obs[s:e, a] & ~obs[s:e, b]).any())
 
 
 def _result(motion: Motion, P: np.ndarray, filled: np.ndarray, obs: np.ndarray, report: dict
@@ -429,7 +484,9 @@ def summary_line(report: dict | None) -> str | None:
         return None
 
     def spans(items: list[dict]) -> str:
-        shown = ", ".join(f"{'/'.join(x['markers'])} frames {x['start']}-{x['stop'] - 1}" for x in items[:4])
+        shown = ", ".join(f"{'/'.join(x['markers'])} frames {x['start']}-{x['stop'] - 1}"
+                          + (f", {' and '.join(x['hidden'])} then missing" if x.get("hidden") else "")
+                          for x in items[:4])
         return shown + (", ..." if len(items) > 4 else "")
 
     rep, left = report.get("repaired", []), report.get("unrepaired", [])

@@ -80,6 +80,68 @@ def test_a_marker_reappearing_under_its_neighbours_label_is_put_back():
     assert mask[100:140].any(axis=1).all() and not mask[:100].any()
 
 
+def test_a_label_that_jumps_onto_a_hidden_labels_marker_goes_back_and_leaves_a_gap():
+    """Marker 0 is hidden for 40 frames and its label takes marker 1, whose own label is
+    missing meanwhile: both ends are found (0 steps onto 1's path as 1's label vanishes;
+    1's label reappears where 0's label goes on as 0 steps back), 1 gets its samples back
+    and 0 is left missing there -- a gap for the fill, not 20 cm off -- and the default
+    then fills it."""
+    P = _three(300)
+    Q = P.copy()
+    Q[100:140, 0], Q[100:140, 1] = P[100:140, 1], np.nan
+    m = _markers(Q)
+    assert [e.frame for e in find_swaps(m.positions, m.observed)] == [100, 140]
+    fixed, rep = repair_swaps(m)
+    want = P.copy()
+    want[100:140, 0] = np.nan
+    np.testing.assert_array_equal(np.where(fixed.observed[..., None], fixed.positions, np.nan), want)
+    assert rep["repaired"] == [{"markers": ["M0", "M1"], "start": 100, "stop": 140, "hidden": ["M0"]}]
+    assert summary_line(rep) == "label swaps: 1 stretch put back (M0/M1 frames 100-139, M0 then missing)"
+    out = denoise.get("auto").denoise(m)
+    assert out.observed[100:140, 1].all() and np.abs(out.positions[100:140, :2] - P[100:140, :2]).max() < 0.5
+    # the corruption plants it so: the jumping label's samples marked, the neighbour's missing
+    jumped, mask = corrupt.label_jumps(_markers(P), n_jumps=1, length=40, max_distance_cm=25.0, seed=1)
+    j = int(np.flatnonzero(mask.any(axis=0))[0])
+    s = int(np.flatnonzero(mask[:, j])[0])
+    k = 1 - j
+    assert mask.sum() == 40 and not jumped.observed[s:s + 40, k].any() and jumped.observed[:, j].all()
+    np.testing.assert_array_equal(jumped.positions[s:s + 40, j], P[s:s + 40, k])
+    back, _ = repair_swaps(jumped)
+    assert not back.observed[s:s + 40, j].any() and back.observed[:, k].all()
+    np.testing.assert_array_equal(back.positions[:, k], P[:, k])
+    with pytest.raises(MocapValueError):
+        corrupt.label_jumps(_markers(P), n_jumps=1, length=298, seed=0)
+
+
+def test_a_jump_whose_end_is_hidden_is_left_as_measured():
+    """The same jump, but both labels are missing where it would end: one step and no
+    partner -- the stretch from it runs to where both are hidden, and is left."""
+    P = _three(300)
+    Q = P.copy()
+    Q[100:140, 0], Q[100:140, 1] = P[100:140, 1], np.nan
+    Q[140:150, :2] = np.nan
+    fixed, rep = repair_swaps(_markers(Q))
+    assert not rep["repaired"]
+    np.testing.assert_array_equal(np.asarray(fixed.positions), Q)
+
+
+def test_a_real_label_jump_in_the_basket_sprint(shared_data):
+    """kineticstoolkit's basket sprint (120 Hz): ForearmL:Marker1 takes Marker4's place at
+    frame 732 as Marker4's label vanishes, the two come back for frames 1036-1037 and stay
+    exchanged from 1038 to the end (the elbow's distance says so: 27 cm from Marker1 before,
+    21 after). The repair keeps the labelling of most of the take: frames 1036-1037 go
+    back to it, and the first 732, where both are mostly missing, are left."""
+    m = io.read(shared_data / "markers" / "kineticstoolkit" / "kinematics_basket_sprint.c3d")
+    names = list(m.skeleton.names)
+    a, b = names.index("ForearmL:Marker1"), names.index("ForearmL:Marker4")
+    frames = {e.frame for e in find_swaps(m.positions, m.observed) if {e.a, e.b} == {a, b}}
+    assert frames == {732, 1036, 1038}
+    fixed, rep = repair_swaps(m)
+    assert {"markers": ["ForearmL:Marker4", "ForearmL:Marker1"], "start": 1036, "stop": 1038} in rep["repaired"]
+    np.testing.assert_array_equal(fixed.positions[1036:1038, [a, b]], m.positions[1036:1038, [b, a]])
+    np.testing.assert_array_equal(fixed.positions[:732], m.positions[:732])
+
+
 def test_noise_alone_and_markers_passing_each_other_are_no_swap():
     rng = np.random.default_rng(0)
     P = _three(400) + rng.normal(0, 0.3, (400, 3, 3))
