@@ -16,7 +16,9 @@ and records, per file and method:
   implausible, measured samples a method moved without cause (over 5 cm) and those a
   model-based method moved beyond twice the noise (:func:`mocapkit.gaps.model_misfit`),
   written as measured;
-* ``moved_max_cm``: the largest move of a measured sample in what is written;
+* ``moved_max_cm``: the largest move of a measured sample in what is written (a label
+  repair moves measured samples between labels: on the basket sprint, 7.4 cm is its
+  ForearmL Marker1 / Marker4 exchange, :mod:`mocapkit.swaps`);
 * ``step_ratio``: the largest step into, inside or out of a fill over the policy's
   allowance (``speed_factor v dt + 2 cm``, :func:`mocapkit.gaps.unreachable_fills`) --
   at most 1 by construction; > 1 would be a policy bug;

@@ -761,8 +761,8 @@ def _policy_options(s: argparse.ArgumentParser) -> None:
                         "measured, with a warning)")
     s.add_argument("--keep-swaps", action="store_true",
                    help="on a marker file, leave label swaps (two markers that traded labels for a "
-                        "stretch of frames) as read; by default they are put back before the method "
-                        "runs, and a line says where")
+                        "stretch of frames, or a label that took a hidden marker's neighbour) as read; "
+                        "by default they are put back before the method runs, and a line says where")
     s.add_argument("--keep-unvalidated", action="store_true",
                    help="write a method's fills of gaps longer than 2 frames even where its own "
                         "self-validation on the file (observed stretches next to each gap hidden and "
