@@ -437,6 +437,23 @@ def block_gaps(motion: Motion, /, *, n_markers: int | None = None, length: int |
     return _result(motion, motion.positions, motion.observed & ~sel, step), sel
 
 
+def _label_args(n: Any, length: Any, what: str, T: int, J: int, longest: int) -> tuple[int, int]:
+    """``n`` and ``length`` of :func:`label_swaps` / :func:`label_jumps` as ints, checked
+    (``what``: 'swap' or 'jump'; ``longest``: the longest stretch the clip allows)."""
+    try:
+        n, L = int(n), int(length)
+    except (TypeError, ValueError):
+        raise MocapValueError(f"n_{what}s and length must be integers") from None
+    if n < 1:
+        raise MocapValueError(f"n_{what}s must be >= 1, got {n}")
+    if not 1 <= L <= longest:
+        raise MocapValueError(f"{what} length must be between 1 and {longest} frames (the clip has {T}), "
+                              f"got {length}")
+    if J < 2:
+        raise MocapValueError(f"a label {what} needs at least two markers")
+    return n, L
+
+
 def label_swaps(motion: Motion, /, *, n_swaps: int = 1, length: int = 30, max_distance_cm: float | None = 15.0,
                 at_gaps: bool = False, seed: Any) -> tuple[Motion, np.ndarray]:
     """Swap the labels of ``n_swaps`` pairs of markers for ``length`` consecutive frames.
@@ -467,16 +484,7 @@ def label_swaps(motion: Motion, /, *, n_swaps: int = 1, length: int = 30, max_di
     rng = _rng(seed)
     P, obs = motion.positions, motion.observed
     T, J = obs.shape
-    try:
-        n_swaps, L = int(n_swaps), int(length)
-    except (TypeError, ValueError):
-        raise MocapValueError("n_swaps and length must be integers") from None
-    if n_swaps < 1:
-        raise MocapValueError(f"n_swaps must be >= 1, got {n_swaps}")
-    if not 1 <= L <= T:
-        raise MocapValueError(f"swap length must be between 1 and the clip length ({T} frames), got {length}")
-    if J < 2:
-        raise MocapValueError("a label swap needs at least two markers")
+    n_swaps, L = _label_args(n_swaps, length, "swap", T, J, T)
     Q = np.array(P)
     sel = np.zeros((T, J), dtype=bool)
     ends = np.argwhere(obs[1:] & ~obs[:-1]) + [1, 0] if at_gaps else None     # (t, a) reappearing
@@ -536,17 +544,7 @@ def label_jumps(motion: Motion, /, *, n_jumps: int = 1, length: int = 30, max_di
     rng = _rng(seed)
     P, obs = motion.positions, motion.observed
     T, J = obs.shape
-    try:
-        n_jumps, L = int(n_jumps), int(length)
-    except (TypeError, ValueError):
-        raise MocapValueError("n_jumps and length must be integers") from None
-    if n_jumps < 1:
-        raise MocapValueError(f"n_jumps must be >= 1, got {n_jumps}")
-    if not 1 <= L <= T - 3:
-        raise MocapValueError(f"jump length must be between 1 and the clip length less 3 ({T - 3} frames), "
-                              f"got {length}")
-    if J < 2:
-        raise MocapValueError("a label jump needs at least two markers")
+    n_jumps, L = _label_args(n_jumps, length, "jump", T, J, T - 3)
     Q, O = np.array(P), np.array(obs)
     sel = np.zeros((T, J), dtype=bool)
     for _ in range(n_jumps):

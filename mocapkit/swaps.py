@@ -21,10 +21,11 @@ Repair (:func:`repair_swaps`). Per pair, the events cut the take into stretches 
 alternate labelling, and the labelling that holds on most frames is taken as the right
 one. A stretch of the other labelling is exchanged back -- samples and missing flags --
 when no frame of it has both markers missing (there a swap back could hide unseen) and
-their distances to their steadiest partners do not say it is labelled right -- for a stretch that runs to an end of the take, only where they say it is
-exchanged: a false event, or a missed one (a swap back inside a gap, or noise hiding its
-step), would otherwise exchange the rest of the take; with the check it costs at most a
-short stretch between two events.
+their distances to their steadiest partners do not say it is labelled right -- for a
+stretch that runs to an end of the take, only where they say it is exchanged: a false
+event, or a missed one (a swap back inside a gap, or noise hiding its step), would
+otherwise exchange the rest of the take; with the check it costs at most a short stretch
+between two events.
 
 Measured (2026-12-06, ``benchmarks/label_swaps.py``, docs/results/swaps.md; swaps of a
 marker with its nearest neighbour within 15 cm, 3-100 frames, planted in 7 real captures,
@@ -33,8 +34,8 @@ with and without real occlusion masks, 1,424 cases): 2,304 of 2,727 put back exa
 start where a marker reappears after a gap --, no case with more samples wrong after than
 before, no event on any shared marker file as it is (before the label jumps below; since
 them: 2,310 put back, and 1,607 of 2,101 planted jumps, 94 / 90 / 46 %, none worse; the
-basket sprint's real jumps are the only events on the shared files). The first version, by events alone
-(the majority labelling, no geometry check), put 1,502 samples wrong where 174 had been on
+basket sprint's real jumps are the only events on the shared files). The first version,
+by events alone (the majority labelling, no geometry check), put 1,502 samples wrong where 174 had been on
 3-frame swaps: a relaxed event of a tennis serve's elbow pair, or a missed swap back,
 exchanged the rest of the take; with the geometry check but stretches to the take's end
 put back where it was undecided, 3 cases were worse (a wrist pair's swap in hidden by 0.5
@@ -270,9 +271,10 @@ SWAP_GEOMETRY = 0.25
 def _stretch_states(P: np.ndarray, obs: np.ndarray, a: int, b: int, bounds: np.ndarray,
                     exclude: np.ndarray | None = None) -> np.ndarray:
     """Per stretch ``bounds[i]:bounds[i+1]`` of markers ``a`` and ``b`` (never both missing
-    at a frame of it; one hidden throughout: the other's distances alone): +1 exchanged, -1 as labelled, 0 undecided, by their distances to
-    reference markers -- the :data:`SWAP_REFS` steadiest partners of each (robust spread
-    of the distance over the take) -- against those distances' medians over the take. A
+    at a frame of it; one hidden throughout: the other's distances alone): +1 exchanged,
+    -1 as labelled, 0 undecided, by their distances to reference markers -- the
+    :data:`SWAP_REFS` steadiest partners of each (robust spread of the distance over the
+    take) -- against those distances' medians over the take. A
     label that carries the other marker keeps the other marker's distances. Markers in
     ``exclude`` (those in a swap of their own: their labels may be exchanged too, as in a
     body-side flip, where every left joint's distance to the others on its side holds)
@@ -322,18 +324,18 @@ def repair_swaps(motion: Motion, **options) -> tuple[Motion, dict]:
     Per pair of markers with swap events (:func:`find_swaps`): the events cut the take
     into stretches of alternate labelling, and the labelling that holds on most frames is
     taken as the right one. A stretch of the other labelling is put back when no frame of
-    it has both markers missing and its distances to the markers' steadiest
-    partners do not say it is labelled right (:func:`_stretch_states`): a false event, or
+    it has both markers missing and its distances to the markers' steadiest partners do
+    not say it is labelled right (:func:`_stretch_states`): a false event, or
     a missed one, would otherwise exchange the rest of the take -- the geometry of a long
     stretch tells, and a short one costs little.
 
     ``options`` go to :func:`find_swaps` (``partner``: whom each marker may swap with).
     Report: ``events`` (frame, marker names, step cm), ``repaired`` (stretches put back:
     markers, start, stop frame), ``unrepaired`` (stretches between two events left as
-    measured: both markers missing at a frame inside, or distances that say it is labelled right -- a likely swap the
-    repair could not take, which the CLI names), ``doubtful`` (stretches from one event to
-    an end of the take left as measured: one step of a pair is no evidence of a swap).
-    Returns ``motion`` itself when nothing was put back.
+    measured: both markers missing at a frame inside, or distances that say it is labelled
+    right -- a likely swap the repair could not take, which the CLI names), ``doubtful``
+    (stretches from one event to an end of the take left as measured: one step of a pair
+    is no evidence of a swap). Returns ``motion`` itself when nothing was put back.
     """
     P = np.asarray(motion.positions)
     obs = np.asarray(motion.observed) & np.isfinite(P).all(axis=2)
@@ -499,8 +501,8 @@ def summary_line(report: dict | None) -> str | None:
     if rep:
         parts.append(f"{len(rep)} stretch{'es' if len(rep) > 1 else ''} put back ({spans(rep)})")
     if left:
-        parts.append(f"{len(left)} left as measured (a gap inside, or their distances to their partners "
-                     f"say they are labelled right: {spans(left)})")
+        parts.append(f"{len(left)} left as measured (a frame with both hidden, or their distances to their "
+                     f"partners say they are labelled right: {spans(left)})")
     if not parts:
         return None                                # a lone step of a pair: no evidence of a swap
     return "label swaps: " + "; ".join(parts)
