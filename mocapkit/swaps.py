@@ -263,22 +263,30 @@ def _pair_toggles(P: np.ndarray, r: np.ndarray, pred: np.ndarray, a: int, b: int
 FLIP_PAIRS = 2
 #: reference markers per marker of a pair for the geometry test (:func:`_stretch_states`)
 SWAP_REFS = 3
+#: frames of the labelling taken as right a reference marker needs, measured with each
+#: marker of the pair (:func:`_stretch_states`)
+SWAP_REF_FRAMES = 30
 #: a stretch is told apart by the geometry test when its distances to the reference markers
 #: fit one labelling at most this share as far off as the other
 SWAP_GEOMETRY = 0.25
 
 
 def _stretch_states(P: np.ndarray, obs: np.ndarray, a: int, b: int, bounds: np.ndarray,
-                    exclude: np.ndarray | None = None) -> np.ndarray:
+                    exclude: np.ndarray | None = None, right: np.ndarray | None = None) -> np.ndarray:
     """Per stretch ``bounds[i]:bounds[i+1]`` of markers ``a`` and ``b`` (never both missing
     at a frame of it; one hidden throughout: the other's distances alone): +1 exchanged,
     -1 as labelled, 0 undecided, by their distances to reference markers -- the
     :data:`SWAP_REFS` steadiest partners of each (robust spread of the distance over the
-    take) -- against those distances' medians over the take. A
-    label that carries the other marker keeps the other marker's distances. Markers in
-    ``exclude`` (those in a swap of their own: their labels may be exchanged too, as in a
-    body-side flip, where every left joint's distance to the others on its side holds)
-    are no references."""
+    take) -- against those distances' medians over the take. A label that carries the
+    other marker keeps the other marker's distances. ``right`` (T,) bool: the frames whose
+    labelling is taken as right (the pair's majority stretches): the medians and spreads
+    come from those alone, and a reference needs :data:`SWAP_REF_FRAMES` of them measured
+    with each marker -- a stretch does not vote for its own reference (found on the basket
+    sprint: a hand-off of ArmL:Marker3 to ForearmL:Marker3 was judged labelled right by a
+    sync marker seen with ForearmL:Marker3 on 36 frames, most of them the hand-offs).
+    Markers in ``exclude`` (those in a swap of their own: their labels may be exchanged
+    too, as in a body-side flip, where every left joint's distance to the others on its
+    side holds) are no references."""
     T, J = obs.shape
     others = np.setdiff1d(np.arange(J), [a, b] if exclude is None else np.union1d([a, b], exclude))
     n = len(bounds) - 1
@@ -292,11 +300,14 @@ def _stretch_states(P: np.ndarray, obs: np.ndarray, a: int, b: int, bounds: np.n
         return d
 
     da, db = dist(a), dist(b)
+    ra, rb = (da, db) if right is None else (da[right], db[right])
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")            # all-NaN columns: markers never seen together
-        Da, Db = np.nanmedian(da, axis=0), np.nanmedian(db, axis=0)
-        sa = 1.4826 * np.nanmedian(np.abs(da - Da), axis=0)
-        sb = 1.4826 * np.nanmedian(np.abs(db - Db), axis=0)
+        Da, Db = np.nanmedian(ra, axis=0), np.nanmedian(rb, axis=0)
+        sa = 1.4826 * np.nanmedian(np.abs(ra - Da), axis=0)
+        sb = 1.4826 * np.nanmedian(np.abs(rb - Db), axis=0)
+        few = (np.isfinite(ra).sum(axis=0) < SWAP_REF_FRAMES) | (np.isfinite(rb).sum(axis=0) < SWAP_REF_FRAMES)
+        sa[few] = sb[few] = np.nan
         pick = np.union1d(np.argsort(np.where(np.isfinite(sa), sa, np.inf))[:SWAP_REFS],
                           np.argsort(np.where(np.isfinite(sb), sb, np.inf))[:SWAP_REFS])
         pick = pick[np.isfinite(sa[pick]) & np.isfinite(sb[pick])]
@@ -351,7 +362,10 @@ def repair_swaps(motion: Motion, **options) -> tuple[Motion, dict]:
     swapping = np.array(sorted({e.a for e in events} | {e.b for e in events}))
     for a, b in sorted({(e.a, e.b) for e in events}):
         bounds, minority = _minority([e.frame for e in events if (e.a, e.b) == (a, b)], T)
-        states = _stretch_states(out_P, obs, a, b, bounds, exclude=swapping)
+        right = np.ones(T, bool)
+        for i in minority:
+            right[bounds[i]:bounds[i + 1]] = False
+        states = _stretch_states(out_P, obs, a, b, bounds, exclude=swapping, right=right)
         for i in minority:
             s, e = int(bounds[i]), int(bounds[i + 1])
             # between two events: put back unless the distances say it is labelled right;
