@@ -255,7 +255,8 @@ def cmd_info(a: argparse.Namespace) -> int:
                      f"`mocapkit denoise` puts them back)") if v else "none"
             if k == "label_swap_steps":
                 v = (f"{len(v)} (" + ", ".join(f"{'/'.join(x['markers'])} at frame {x['frame']}" for x in v[:4])
-                     + (", ..." if len(v) > 4 else "") + "; `mocapkit denoise` puts the swaps back)") if v else "none"
+                     + (", ..." if len(v) > 4 else "") + "; `mocapkit denoise` puts back the stretches it can tell)"
+                     ) if v else "none"
             if k != "diagnosis":
                 print(f"{k:>16}: {v}")
         for line in (diag.lines() if diag is not None else []):
