@@ -372,9 +372,22 @@ def repair_swaps(motion: Motion, **options) -> tuple[Motion, dict]:
             # running to an end of the take (one event: the other may be missed), only
             # where they say it is exchanged
             closed = 0 < s and e < T
+            left = "unrepaired" if closed else "doubtful"
+            if _both_hidden(obs, a, b, s, e):
+                # a swap back could hide where both are missing: each piece between such
+                # frames is put back only where the distances say it is exchanged
+                hid = ~obs[s:e, a] & ~obs[s:e, b]
+                cuts = s + np.flatnonzero(np.diff(np.r_[hid[0], hid].astype(int)))
+                sub = np.unique(np.r_[s, cuts, e])
+                sub_states = _stretch_states(out_P, obs, a, b, sub, exclude=swapping, right=right)
+                for k in range(len(sub) - 1):
+                    p, q = int(sub[k]), int(sub[k + 1])
+                    if not hid[p - s]:
+                        _exchange(out_P, out_filled, obs, a, b, p, q, names, report, ok=sub_states[k] == 1,
+                                  left=left)
+                continue
             _exchange(out_P, out_filled, obs, a, b, s, e, names, report,
-                      ok=not (states[i] == -1 or (states[i] == 0 and not closed)),
-                      left="unrepaired" if closed else "doubtful")
+                      ok=not (states[i] == -1 or (states[i] == 0 and not closed)), left=left)
     return _result(motion, out_P, out_filled, obs, report)
 
 
