@@ -65,6 +65,10 @@ kineticstoolkit's basket sprint, where ForearmL:Marker1 takes Marker4's place at
 732 as Marker4's label vanishes (to 0.1 cm), and the two labels stay exchanged from frame
 1038 to the end -- the distances to the elbow say so (27 against 21 cm).
 
+A stretch to put back with frames where both markers are hidden (a swap back could hide
+there) is put back piece by piece between them, each piece only where the distances say
+it is exchanged.
+
 Limits: a swap whose step falls on a gap of both markers is not seen, nor a jump whose
 other end is hidden too; those are the outlier tests' and the gap policy's.
 

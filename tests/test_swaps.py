@@ -113,6 +113,26 @@ def test_a_label_that_jumps_onto_a_hidden_labels_marker_goes_back_and_leaves_a_g
         corrupt.label_jumps(_markers(P), n_jumps=1, length=298, seed=0)
 
 
+def test_a_stretch_with_both_hidden_is_put_back_only_piece_by_piece():
+    """Swapped at 100, both markers hidden on 150-159 where the labels come back unseen,
+    swapped again at 200 and back at 250: the stretch 100-199 runs across the hidden frames,
+    so each piece goes by the distances to the third marker -- 100-149 is put back, 160-199
+    (labelled right) is left; nothing right is exchanged. (200-249 stays as read: the
+    unseen swap back broke the events' parity, and it falls on the majority's side.)"""
+    P = _three(300)
+    Q = P.copy()
+    for s, e in ((100, 150), (200, 250)):
+        Q[s:e, [0, 1]] = P[s:e, [1, 0]]
+    Q[150:160, :2] = np.nan
+    fixed, rep = repair_swaps(_markers(Q))
+    out = np.asarray(fixed.positions)
+    np.testing.assert_array_equal(out[100:150], P[100:150])
+    np.testing.assert_array_equal(out[160:200], P[160:200])
+    wrong = ~np.all(np.isclose(out, P), axis=2) & np.isfinite(out).all(axis=2)
+    assert wrong.sum() <= (~np.all(np.isclose(Q, P), axis=2) & np.isfinite(Q).all(axis=2)).sum() - 100
+    assert {"markers": ["M0", "M1"], "start": 100, "stop": 150} in rep["repaired"]
+
+
 def test_a_jump_whose_end_is_hidden_is_left_as_measured():
     """The same jump, but both labels are missing where it would end: one step and no
     partner -- the stretch from it runs to where both are hidden, and is left."""
