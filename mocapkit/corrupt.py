@@ -35,7 +35,7 @@ Corruptions
     labeller's error; :mod:`mocapkit.swaps` puts them back).
 :func:`label_jumps`
     a label that takes a neighbour's marker while its own is hidden, the neighbour's label
-    missing meanwhile (:func:`mocapkit.swaps.find_jumps`).
+    missing meanwhile (:func:`mocapkit.swaps.repair_swaps` puts it back).
 :func:`slra_noise`
     the SLRA paper's partial-frame noise (seed 004, eq. 7).
 :func:`combine` / :func:`parse_spec`
@@ -520,7 +520,7 @@ def label_jumps(motion: Motion, /, *, n_jumps: int = 1, length: int = 30, max_di
                 seed: Any) -> tuple[Motion, np.ndarray]:
     """A label that takes its neighbour's marker for ``length`` frames while its own is hidden.
 
-    An optical labeller's other typical error (:func:`mocapkit.swaps.find_jumps`): marker
+    An optical labeller's other typical error (:func:`mocapkit.swaps.repair_swaps`): marker
     ``a`` is hidden, and its label goes to the marker ``b`` nearest to it (within
     ``max_distance_cm``; None: any distance), still seen; ``b``'s own label is missing
     meanwhile. For each jump a start frame (uniform in ``[2, T - length - 1]``) and a

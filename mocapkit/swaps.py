@@ -338,11 +338,12 @@ def repair_swaps(motion: Motion, **options) -> tuple[Motion, dict]:
 
     Per pair of markers with swap events (:func:`find_swaps`): the events cut the take
     into stretches of alternate labelling, and the labelling that holds on most frames is
-    taken as the right one. A stretch of the other labelling is put back when no frame of
-    it has both markers missing and its distances to the markers' steadiest partners do
-    not say it is labelled right (:func:`_stretch_states`): a false event, or
-    a missed one, would otherwise exchange the rest of the take -- the geometry of a long
-    stretch tells, and a short one costs little.
+    taken as the right one. A stretch of the other labelling is put back when its
+    distances to the markers' steadiest partners do not say it is labelled right
+    (:func:`_stretch_states`): a false event, or a missed one, would otherwise exchange the
+    rest of the take -- the geometry of a long stretch tells, and a short one costs little.
+    Where both markers are missing at some of its frames (a swap back could hide there),
+    each piece between them is put back only where the distances say it is exchanged.
 
     ``options`` go to :func:`find_swaps` (``partner``: whom each marker may swap with).
     Report: ``events`` (frame, marker names, step cm), ``repaired`` (stretches put back:
