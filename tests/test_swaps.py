@@ -111,6 +111,9 @@ def test_a_label_that_jumps_onto_a_hidden_labels_marker_goes_back_and_leaves_a_g
     np.testing.assert_array_equal(back.positions[:, k], P[:, k])
     with pytest.raises(MocapValueError):
         corrupt.label_jumps(_markers(P), n_jumps=1, length=298, seed=0)
+    # as `mocapkit corrupt --spec jumps:...` plants it
+    spec, planted = corrupt.combine(_markers(P), "jumps:n_jumps=4,length=40,max_distance_cm=25", seed=1)
+    assert (~spec.observed).sum() == planted.sum() and planted.sum() in (40, 80, 120, 160)
 
 
 def test_a_stretch_with_both_hidden_is_put_back_only_piece_by_piece():
