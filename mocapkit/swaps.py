@@ -520,10 +520,18 @@ def summary_line(report: dict | None) -> str | None:
         return None
 
     def spans(items: list[dict]) -> str:
-        shown = ", ".join(f"{'/'.join(x['markers'])} frames {x['start']}-{x['stop'] - 1}"
-                          + (f", {' and '.join(x['hidden'])} then missing" if x.get("hidden") else "")
-                          for x in items[:4])
-        return shown + (", ..." if len(items) > 4 else "")
+        # per pair, its stretches (a labeller trades the same two markers back and forth)
+        pairs: dict[tuple, list[dict]] = {}
+        for x in items:
+            pairs.setdefault(tuple(x["markers"]), []).append(x)
+        shown = []
+        for who, xs in list(pairs.items())[:4]:
+            frames = ", ".join(f"{x['start']}" + (f"-{x['stop'] - 1}" if x["stop"] - x["start"] > 1 else "")
+                               for x in xs[:4]) + (", ..." if len(xs) > 4 else "")
+            hidden = sorted({h for x in xs for h in x.get("hidden", [])})
+            shown.append(f"{'/'.join(who)} frames {frames}"
+                         + (f", {' and '.join(hidden)} then missing" if hidden else ""))
+        return "; ".join(shown) + ("; ..." if len(pairs) > 4 else "")
 
     rep, left = report.get("repaired", []), report.get("unrepaired", [])
     parts = []
