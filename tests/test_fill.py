@@ -341,6 +341,23 @@ def test_lowrank_complete_exact_on_low_rank_matrix():
     assert np.abs(Y - X).max() < 1e-4
 
 
+def test_lowrank_complete_does_not_depend_on_rounding_in_its_start(monkeypatch):
+    """The EM's start perturbed by 1e-14..1e-6 on the missing entries: the same completion
+    (before the prior's noise floor, 1e-14 gave 13 off: components with no variance took up
+    the rounding noise)."""
+    import mocapkit.solvers.pca_fill as pf
+
+    rng = np.random.default_rng(7)
+    X = rng.normal(size=(300, 3)) @ rng.normal(size=(3, 20)) * 10 + rng.normal(size=20) * 50
+    M = rng.random(X.shape) > 0.2
+    start = pf.fill
+    for eps in (1e-14, 1e-10, 1e-6):
+        monkeypatch.setattr(pf, "fill", lambda A, m, **k: start(A, m, **k)
+                            + eps * np.random.default_rng(1).normal(size=A.shape) * ~m)
+        Y = pf.lowrank_complete(np.where(M, X, np.nan), M, n_iter=300, tol=1e-9)
+        assert np.abs(Y - X).max() < 1e-6
+
+
 def test_pca_fill_supports_a_sparse_skeletons_leg_joint():
     """A CMU skeleton's ankle has two joints within the paper's 40 cm (foot, toes): the
     support widens to its three nearest (the knee too), so a 60-frame gap there is filled
