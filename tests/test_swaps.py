@@ -324,6 +324,25 @@ def test_side_flips_of_a_synthetic_skeleton():
     assert same is flat and rep2["events"] == []
 
 
+def _random_take(rng: np.random.Generator, case: int) -> tuple[np.ndarray, Motion]:
+    """A random rigid cluster of 12 markers on a walking, turning body (240 frames at 60
+    Hz, cm), noise 0 / 0.1 / 0.5 cm by ``case``, one marker hidden for 10 frames in odd
+    cases: the positions and the Motion."""
+    T, J = 240, 12
+    t = np.arange(T)[:, None] / 60.0
+    centre = np.hstack([80 * t, 10 * np.sin(2 * t), 100 + 0 * t])
+    yaw = 0.6 * np.sin(1.3 * t[:, 0] + case)
+    base = rng.normal(0, 15, (J, 3))
+    R = np.stack([np.stack([np.cos(yaw), -np.sin(yaw), 0 * yaw], 1),
+                  np.stack([np.sin(yaw), np.cos(yaw), 0 * yaw], 1),
+                  np.stack([0 * yaw, 0 * yaw, 1 + 0 * yaw], 1)], 1)          # (T, 3, 3)
+    P = centre[:, None, :] + np.einsum("tij,kj->tki", R, base)
+    P += rng.normal(0, [0.0, 0.1, 0.5][case % 3], P.shape)
+    if case % 2:
+        P[100:110, rng.integers(J)] = np.nan
+    return P, _markers(P, fps=60.0)
+
+
 def test_the_repair_never_leaves_more_samples_mislabelled_seeded():
     """Seeded property: random rigid marker clusters on a walking, turning body, noise 0-0.5
     cm, one to three planted swaps of 2-80 frames between nearby markers, some starting at a
@@ -331,19 +350,7 @@ def test_the_repair_never_leaves_more_samples_mislabelled_seeded():
     rng = np.random.default_rng(20261206)
     planted_n = fixed_n = 0
     for case in range(24):
-        T, J = 240, 12
-        t = np.arange(T)[:, None] / 60.0
-        centre = np.hstack([80 * t, 10 * np.sin(2 * t), 100 + 0 * t])
-        yaw = 0.6 * np.sin(1.3 * t[:, 0] + case)
-        base = rng.normal(0, 15, (J, 3))
-        R = np.stack([np.stack([np.cos(yaw), -np.sin(yaw), 0 * yaw], 1),
-                      np.stack([np.sin(yaw), np.cos(yaw), 0 * yaw], 1),
-                      np.stack([0 * yaw, 0 * yaw, 1 + 0 * yaw], 1)], 1)      # (T, 3, 3)
-        P = centre[:, None, :] + np.einsum("tij,kj->tki", R, base)
-        P += rng.normal(0, [0.0, 0.1, 0.5][case % 3], P.shape)
-        if case % 2:
-            P[100:110, rng.integers(J)] = np.nan
-        m = _markers(P, fps=60.0)
+        P, m = _random_take(rng, case)
         sw, planted = corrupt.label_swaps(m, n_swaps=int(rng.integers(1, 4)), length=int(rng.integers(2, 80)),
                                           max_distance_cm=25.0, at_gaps=bool(case % 4 == 1), seed=case)
         truth = np.where(m.observed[..., None], P, np.nan)
@@ -367,19 +374,7 @@ def test_the_repair_never_writes_more_samples_on_the_wrong_marker_with_jumps_see
     rng = np.random.default_rng(20261207)
     planted_n = fixed_n = 0
     for case in range(24):
-        T, J = 240, 12
-        t = np.arange(T)[:, None] / 60.0
-        centre = np.hstack([80 * t, 10 * np.sin(2 * t), 100 + 0 * t])
-        yaw = 0.6 * np.sin(1.3 * t[:, 0] + case)
-        base = rng.normal(0, 15, (J, 3))
-        R = np.stack([np.stack([np.cos(yaw), -np.sin(yaw), 0 * yaw], 1),
-                      np.stack([np.sin(yaw), np.cos(yaw), 0 * yaw], 1),
-                      np.stack([0 * yaw, 0 * yaw, 1 + 0 * yaw], 1)], 1)      # (T, 3, 3)
-        P = centre[:, None, :] + np.einsum("tij,kj->tki", R, base)
-        P += rng.normal(0, [0.0, 0.1, 0.5][case % 3], P.shape)
-        if case % 2:
-            P[100:110, rng.integers(J)] = np.nan
-        m = _markers(P, fps=60.0)
+        P, m = _random_take(rng, case)
         jumped, planted = corrupt.label_jumps(m, n_jumps=int(rng.integers(1, 4)), length=int(rng.integers(2, 80)),
                                               max_distance_cm=25.0, seed=case)
         fixed, _ = repair_swaps(jumped)
