@@ -93,12 +93,13 @@ def run(data: Path, seeds: int) -> dict:
                         false_rows.append({"target": name, "mask": mkey, "noise_cm": noise,
                                            "events": len(find_swaps(base.positions, base.observed))})
                     kinds = ("anywhere",) if src is None else ("anywhere", "at a gap end")
-                    for L, kind in [(L, k) for L in LENGTHS for k in kinds + ("jump",)]:
+                    for L, kind in [(L, k) for L in LENGTHS for k in kinds + ("shared gap", "jump")]:
                         if L >= tgt.n_frames // 2:
                             continue
-                        sw, planted, swaps = _plant(base, L, seed, kind)
+                        sw, planted, swaps, held = _plant(base, L, seed, kind)
                         if not swaps:
                             continue
+                        truth = np.where(held.observed[..., None], np.asarray(held.positions), np.nan)
                         fixed, rep = repair_swaps(sw)
                         out = np.where(fixed.observed[..., None], np.asarray(fixed.positions), np.nan)
                         own = _carried(truth, out)
@@ -162,13 +163,31 @@ def _kinect(data: Path) -> list[dict]:
 
 
 def _plant(base, L: int, seed: int, kind: str = "anywhere"):
-    """Up to :data:`N_SWAPS` swaps (``kind`` 'anywhere', 'at a gap end') or label jumps
-    ('jump'), each of a pair of markers no other one touches: the corrupted motion, the
-    union of the samples carrying another marker's trajectory, and per swap its mask (per
-    jump: the jumping label's mask and the mask of the samples its neighbour lost)."""
-    sw, planted, swaps = base, np.zeros(base.observed.shape, bool), []
+    """Up to :data:`N_SWAPS` swaps (``kind`` 'anywhere', 'at a gap end', 'shared gap': both
+    markers hidden for 1-5 frames just before it) or label jumps ('jump'), each of a pair of
+    markers no other one touches: the corrupted motion, the union of the samples carrying
+    another marker's trajectory, per swap its mask (per jump: the jumping label's mask and
+    the mask of the samples its neighbour lost), and the truth (``base``, with a shared
+    gap's frames missing)."""
+    sw, planted, swaps, held = base, np.zeros(base.observed.shape, bool), [], base
     for i in range(N_SWAPS):
         ss = np.random.SeedSequence([seed, L, i])
+        if kind == "shared gap":
+            nxt, pm = corrupt.label_swaps(sw, n_swaps=1, length=L, max_distance_cm=MAX_DISTANCE_CM, seed=ss)
+            if not pm.any() or (pm.any(axis=0) & planted.any(axis=0)).any():
+                continue
+            s0 = int(np.flatnonzero(pm.any(axis=1))[0])
+            g = 1 + int(np.random.default_rng(ss).integers(0, 5))
+            cols = np.flatnonzero(pm.any(axis=0))
+            if s0 - g < 2 or not sw.observed[s0 - g - 2:s0][:, cols].all():
+                continue
+            hide = np.zeros_like(pm)
+            hide[s0 - g:s0, cols] = True
+            sw = nxt.with_positions(np.asarray(nxt.positions), nxt.observed & ~hide)
+            held = held.with_positions(np.asarray(held.positions), held.observed & ~hide)
+            planted = planted | pm
+            swaps.append(pm)
+            continue
         if kind == "jump":
             nxt, pm = corrupt.label_jumps(sw, n_jumps=1, length=L, max_distance_cm=MAX_DISTANCE_CM, seed=ss)
             lost = sw.observed & ~nxt.observed
@@ -183,7 +202,7 @@ def _plant(base, L: int, seed: int, kind: str = "anywhere"):
         swaps.append((pm, lost) if kind == "jump" else pm)
     if kind == "jump":                             # (the planted count: the jumping labels' samples)
         planted = np.any([a for a, _ in swaps], axis=0) if swaps else planted
-    return sw, planted, swaps
+    return sw, planted, swaps, held
 
 
 def _auto(sw, truth_motion, planted, name, L, seed, kind="anywhere") -> dict:
@@ -226,7 +245,7 @@ def to_markdown(res: dict, seconds: float) -> str:
           "## Planted swaps put back", "",
           "| mask | planted | noise (cm) | length (frames) | cases | swaps planted | put back | % | samples wrong before | after | cases worse after | events found | stretches left as measured |",
           "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
-    order = {"anywhere": 0, "at a gap end": 1, "jump": 2}
+    order = {"anywhere": 0, "at a gap end": 1, "shared gap": 2, "jump": 3}
     keys = sorted({(r["mask"] or "", order[r["kind"]], r["noise_cm"], r["length"]) for r in rows})
     for mk, ko, nz, L in keys:
         kind = next(k for k, v in order.items() if v == ko)
@@ -234,7 +253,7 @@ def to_markdown(res: dict, seconds: float) -> str:
                and r["noise_cm"] == nz and r["length"] == L]
         p = sum(r["planted"] for r in sel)
         b = sum(r["put_back"] for r in sel)
-        md.append(f"| {mk or 'none'} | {'a label jump' if kind == 'jump' else kind} | {nz:g} | {L} | {len(sel)} | {p} | {b} | "
+        md.append(f"| {mk or 'none'} | {'a label jump' if kind == 'jump' else 'after a gap of both' if kind == 'shared gap' else kind} | {nz:g} | {L} | {len(sel)} | {p} | {b} | "
                   f"{100 * b / max(p, 1):.0f} | "
                   f"{sum(r['planted_samples'] for r in sel)} | {sum(r['wrong_after'] for r in sel)} | "
                   f"{sum(r['wrong_after'] > r['planted_samples'] for r in sel)} | "

@@ -218,11 +218,66 @@ def find_swaps(positions: np.ndarray, observed: np.ndarray, *, factor: float = S
                 continue
             pairs.add((min(u, v), max(u, v)))
             events.append(SwapEvent(int(t[i]), min(u, v), max(u, v), float(np.nan_to_num(r[t[i], v]))))
+    for ev in _across_shared_gaps(P, obs, thr, float(ratio), partner):
+        pairs.add((ev.a, ev.b))
+        events.append(ev)
     for a, b in sorted(pairs):
         for t, step in _pair_toggles(P, r, pred, a, b, scale, thr, float(ratio)):
             events.append(SwapEvent(t, a, b, step))
     uniq = {(e.frame, e.a, e.b): e for e in events}
     return sorted(uniq.values(), key=lambda e: (e.frame, e.a, e.b))
+
+
+#: the longest gap (frames) both markers of a pair may share for a swap across it to be
+#: looked for (:func:`_across_shared_gaps`): the paths are extrapolated over it
+SHARED_GAP_FRAMES = 5
+
+
+def _across_shared_gaps(P: np.ndarray, obs: np.ndarray, thr: np.ndarray, ratio: float,
+                        partner: np.ndarray | None) -> list[SwapEvent]:
+    """Swaps at the end of a gap both markers share (up to :data:`SHARED_GAP_FRAMES`
+    frames): the labeller, having lost both, gives each the other's label as they show
+    again. Both labels reappear at frame ``t`` after the same gap of ``g`` frames, each
+    marker's path is extrapolated over it at constant velocity from its last two samples,
+    and exchanging the two reappearing samples explains both steps: each within ``(g + 1)``
+    times the other's threshold of its prediction, the two distances after the exchange at
+    most ``ratio`` of those before; only markers that keep further apart than their two
+    thresholds. Vectorised per frame over the markers reappearing there (the loop runs
+    over the frames where two or more do)."""
+    T, J = obs.shape
+    out: list[SwapEvent] = []
+    back = obs[1:] & ~obs[:-1]                                              # (T-1, J): reappears at t+1
+    frames = np.flatnonzero(back.sum(axis=1) >= 2) + 1
+    if not len(frames):
+        return out
+    # frames since each marker was last seen (its gap's length where it reappears)
+    seen_at = np.where(obs, np.arange(T)[:, None], -1)
+    last = np.maximum.accumulate(seen_at, axis=0)                           # (T, J) last seen at or before t
+    for t in frames:                               # (a loop over frames where several reappear)
+        idx = np.flatnonzero(back[t - 1])
+        s = last[t - 1, idx]                                                # last seen before the gap
+        g = t - 1 - s                                                       # gap length
+        ok = (s >= 1) & (g <= SHARED_GAP_FRAMES)
+        ok[ok] &= obs[s[ok] - 1, idx[ok]]
+        idx, s, g = idx[ok], s[ok], g[ok]
+        if len(idx) < 2:
+            continue
+        pred = P[s, idx] + (g + 1)[:, None] * (P[s, idx] - P[s - 1, idx])   # (n, 3) at t
+        now = P[t, idx]
+        d = np.linalg.norm(now[None, :, :] - pred[:, None, :], axis=2)      # d[i, k]: k's sample as i's
+        own = np.diag(d)
+        lim = thr[idx] * (g + 1)
+        same_gap = (g[:, None] == g[None, :])
+        allowed = _allowed(idx, J, partner)[:, idx] & same_gap
+        before = own[:, None] + own[None, :]
+        after = d + d.T
+        fits = (allowed & (d <= lim[:, None]) & (d.T <= lim[None, :]) & (after <= ratio * before)
+                & np.triu(np.ones_like(allowed), 1))
+        for i, k in zip(*np.nonzero(fits)):
+            a, b = int(idx[i]), int(idx[k])
+            if _apart(P, obs, a, b) > thr[a] + thr[b]:
+                out.append(SwapEvent(int(t), min(a, b), max(a, b), float(max(own[i], own[k]))))
+    return out
 
 
 def _apart(P: np.ndarray, obs: np.ndarray, a: int, b: int) -> float:
