@@ -136,6 +136,24 @@ def test_a_stretch_with_both_hidden_is_put_back_only_piece_by_piece():
     assert {"markers": ["M0", "M1"], "start": 100, "stop": 150} in rep["repaired"]
 
 
+def test_a_swap_at_the_end_of_a_gap_both_markers_share_is_put_back():
+    """Both markers hidden for frames 97-99 and back under each other's labels until a
+    visible swap back at 160: each reappearing sample lies where the other's path,
+    extrapolated over the 3 frames, goes on -- an event at 100, and the stretch is put
+    back. Both back on their own paths after the same gap: no event."""
+    P = _three(300)
+    Q = P.copy()
+    Q[100:160, [0, 1]] = P[100:160, [1, 0]]
+    Q[97:100, :2] = np.nan
+    assert [(e.frame, e.a, e.b) for e in find_swaps(Q, np.isfinite(Q).all(axis=2))] == [(100, 0, 1), (160, 0, 1)]
+    fixed, rep = repair_swaps(_markers(Q))
+    np.testing.assert_array_equal(np.asarray(fixed.positions)[100:], P[100:])
+    assert rep["repaired"] == [{"markers": ["M0", "M1"], "start": 100, "stop": 160}]
+    R = P.copy()
+    R[97:100, :2] = np.nan
+    assert find_swaps(R, np.isfinite(R).all(axis=2)) == []
+
+
 def test_a_jump_whose_end_is_hidden_is_left_as_measured():
     """The same jump, but both labels are missing where it would end: one step and no
     partner -- the stretch from it runs to where both are hidden, and is left."""
