@@ -325,6 +325,11 @@ SWAP_REFS = 3
 #: frames of the labelling taken as right a reference marker needs, measured with each
 #: marker of the pair (:func:`_stretch_states`)
 SWAP_REF_FRAMES = 30
+#: the shortest piece (frames) of a stretch with both markers hidden in places that is put
+#: back where only one of them is measured (:func:`repair_swaps`): on a few frames one
+#: marker's distances to weak references can not tell (basket sprint: 1-3 frame pieces of
+#: ForearmL Marker2/Marker3 were judged exchanged and were not)
+SWAP_PIECE_FRAMES = 5
 #: a stretch is told apart by the geometry test when its distances to the reference markers
 #: fit one labelling at most this share as far off as the other
 SWAP_GEOMETRY = 0.25
@@ -362,29 +367,45 @@ def _stretch_states(P: np.ndarray, obs: np.ndarray, a: int, b: int, bounds: np.n
     ra, rb = (da, db) if right is None else (da[right], db[right])
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")            # all-NaN columns: markers never seen together
-        Da, Db = np.nanmedian(ra, axis=0), np.nanmedian(rb, axis=0)
-        sa = 1.4826 * np.nanmedian(np.abs(ra - Da), axis=0)
-        sb = 1.4826 * np.nanmedian(np.abs(rb - Db), axis=0)
         few = (np.isfinite(ra).sum(axis=0) < SWAP_REF_FRAMES) | (np.isfinite(rb).sum(axis=0) < SWAP_REF_FRAMES)
-        sa[few] = sb[few] = np.nan
-        pick = np.union1d(np.argsort(np.where(np.isfinite(sa), sa, np.inf))[:SWAP_REFS],
-                          np.argsort(np.where(np.isfinite(sb), sb, np.inf))[:SWAP_REFS])
-        pick = pick[np.isfinite(sa[pick]) & np.isfinite(sb[pick])]
-        if not len(pick):
-            return out
-        scale = np.maximum(sa[pick] + sb[pick], 0.1)                      # cm
-        for i in range(n):                         # (a loop over a pair's stretches: a handful)
-            s, e = int(bounds[i]), int(bounds[i + 1])
-            if e <= s or _both_hidden(obs, a, b, s, e):
-                continue
-            # (a marker hidden over the whole stretch: the other one's distances alone)
-            ma, mb = np.nanmedian(da[s:e, pick], axis=0), np.nanmedian(db[s:e, pick], axis=0)
-            same = np.nansum(np.abs(ma - Da[pick]) / scale) + np.nansum(np.abs(mb - Db[pick]) / scale)
-            swap = np.nansum(np.abs(ma - Db[pick]) / scale) + np.nansum(np.abs(mb - Da[pick]) / scale)
-            if swap < SWAP_GEOMETRY * same:
-                out[i] = 1
-            elif same < SWAP_GEOMETRY * swap:
-                out[i] = -1
+        verdicts = [_verdicts(da, db, ra, rb, few, obs, a, b, bounds)]
+        if right is not None:                      # a second opinion from the whole take's medians
+            verdicts.append(_verdicts(da, db, da, db, few, obs, a, b, bounds))
+    V = np.array(verdicts)
+    # exchanged only where every opinion says so; labelled right where any does
+    out[(V == 1).all(axis=0)] = 1
+    out[(V == -1).any(axis=0)] = -1
+    return out
+
+
+def _verdicts(da: np.ndarray, db: np.ndarray, ra: np.ndarray, rb: np.ndarray, few: np.ndarray,
+              obs: np.ndarray, a: int, b: int, bounds: np.ndarray) -> np.ndarray:
+    """:func:`_stretch_states`' test with the reference distances' medians and spreads from
+    ``ra`` / ``rb`` (rows: the frames they come from), references in ``few`` left out."""
+    n = len(bounds) - 1
+    out = np.zeros(n, int)
+    Da, Db = np.nanmedian(ra, axis=0), np.nanmedian(rb, axis=0)
+    sa = 1.4826 * np.nanmedian(np.abs(ra - Da), axis=0)
+    sb = 1.4826 * np.nanmedian(np.abs(rb - Db), axis=0)
+    sa[few] = sb[few] = np.nan
+    pick = np.union1d(np.argsort(np.where(np.isfinite(sa), sa, np.inf))[:SWAP_REFS],
+                      np.argsort(np.where(np.isfinite(sb), sb, np.inf))[:SWAP_REFS])
+    pick = pick[np.isfinite(sa[pick]) & np.isfinite(sb[pick])]
+    if not len(pick):
+        return out
+    scale = np.maximum(sa[pick] + sb[pick], 0.1)                          # cm
+    for i in range(n):                             # (a loop over a pair's stretches: a handful)
+        s, e = int(bounds[i]), int(bounds[i + 1])
+        if e <= s or _both_hidden(obs, a, b, s, e):
+            continue
+        # (a marker hidden over the whole stretch: the other one's distances alone)
+        ma, mb = np.nanmedian(da[s:e, pick], axis=0), np.nanmedian(db[s:e, pick], axis=0)
+        same = np.nansum(np.abs(ma - Da[pick]) / scale) + np.nansum(np.abs(mb - Db[pick]) / scale)
+        swap = np.nansum(np.abs(ma - Db[pick]) / scale) + np.nansum(np.abs(mb - Da[pick]) / scale)
+        if swap < SWAP_GEOMETRY * same:
+            out[i] = 1
+        elif same < SWAP_GEOMETRY * swap:
+            out[i] = -1
     return out
 
 
@@ -443,8 +464,10 @@ def repair_swaps(motion: Motion, **options) -> tuple[Motion, dict]:
                 for k in range(len(sub) - 1):
                     p, q = int(sub[k]), int(sub[k + 1])
                     if not hid[p - s]:
-                        _exchange(out_P, out_filled, obs, a, b, p, q, names, report, ok=sub_states[k] == 1,
-                                  left=left)
+                        # (a few frames of one marker alone are too little to judge by)
+                        one = not (obs[p:q, a].any() and obs[p:q, b].any())
+                        _exchange(out_P, out_filled, obs, a, b, p, q, names, report,
+                                  ok=sub_states[k] == 1 and not (one and q - p < SWAP_PIECE_FRAMES), left=left)
                 continue
             _exchange(out_P, out_filled, obs, a, b, s, e, names, report,
                       ok=not (states[i] == -1 or (states[i] == 0 and not closed)), left=left)
