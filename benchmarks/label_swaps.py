@@ -12,7 +12,9 @@ does) -- with a mask, also swaps that start where a marker reappears after a gap
 (``label_swaps(at_gaps=True)``); and, in the same cases, 3 label jumps
 (:func:`mocapkit.corrupt.label_jumps`: a label takes its nearest neighbour's marker, within
 15 cm, for the swap length while its own marker is hidden; the neighbour's label is
-missing meanwhile). Scored:
+missing meanwhile); and 3 swaps that start where both markers come back from a gap of
+1-5 frames they share (``shared gap``: a swap planted anywhere, both markers hidden for
+the frames just before it). Scored:
 
 * ``put back``: planted swaps whose every sample carries its own marker's trajectory
   after :func:`mocapkit.swaps.repair_swaps`;
@@ -226,6 +228,10 @@ def _auto(sw, truth_motion, planted, name, L, seed, kind="anywhere") -> dict:
             "written_with_repair": float(np.isfinite(res["with"][planted]).all(axis=1).mean())}
 
 
+def _cases(n: int) -> str:
+    return f"{n} case{'' if n == 1 else 's'}"
+
+
 def to_markdown(res: dict, seconds: float) -> str:
     rows = res["rows"]
     md = ["# Label swaps in real captures (`mocapkit.swaps`)", "",
@@ -240,8 +246,8 @@ def to_markdown(res: dict, seconds: float) -> str:
           f"Over all {len(rows)} cases: "
           + "; ".join(f"{sum(r['put_back'] for r in rows if (r['kind'] == 'jump') == j)} of "
                       f"{sum(r['planted'] for r in rows if (r['kind'] == 'jump') == j)} {'jumps' if j else 'swaps'} "
-                      f"put back, {sum(r['wrong_after'] > r['planted_samples'] for r in rows if (r['kind'] == 'jump') == j)} "
-                      "cases worse after" for j in (False, True)) + ".", "",
+                      f"put back, {_cases(sum(r['wrong_after'] > r['planted_samples'] for r in rows if (r['kind'] == 'jump') == j))} "
+                      "worse after" for j in (False, True)) + ".", "",
           "## Planted swaps put back", "",
           "| mask | planted | noise (cm) | length (frames) | cases | swaps planted | put back | % | samples wrong before | after | cases worse after | events found | stretches left as measured |",
           "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
