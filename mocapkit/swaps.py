@@ -247,9 +247,9 @@ def _across_shared_gaps(P: np.ndarray, obs: np.ndarray, thr: np.ndarray, ratio: 
     frames): the labeller, having lost both, gives each the other's label as they show
     again. Both labels reappear at frame ``t`` after the same gap of ``g`` frames, each
     marker's path is extrapolated over it at constant velocity from its last two samples,
-    and exchanging the two reappearing samples explains both steps: each within ``(g + 1)``
-    times the other's threshold of its prediction, the two distances after the exchange at
-    most ``ratio`` of those before; only markers that keep further apart than their two
+    and exchanging the two reappearing samples explains both steps: each lands within
+    ``(g + 1)`` times the threshold of the marker whose path it continues, and the two
+    distances after the exchange are at most ``ratio`` of those before; only markers that keep further apart than their two
     thresholds. Vectorised per frame over the markers reappearing there (the loop runs
     over the frames where two or more do)."""
     T, J = obs.shape
