@@ -103,7 +103,8 @@ import numpy as np
 
 from .motion import Motion
 
-__all__ = ["SwapEvent", "find_swaps", "repair_swaps", "repair_side_flips", "repair_labels", "summary_line", "SWAP_FACTOR", "SWAP_FLOOR_CM", "SWAP_RATIO"]
+__all__ = ["SwapEvent", "find_swaps", "repair_swaps", "repair_side_flips", "repair_labels", "summary_line",
+           "SWAP_FACTOR", "SWAP_FLOOR_CM", "SWAP_RATIO"]
 
 #: a step: the constant-velocity residual over this many times the marker's median residual
 #: (Gaussian noise alone: the median is about 3.8 sigma, 4 x that ~6 times the chi(3) tail's
@@ -249,42 +250,44 @@ def _across_shared_gaps(P: np.ndarray, obs: np.ndarray, thr: np.ndarray, ratio: 
     marker's path is extrapolated over it at constant velocity from its last two samples,
     and exchanging the two reappearing samples explains both steps: each lands within
     ``(g + 1)`` times the threshold of the marker whose path it continues, and the two
-    distances after the exchange are at most ``ratio`` of those before; only markers that keep further apart than their two
-    thresholds. Vectorised per frame over the markers reappearing there (the loop runs
-    over the frames where two or more do)."""
-    T, J = obs.shape
-    out: list[SwapEvent] = []
-    back = obs[1:] & ~obs[:-1]                                              # (T-1, J): reappears at t+1
-    frames = np.flatnonzero(back.sum(axis=1) >= 2) + 1
-    if not len(frames):
-        return out
+    distances after the exchange are at most ``ratio`` of those before; only markers that
+    keep further apart than their two thresholds. Vectorised over every pair of markers
+    that reappear at one frame after the same gap (no loop over frames)."""
+    T = obs.shape[0]
+    t, j = np.nonzero(obs[1:] & ~obs[:-1])
+    t = t + 1                                                               # (t, j): j reappears at t
     # frames since each marker was last seen (its gap's length where it reappears)
-    seen_at = np.where(obs, np.arange(T)[:, None], -1)
-    last = np.maximum.accumulate(seen_at, axis=0)                           # (T, J) last seen at or before t
-    for t in frames:                               # (a loop over frames where several reappear)
-        idx = np.flatnonzero(back[t - 1])
-        s = last[t - 1, idx]                                                # last seen before the gap
-        g = t - 1 - s                                                       # gap length
-        ok = (s >= 1) & (g <= SHARED_GAP_FRAMES)
-        ok[ok] &= obs[s[ok] - 1, idx[ok]]
-        idx, s, g = idx[ok], s[ok], g[ok]
-        if len(idx) < 2:
-            continue
-        pred = P[s, idx] + (g + 1)[:, None] * (P[s, idx] - P[s - 1, idx])   # (n, 3) at t
-        now = P[t, idx]
-        d = np.linalg.norm(now[None, :, :] - pred[:, None, :], axis=2)      # d[i, k]: k's sample as i's
-        own = np.diag(d)
-        lim = thr[idx] * (g + 1)
-        same_gap = (g[:, None] == g[None, :])
-        allowed = _allowed(idx, J, partner)[:, idx] & same_gap
-        before = own[:, None] + own[None, :]
-        after = d + d.T
-        fits = (allowed & (d <= lim[:, None]) & (d.T <= lim[None, :]) & (after <= ratio * before)
-                & np.triu(np.ones_like(allowed), 1))
-        for i, k in zip(*np.nonzero(fits)):
-            a, b = int(idx[i]), int(idx[k])
-            if _apart(P, obs, a, b) > thr[a] + thr[b]:
-                out.append(SwapEvent(int(t), min(a, b), max(a, b), float(max(own[i], own[k]))))
+    last = np.maximum.accumulate(np.where(obs, np.arange(T)[:, None], -1), axis=0)
+    s = last[t - 1, j]
+    g = t - 1 - s
+    ok = (s >= 1) & (g <= SHARED_GAP_FRAMES)
+    ok[ok] &= obs[s[ok] - 1, j[ok]]
+    t, j, s, g = t[ok], j[ok], s[ok], g[ok]
+    # every pair reappearing at one frame after the same gap: sorted by (t, g), each element
+    # with those after it in its group
+    key = t * (SHARED_GAP_FRAMES + 1) + g
+    order = np.argsort(key, kind="stable")
+    t, j, s, g, key = t[order], j[order], s[order], g[order], key[order]
+    end = np.searchsorted(key, key, side="right")                          # (n,) each group's end
+    count = end - np.arange(len(key)) - 1
+    if not count.sum():
+        return []
+    u = np.repeat(np.arange(len(key)), count)
+    v = u + 1 + np.arange(len(u)) - np.repeat(np.cumsum(count) - count, count)
+    pred = P[s, j] + (g + 1)[:, None] * (P[s, j] - P[s - 1, j])           # (n, 3) at t
+    now = P[t, j]
+    own = np.linalg.norm(now - pred, axis=1)
+    d_uv = np.linalg.norm(now[v] - pred[u], axis=1)                       # v's sample as u's
+    d_vu = np.linalg.norm(now[u] - pred[v], axis=1)
+    lim = thr[j] * (g + 1)
+    allowed = (j[u] != j[v]) if partner is None else (partner[j[u]] == j[v]) & (partner[j[u]] != j[u])
+    fits = (allowed & (d_uv <= lim[u]) & (d_vu <= lim[v])
+            & (d_uv + d_vu <= ratio * (own[u] + own[v])))
+    out = []
+    for x in np.flatnonzero(fits):                 # (the pairs found: a handful)
+        a, b = int(j[u[x]]), int(j[v[x]])
+        if _apart(P, obs, a, b) > thr[a] + thr[b]:
+            out.append(SwapEvent(int(t[u[x]]), min(a, b), max(a, b), float(max(own[u[x]], own[v[x]]))))
     return out
 
 
@@ -454,31 +457,29 @@ def repair_swaps(motion: Motion, **options) -> tuple[Motion, dict]:
         right = np.ones(T, bool)
         for i in minority:
             right[bounds[i]:bounds[i + 1]] = False
-        states = _stretch_states(out_P, obs, a, b, bounds, exclude=swapping, right=right)
+        # the stretches cut where both markers are hidden (a swap back could hide there),
+        # all judged at once
+        hid = ~obs[:, a] & ~obs[:, b]
+        fine = np.unique(np.r_[bounds, np.flatnonzero(np.diff(hid.astype(int))) + 1])
+        states = _stretch_states(out_P, obs, a, b, fine, exclude=swapping, right=right)
         for i in minority:
             s, e = int(bounds[i]), int(bounds[i + 1])
             # between two events: put back unless the distances say it is labelled right;
             # running to an end of the take (one event: the other may be missed), only
-            # where they say it is exchanged
+            # where they say it is exchanged; with both hidden in places, each piece between
+            # them only where they say it is exchanged (a few frames of one marker alone
+            # are too little to judge by)
             closed = 0 < s and e < T
-            left = "unrepaired" if closed else "doubtful"
-            if _both_hidden(obs, a, b, s, e):
-                # a swap back could hide where both are missing: each piece between such
-                # frames is put back only where the distances say it is exchanged
-                hid = ~obs[s:e, a] & ~obs[s:e, b]
-                cuts = s + np.flatnonzero(np.diff(np.r_[hid[0], hid].astype(int)))
-                sub = np.unique(np.r_[s, cuts, e])
-                sub_states = _stretch_states(out_P, obs, a, b, sub, exclude=swapping, right=right)
-                for k in range(len(sub) - 1):
-                    p, q = int(sub[k]), int(sub[k + 1])
-                    if not hid[p - s]:
-                        # (a few frames of one marker alone are too little to judge by)
-                        one = not (obs[p:q, a].any() and obs[p:q, b].any())
-                        _exchange(out_P, out_filled, obs, a, b, p, q, names, report,
-                                  ok=sub_states[k] == 1 and not (one and q - p < SWAP_PIECE_FRAMES), left=left)
-                continue
-            _exchange(out_P, out_filled, obs, a, b, s, e, names, report,
-                      ok=not (states[i] == -1 or (states[i] == 0 and not closed)), left=left)
+            split = bool(hid[s:e].any())
+            for k in range(int(np.searchsorted(fine, s)), int(np.searchsorted(fine, e))):
+                p, q, st = int(fine[k]), int(fine[k + 1]), states[k]
+                if hid[p]:
+                    continue
+                one = not (obs[p:q, a].any() and obs[p:q, b].any())
+                ok = (st == 1 and not (one and q - p < SWAP_PIECE_FRAMES)) if split else \
+                    not (st == -1 or (st == 0 and not closed))
+                _exchange(out_P, out_filled, obs, a, b, p, q, names, report, ok=ok,
+                          left="unrepaired" if closed else "doubtful")
     return _result(motion, out_P, out_filled, obs, report)
 
 

@@ -442,8 +442,9 @@ def unvalidated_fills(method: Denoiser, motion: Motion, out: Motion, limit_cm: f
     in under half the frames beside them (:func:`side_support`; trnn 1.39 % gross: the
     edge gaps at fault were seen in more).
     The same fills are judged on each interior gap's own frames too, hidden in up to
-    three neighbouring markers seen throughout it (:func:`_neighbour_hides`, one more run): the stretch next to a gap may be quiet when the gap is not,
-    and trnn's remaining gross fills were all in gaps judged so. A gap takes the worse of
+    three neighbouring markers seen throughout it (:func:`_neighbour_hides`, one more
+    run): the stretch next to a gap may be quiet when the gap is not, and trnn's remaining
+    gross fills were all in gaps judged so. A gap takes the worse of
     the two scores (the neighbours' alone where it had none). Measured on real_gaps
     (2026-12-06, twentieth session; 37 scored cases; RMSE cm / gross % / coverage %,
     before -> after): trnn 2.59 / 0.586 / 5.59 -> 1.90 / 0.255 / 5.57; tsmc 2.32 / 0.447 /
