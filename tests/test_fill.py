@@ -534,3 +534,36 @@ def test_fill_kinematic_puts_a_knee_back_on_its_bones():
     assert not denoise.get("fill-kinematic").denoise(markers).observed[200:260, j].any()
     metres = noisy.with_positions(noisy.positions * 0.01)
     assert not denoise.get("fill-kinematic").denoise(metres).observed[200:260, j].any()
+
+
+def test_fill_kinematic_leaves_a_straight_knee_on_a_filled_hip():
+    """Near full extension the knee's circle is small and moves by d / r times any error of
+    the hip-ankle distance: from a hip that was itself filled (0.3 cm off) a straight knee
+    would be cm off, so those frames are left to other fills; a bent knee on the same
+    filled hip, and a straight one on a measured hip, are still filled."""
+    from mocapkit.rigid import KINEMATIC_MAX_GAIN, kinematic_fill
+
+    T = 40
+    t = np.linspace(0.0, 1.0, T)
+    hip = np.zeros((T, 3))
+    root = np.tile([10.0, 0.0, 0.0], (T, 1))
+    bones, lengths = np.array([[1, 0], [2, 1], [3, 2]]), np.array([10.0, 40.0, 40.0])
+    for bend, filled_ok in ((0.05, False), (0.6, True)):    # swivel plane turns slowly
+        a = bend + 0.02 * t                                 # knee angle off the hip-ankle axis
+        knee = 40 * np.stack([np.sin(a) * np.cos(t), -np.cos(a), np.sin(a) * np.sin(t)], 1)
+        ankle = knee + 40 * np.stack([-np.sin(a) * np.cos(t), -np.cos(a), -np.sin(a) * np.sin(t)], 1)
+        P = np.stack([root, hip, knee, ankle], 1)
+        obs = np.ones((T, 4), bool)
+        obs[18:22, 2] = False
+        off = P.copy()
+        off[18:22, 1] += [0.0, 0.3, 0.0]                    # the hip's spline fill, 0.3 cm off
+        measured = obs.copy()
+        measured[18:22, 1] = False
+        Q, f = kinematic_fill(off, obs, [-1, 0, 1, 2], bones, lengths, measured=measured)
+        assert bool(f[18:22, 2].all()) is filled_ok, (bend, f[18:22, 2])
+        if filled_ok:                                       # bent: the error stays near the hip's
+            assert np.abs(Q[18:22, 2] - knee[18:22]).max() < KINEMATIC_MAX_GAIN * 0.3
+        Q, f = kinematic_fill(off, obs, [-1, 0, 1, 2], bones, lengths)   # hip taken as measured
+        assert f[18:22, 2].all()
+        if not filled_ok:                                   # ... and a straight knee is cm off
+            assert np.abs(Q[18:22, 2] - knee[18:22]).max() > 1.0

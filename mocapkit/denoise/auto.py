@@ -437,7 +437,7 @@ class Auto(Denoiser):
             out = _leave_unvalidated(out, short_missing, est["hole"], float(self.max_fill_error_cm))
         e_long, fa = None, None
         if long.any():
-            out, e_long, fa = self._fill_long(motion, out, long)
+            out, e_long, fa = self._fill_long(motion, out, long, holes)
             chain.append("fill-auto")
         moved2 = None
         if smooth:
@@ -505,15 +505,21 @@ class Auto(Denoiser):
             hole[:, cols] = np.where(info.hole_map > 0, info.hole_map, hole[:, cols])
         return {"kept": kept, "hole": hole}
 
-    def _fill_long(self, motion: Motion, out: np.ndarray, long: np.ndarray
+    def _fill_long(self, motion: Motion, out: np.ndarray, long: np.ndarray, holes: np.ndarray | None = None
                    ) -> tuple[np.ndarray, np.ndarray, dict]:
         """Long gaps by fill-auto; returns the new matrix, the per-sample error estimate
         (T, 3J): for every frame fill-auto filled, the validated error of the candidate that
         filled it (``error_map``); NaN where it filled nothing (those samples are left
         missing: NaN in the matrix too) -- and fill-auto's report (its ``source['fill_auto']``
-        without the error map, and ``source['fill_codes']`` as ``codes``)."""
+        without the error map, and ``source['fill_codes']`` as ``codes``). ``holes`` (T, 3J):
+        the samples auto filled or replaced itself (short holes, rejected spikes), flagged as
+        filled for fill-auto's candidates (:data:`mocapkit.rigid.KINEMATIC_MAX_GAIN`)."""
         filler = get("fill-auto", candidates=FILL_CANDIDATES, max_error_cm=self.max_fill_error_cm)
         work = motion.with_matrix(np.where(long, np.nan, out), observed=~long[:, ::3])
+        if holes is not None:
+            # the spline's values are no measurement: a fill resting on them must know it
+            short = (holes & ~long).reshape(len(holes), -1, 3).any(axis=2)
+            work = work.with_filled(work.filled | short)
         filled = filler.denoise(work)
         Y = filled.matrix()
         take = long & np.isfinite(Y)

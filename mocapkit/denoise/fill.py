@@ -413,5 +413,6 @@ class FillKinematic(Denoiser):
         if motion.observed.all():
             return motion
         bones, lengths = fixed_bones(motion, motion.positions)
-        X, f = kinematic_fill(motion.positions, motion.observed, motion.skeleton.parents, bones, lengths)
+        X, f = kinematic_fill(motion.positions, motion.observed, motion.skeleton.parents, bones, lengths,
+                              measured=motion.observed & ~motion.filled)
         return _result(motion, X, f)
