@@ -501,6 +501,16 @@ def kinematic_fill(P: np.ndarray, observed: np.ndarray, parents, bones: np.ndarr
         # (The parent's parent as the reference, without the transport, put a raised arm's
         # elbow 9.1 cm off over a 60-frame gap of CMU 135_02, the protocol's martial-arts
         # clip, at 120 fps.)
+        # Measured and not kept (2026-12-06, twenty-second session; auto on the 40 missing30
+        # and 32 gaps10x60 cases of both clip sets): a straight knee's angle is undefined
+        # (CMU 07_03 at 30 fps: 0.000 cm off the axis at three seen frames, its angle
+        # flipping by pi, and a cubic through it 2.15 cm off over a 4-frame gap next to
+        # them). Leaving frames under 0.1 / 1 cm off the axis out of the angle's known
+        # frames: missing30 summed RMSE -0.4 / -0.8 % (07_03@30 0.125 -> 0.111 / 0.098),
+        # gaps10x60 +2.2 / +2.7 % (run@120 0.77 -> 0.91 / 0.92: a knee's 60-frame gap next
+        # to a straight frame, left to other fills before, was then filled 4.2 cm off);
+        # interpolating the 2-D offset from the axis instead of the angle: missing30 -0.6 %,
+        # gaps10x60 +52 % (run@120 3.4 cm: a cubic through the offset cuts a wide swivel)
         gam = np.zeros(T)
         pair = seen[1:] & seen[:-1]
         vt = _transport(u[:-1], u[1:], v[:-1])
