@@ -879,6 +879,15 @@ def _partner_fill(X: np.ndarray, kept: np.ndarray, fit: np.ndarray, s: np.ndarra
     # 1.5x -> 29 / 30 of 40 -- at 30 fps a hidden sample next to a real hole makes a longer
     # hole (estimates up to 1.8x high), and one kept spike among the hidden samples
     # swamped run@30 spikes (12x).
+    # Measured and not kept (2026-12-06, twenty-second session; the 80 missing30 / spikes
+    # cases of both clip sets, estimate only, outputs unchanged): the chosen fill's error
+    # measured on a second random set of hidden samples (seed + 1), not the set that chose
+    # it -- choosing on a point's 6-30 hidden samples biases their score low. missing30
+    # cases within 1.5x 31 -> 35 (duck@120, hdm05-hop@120, 07_03@30, 135_09@120, 131_12@120
+    # in; kick@30 out), spikes 27 -> 23 (run@30 0.75 -> 2.97x: the second set alone read
+    # 4x the first); the mean of the two sets' squared errors 31 -> 34 and 27 -> 25; either
+    # with the spike-limit filter on the second set 34 / 23. A point's few hidden samples
+    # are too noisy a judge for either set alone.
     er_all = np.where(half, (dm * hp).sum(axis=0), (dr * hp).sum(axis=0))
     err = np.repeat(np.where(use, np.sqrt(er_all / np.maximum(3 * hp.sum(axis=0), 1)), np.nan), 3)
     # the holes the validation makes are longer than the real ones (a hidden sample next
