@@ -78,7 +78,19 @@ at 0 cm (and 3 cases worse, none with it); one case at 0.5 cm is worse after, by
 toggle the noise made (a tennis serve's elbow pair).
 
 Limits: a swap across a longer shared gap is not seen, nor a jump whose other end is
-hidden too; those are the outlier tests' and the gap policy's.
+hidden too; those are the outlier tests' and the gap policy's. A real one (found
+2026-12-06, twenty-second session, not yet put back): in the basket sprint, after the
+repair, ForearmL:Marker1 and Marker4 come back from gaps of both of 72, 60 and 24 frames
+at frames 2313, 2382 and 2483 with their samples exchanged against their steadiest
+partners' offsets (15 cm off, 2-3 cm after the exchange), and at frames 2439-2459 their
+distances to the arm's markers read exchanged (23.8 / 17.6 cm against 18-19 / 25-26 on
+the rest of the take). Measured and not kept: those events found (each marker predicted
+from its steadiest partner seen at both ends of the gap) and put into the pair's events;
+with the majority counted over all frames it then flipped to the labelling as read at
+the start and the repairs of frames 684-731 and 1036-1037 were lost; counted over the
+frames a label is seen, those came back but the exchanged frames 2382-2482 fell in a
+majority stretch -- a toggle missed inside an earlier gap breaks the alternation -- and
+stayed. Putting it back needs every stretch judged by the distances, not by alternation.
 
 >>> import numpy as np
 >>> from mocapkit import Motion, Skeleton
