@@ -492,6 +492,18 @@ def repair_swaps(motion: Motion, **options) -> tuple[Motion, dict]:
                     not (st == -1 or (st == 0 and not closed))
                 _exchange(out_P, out_filled, obs, a, b, p, q, names, report, ok=ok,
                           left="unrepaired" if closed else "doubtful")
+        # a majority stretch's pieces after a frame where both are hidden: a swap the
+        # labeller made while it saw neither marker shows as no event, so each such piece
+        # is put back where the distances say it is exchanged (module docstring)
+        for i in np.setdiff1d(np.arange(len(bounds) - 1), minority):
+            s, e = int(bounds[i]), int(bounds[i + 1])
+            after = False
+            for k in range(int(np.searchsorted(fine, s)), int(np.searchsorted(fine, e))):
+                p, q, st = int(fine[k]), int(fine[k + 1]), states[k]
+                after |= bool(hid[p])
+                one = not (obs[p:q, a].any() and obs[p:q, b].any())
+                if after and not hid[p] and st == 1 and not (one and q - p < SWAP_PIECE_FRAMES):
+                    _exchange(out_P, out_filled, obs, a, b, p, q, names, report)
     return _result(motion, out_P, out_filled, obs, report)
 
 
