@@ -77,20 +77,34 @@ cases): 512 / 496 / 155 of 682 put back at 0 / 0.1 / 0.5 cm noise, 272 without t
 at 0 cm (and 3 cases worse, none with it); one case at 0.5 cm is worse after, by a pair
 toggle the noise made (a tennis serve's elbow pair).
 
-Limits: a swap across a longer shared gap is not seen, nor a jump whose other end is
-hidden too; those are the outlier tests' and the gap policy's. A real one (found
-2026-12-06, twenty-second session, not yet put back): in the basket sprint, after the
-repair, ForearmL:Marker1 and Marker4 come back from gaps of both of 72, 60 and 24 frames
-at frames 2313, 2382 and 2483 with their samples exchanged against their steadiest
-partners' offsets (15 cm off, 2-3 cm after the exchange), and at frames 2439-2459 their
-distances to the arm's markers read exchanged (23.8 / 17.6 cm against 18-19 / 25-26 on
-the rest of the take). Measured and not kept: those events found (each marker predicted
-from its steadiest partner seen at both ends of the gap) and put into the pair's events;
-with the majority counted over all frames it then flipped to the labelling as read at
-the start and the repairs of frames 684-731 and 1036-1037 were lost; counted over the
-frames a label is seen, those came back but the exchanged frames 2382-2482 fell in a
-majority stretch -- a toggle missed inside an earlier gap breaks the alternation -- and
-stayed. Putting it back needs every stretch judged by the distances, not by alternation.
+A swap made while the labeller saw neither marker (both hidden, any number of frames)
+shows as no event: where the pair has events elsewhere, the stretch it lies in -- taken
+as right by the alternation of the events -- is cut where both are hidden, and each piece
+after such a cut in which both are measured somewhere is put back where the distances
+say it is exchanged (both opinions, :func:`_stretch_states`). Found on the basket sprint
+(2026-12-06, twenty-second session): after the repair, ForearmL:Marker1 and Marker4 read
+exchanged at frames 2439-2459 (23.8 / 17.6 cm from ArmL:Marker1, against 18-19 / 25-26
+on the rest of the take), between gaps both labels share; those frames are now put
+back. Measured (``benchmarks/label_swaps.py``): swaps after a 1-5 frame shared gap put
+back 512 / 496 / 155 -> 606 / 606 / 311 of 682 at 0 / 0.1 / 0.5 cm noise (the swap back,
+an event, puts the pair under judgement; the swapped piece after the gap lies in the
+stretch before it), after a 6-60 frame shared gap (new kind) 513 / 499 / 286 of 644;
+every other kind unchanged, 0 cases worse but for the new kind's 23, all a 100-frame
+swap in the 202-frame HDM05 take, where the swap holds most of the take's frames and its
+labelling is taken as right (the same before this rule). Pieces with one marker measured
+were put back too at first: a false event on a tennis serve's wrist and finger (0.1 cm
+noise, the basket sprint's mask) then exchanged 18 frames of the wrist alone, 8 cases
+worse. Measured and not kept: events where two labels reappear together after a longer
+shared gap, each marker predicted from its steadiest partner (on the basket sprint
+ForearmL:Marker1/4 at frames 2313, 2382 and 2483, 15 cm off their predictions, 2-3 cm
+after an exchange), with the pair's majority counted over the frames a label is seen
+(over all frames, the extra events flipped the basket pair's majority and lost the
+repairs of frames 684-731 and 1036-1037): long shared gaps 513 -> 527 put back at 0 cm,
+but 1-5 frame shared gaps 606 -> 598 and 4 cases worse.
+
+Limits: a swap across a shared gap longer than :data:`SHARED_GAP_FRAMES` of a pair with
+no other event is not seen, nor a jump whose other end is hidden too; those are the
+outlier tests' and the gap policy's.
 
 >>> import numpy as np
 >>> from mocapkit import Motion, Skeleton
@@ -501,8 +515,10 @@ def repair_swaps(motion: Motion, **options) -> tuple[Motion, dict]:
             for k in range(int(np.searchsorted(fine, s)), int(np.searchsorted(fine, e))):
                 p, q, st = int(fine[k]), int(fine[k + 1]), states[k]
                 after |= bool(hid[p])
-                one = not (obs[p:q, a].any() and obs[p:q, b].any())
-                if after and not hid[p] and st == 1 and not (one and q - p < SWAP_PIECE_FRAMES):
+                # both measured in it: one marker's distances alone (a hand's wrist without
+                # its finger) exchanged pieces of labels a false event had cut
+                both = bool((obs[p:q, a] & obs[p:q, b]).any())
+                if after and not hid[p] and st == 1 and both:
                     _exchange(out_P, out_filled, obs, a, b, p, q, names, report)
     return _result(motion, out_P, out_filled, obs, report)
 

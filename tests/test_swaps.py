@@ -198,9 +198,43 @@ def test_a_real_label_jump_in_the_basket_sprint(shared_data):
         assert fixed.observed[3195:3227, x].all() and not fixed.observed[3202:3218, y].any()
         step = np.linalg.norm(np.diff(fixed.positions[3195:3227, x], axis=0), axis=1)
         assert step.max() < 0.5                    # cm: one marker's path, no hand-off
+    # Marker1 and Marker4 are exchanged again at frames 2439-2459, after gaps both labels
+    # share (no event: the labeller saw neither); those frames go back, as the arm's
+    # distances say (18-19 / 25-26 cm to ArmL:Marker1 on the rest of the take, 23.8 / 17.6
+    # as read)
+    assert {"markers": ["ForearmL:Marker4", "ForearmL:Marker1"], "start": 2439, "stop": 2447} in rep["repaired"]
+    arm = names.index("ArmL:Marker1")
+    for lab, want in ((a, 18.0), (b, 25.0)):
+        d = np.linalg.norm(fixed.positions[2439:2447, lab] - fixed.positions[2439:2447, arm], axis=1)
+        assert np.abs(np.median(d) - want) < 1.5
     # 1-3 frame pieces of ForearmL Marker2/Marker3 judged by one marker's distances alone
     # are left: their distances to Marker1 and Marker4 say they are labelled right
     assert not [x for x in rep["repaired"] if x["markers"] == ["ForearmL:Marker2", "ForearmL:Marker3"]]
+
+
+def test_a_swap_hidden_in_a_gap_both_markers_share_is_put_back():
+    """Markers 0 and 1 of a rigid cluster trade labels once where both can be seen (an
+    event: the pair is looked at), and again while both are hidden for 12 frames, then
+    back in another shared gap: no event marks the second stretch, which lies in the
+    labelling taken as right; the distances to the other markers say it is exchanged, and
+    it goes back. A stretch after a shared gap that is labelled right stays."""
+    P, _ = _random_take(np.random.default_rng(7), 0)
+    T = len(P)
+    d = np.linalg.norm(P[:, :, None] - P[:, None, :], axis=3).mean(axis=0)
+    np.fill_diagonal(d, np.inf)
+    a = 0
+    b = int(np.argmin(d[a]))
+    Q = P.copy()
+    Q[40:60, [a, b]] = P[40:60, [b, a]]                  # seen: two events
+    Q[120:132, [a, b]] = np.nan                          # both hidden, then exchanged
+    Q[132:170, [a, b]] = P[132:170, [b, a]]
+    Q[170:176, [a, b]] = np.nan                          # both hidden, then right again
+    Q[200:206, [a, b]] = np.nan                          # a shared gap with no swap
+    fixed, rep = repair_swaps(_markers(Q, fps=60.0))
+    F = np.asarray(fixed.positions)
+    ok = np.isfinite(Q).all(axis=2)
+    np.testing.assert_allclose(F[ok], P[ok], atol=1e-9)
+    assert any(r["start"] == 132 for r in rep["repaired"]) and T == 240
 
 
 def test_noise_alone_and_markers_passing_each_other_are_no_swap():
