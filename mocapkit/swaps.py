@@ -73,9 +73,9 @@ A swap at the end of a gap both markers share (up to :data:`SHARED_GAP_FRAMES` f
 the labeller lost both and gives each the other's label as they show again -- is found
 where each reappearing sample lies where the other's path, extrapolated over the gap,
 goes on (:func:`_across_shared_gaps`). Planted so (``benchmarks/label_swaps.py``, 1,019
-cases): 512 / 496 / 155 of 682 put back at 0 / 0.1 / 0.5 cm noise, 272 without the rule
-at 0 cm (and 3 cases worse, none with it); one case at 0.5 cm is worse after, by a pair
-toggle the noise made (a tennis serve's elbow pair).
+cases; before the rule below): 512 / 496 / 155 of 682 put back at 0 / 0.1 / 0.5 cm noise,
+272 without the rule at 0 cm (and 3 cases worse, none with it); one case at 0.5 cm was
+worse after, by a pair toggle the noise made (a tennis serve's elbow pair).
 
 A swap made while the labeller saw neither marker (both hidden, any number of frames)
 shows as no event: where the pair has events elsewhere, the stretch it lies in -- taken
@@ -456,7 +456,9 @@ def repair_swaps(motion: Motion, **options) -> tuple[Motion, dict]:
     (:func:`_stretch_states`): a false event, or a missed one, would otherwise exchange the
     rest of the take -- the geometry of a long stretch tells, and a short one costs little.
     Where both markers are missing at some of its frames (a swap back could hide there),
-    each piece between them is put back only where the distances say it is exchanged.
+    each piece between them is put back only where the distances say it is exchanged; so
+    is a piece of a stretch of the right labelling that follows such frames and has both
+    markers measured in it (a swap made while neither was seen).
 
     ``options`` go to :func:`find_swaps` (``partner``: whom each marker may swap with).
     Report: ``events`` (frame, marker names, step cm), ``repaired`` (stretches put back:
