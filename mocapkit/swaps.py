@@ -167,6 +167,16 @@ def _residuals(P: np.ndarray, observed: np.ndarray) -> tuple[np.ndarray, np.ndar
     return r, pred
 
 
+def _thresholds(r: np.ndarray, have: np.ndarray, factor: float, floor_cm: float
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """Per marker (J,): the median constant-velocity residual (cm) and the step threshold
+    ``max(floor_cm, factor x median)`` (module docstring)."""
+    scale = np.zeros(r.shape[1])
+    for j in np.flatnonzero(have.any(axis=0)):      # (a loop over markers, not frames)
+        scale[j] = np.median(r[have[:, j], j])
+    return scale, np.maximum(float(floor_cm), float(factor) * scale)
+
+
 def find_swaps(positions: np.ndarray, observed: np.ndarray, *, factor: float = SWAP_FACTOR,
                floor_cm: float = SWAP_FLOOR_CM, ratio: float = SWAP_RATIO,
                partner: np.ndarray | None = None) -> list[SwapEvent]:
@@ -194,10 +204,7 @@ def find_swaps(positions: np.ndarray, observed: np.ndarray, *, factor: float = S
         return []
     r, pred = _residuals(P, obs)
     have = np.isfinite(r)
-    scale = np.zeros(J)
-    for j in np.flatnonzero(have.any(axis=0)):      # (a loop over markers, not frames)
-        scale[j] = np.median(r[have[:, j], j])
-    thr = np.maximum(float(floor_cm), float(factor) * scale)               # (J,)
+    scale, thr = _thresholds(r, have, factor, floor_cm)
     with np.errstate(invalid="ignore"):
         steps = np.argwhere(r > thr[None, :])
     pairs: set[tuple[int, int]] = set()
@@ -314,6 +321,103 @@ def _across_shared_gaps(P: np.ndarray, obs: np.ndarray, thr: np.ndarray, ratio: 
         a, b = int(j[u[x]]), int(j[v[x]])
         if _apart(P, obs, a, b) > thr[a] + thr[b]:
             out.append(SwapEvent(int(t[u[x]]), min(a, b), max(a, b), float(max(own[u[x]], own[v[x]]))))
+    return out
+
+
+#: :func:`hidden_swap_pairs`: frames (evenly spaced) on which each marker's steadiest
+#: partners are picked, and how many are tried in turn for one seen at both ends of a gap
+HIDDEN_REF_FRAMES = 512
+HIDDEN_PARTNERS = 4
+
+
+def hidden_swap_pairs(positions: np.ndarray, observed: np.ndarray, *, factor: float = SWAP_FACTOR,
+                      floor_cm: float = SWAP_FLOOR_CM, ratio: float = SWAP_RATIO,
+                      partner: np.ndarray | None = None) -> set[tuple[int, int]]:
+    """Pairs of markers whose labels may have been exchanged while both were hidden: two
+    labels reappear at one frame ``t`` after gaps of which one at least is longer than
+    :data:`SHARED_GAP_FRAMES` (too long to extrapolate a path over, as
+    :func:`_across_shared_gaps` does), and exchanging the two reappearing samples brings
+    each within half their distance of where its steadiest partner puts the other marker
+    (the partner's sample at ``t`` plus the marker's offset from it when last seen; the
+    first of its :data:`HIDDEN_PARTNERS` steadiest, by the spread of their distance on
+    :data:`HIDDEN_REF_FRAMES` frames, seen at both ends of the gap and not the other
+    marker), the two distances at most ``ratio`` of those before the exchange. Markers
+    that keep within their two step thresholds are no pair. Not events: no step is seen,
+    and a labelling that changes where neither marker is seen breaks the alternation of
+    events; :func:`repair_swaps` judges such a pair by the distances alone, piece by piece
+    between the frames where both are hidden. Vectorised over every pair reappearing at one
+    frame."""
+    from .rigid import distance_stats
+
+    P = np.asarray(positions, dtype=float)
+    obs = np.asarray(observed, dtype=bool) & np.isfinite(P).all(axis=2)
+    T, J = obs.shape
+    if T < 3 or J < 3:
+        return set()
+    t, j = np.nonzero(obs[1:] & ~obs[:-1])
+    t = t + 1
+    last = np.maximum.accumulate(np.where(obs, np.arange(T)[:, None], -1), axis=0)
+    s = last[t - 1, j]
+    keep = s >= 0
+    t, j, s = t[keep], j[keep], s[keep]
+    long = (t - 1 - s) > SHARED_GAP_FRAMES
+    hot = np.isin(t, t[long])                 # frames where a marker is back from a long gap
+    t, j, s, long = t[hot], j[hot], s[hot], long[hot]
+    order = np.argsort(t, kind="stable")
+    t, j, s, long = t[order], j[order], s[order], long[order]
+    end = np.searchsorted(t, t, side="right")
+    count = end - np.arange(len(t)) - 1
+    if not count.sum():
+        return set()
+    u = np.repeat(np.arange(len(t)), count)                               # every pair at one frame
+    v = u + 1 + np.arange(len(u)) - np.repeat(np.cumsum(count) - count, count)
+    pick = (long[u] | long[v]) & ((j[u] != j[v]) if partner is None
+                                  else (partner[j[u]] == j[v]) & (partner[j[u]] != j[u]))
+    u, v = u[pick], v[pick]
+    if not len(u):
+        return set()
+    idx = np.unique(np.linspace(0, T - 1, min(T, HIDDEN_REF_FRAMES)).astype(int))
+    _, sd, _ = distance_stats(P[idx], obs[idx])
+    sd[np.arange(J), np.arange(J)] = np.nan
+    steady = np.argsort(np.where(np.isfinite(sd), sd, np.inf), axis=1)[:, :HIDDEN_PARTNERS]
+
+    def predict(x: np.ndarray, other: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(n, 3) where marker j[x] should be at t[x], and (n,) whether a partner said:
+        the partners' rigid motion from the marker's last frame to t[x] (Kabsch, with
+        three or more of them seen at both; their mean shift with fewer)."""
+        cand = steady[j[x]]                                                   # (n, K)
+        ok = (obs[s[x][:, None], cand] & obs[t[x][:, None], cand] & (cand != j[other][:, None])
+              & np.isfinite(sd[j[x][:, None], cand]))
+        w = ok.astype(float)[:, :, None]
+        n = np.maximum(w.sum(axis=1), 1.0)                                    # (n, 1)
+        A, B = P[s[x][:, None], cand], P[t[x][:, None], cand]                 # (n, K, 3)
+        A, B = np.where(ok[:, :, None], A, 0.0), np.where(ok[:, :, None], B, 0.0)
+        ca, cb = (w * A).sum(axis=1) / n, (w * B).sum(axis=1) / n
+        H = np.einsum("nki,nkj->nij", w * (A - ca[:, None]), B - cb[:, None])
+        U, _, Vt = np.linalg.svd(H)
+        D = np.ones((len(x), 3))
+        D[:, 2] = np.sign(np.linalg.det(np.einsum("nij,njk->nik", U, Vt)))
+        R = np.einsum("nji,nj,nkj->nik", Vt, D, U)                          # V diag(D) U^T
+        R[ok.sum(axis=1) < 3] = np.eye(3)
+        return cb + np.einsum("nij,nj->ni", R, P[s[x], j[x]] - ca), ok.any(axis=1)
+
+    pu, hu = predict(u, v)
+    pv, hv = predict(v, u)
+    now_u, now_v = P[t[u], j[u]], P[t[v], j[v]]
+    own = np.linalg.norm(now_u - pu, axis=1) + np.linalg.norm(now_v - pv, axis=1)
+    d_uv = np.linalg.norm(now_v - pu, axis=1)                             # v's sample as u's
+    d_vu = np.linalg.norm(now_u - pv, axis=1)
+    sep = np.linalg.norm(now_u - now_v, axis=1)
+    fits = hu & hv & (d_uv <= 0.5 * sep) & (d_vu <= 0.5 * sep) & (d_uv + d_vu <= float(ratio) * own)
+    if not fits.any():
+        return set()
+    r, _ = _residuals(P, obs)
+    _, thr = _thresholds(r, np.isfinite(r), factor, floor_cm)
+    out = set()
+    for x in np.flatnonzero(fits):                 # (the pairs found: a handful)
+        a, b = sorted((int(j[u[x]]), int(j[v[x]])))
+        if (a, b) not in out and _apart(P, obs, a, b) > thr[a] + thr[b]:
+            out.add((a, b))
     return out
 
 
@@ -474,13 +578,14 @@ def repair_swaps(motion: Motion, **options) -> tuple[Motion, dict]:
     events = find_swaps(P, obs, **options)
     report: dict = {"events": [{"frame": e.frame, "markers": [names[e.a], names[e.b]], "step_cm": e.step_cm}
                                for e in events], "repaired": [], "unrepaired": [], "doubtful": []}
-    if not events:
+    pairs = {(e.a, e.b) for e in events} | hidden_swap_pairs(P, obs, **options)
+    if not pairs:
         return motion, report
     T = P.shape[0]
     filled = np.asarray(motion.filled)
     out_P, out_filled = P.copy(), filled.copy()
-    swapping = np.array(sorted({e.a for e in events} | {e.b for e in events}))
-    for a, b in sorted({(e.a, e.b) for e in events}):
+    swapping = np.array(sorted({x for pair in pairs for x in pair}))
+    for a, b in sorted(pairs):
         bounds, minority = _minority([e.frame for e in events if (e.a, e.b) == (a, b)], T)
         right = np.ones(T, bool)
         for i in minority:

@@ -237,6 +237,36 @@ def test_a_swap_hidden_in_a_gap_both_markers_share_is_put_back():
     assert any(r["start"] == 132 for r in rep["repaired"]) and T == 240
 
 
+def test_a_swap_after_a_long_shared_gap_is_put_back_with_no_other_event():
+    """Marker 0 and its nearest neighbour in a rigid, turning cluster are hidden together
+    for 30 frames and come back exchanged (no step, no event), until both are hidden again
+    for 10 frames: the partners' rigid motion puts each where the other is, the distances
+    to the other markers say the stretch between the gaps is exchanged (the labelling of
+    most of the take is taken as right), and it goes back. The same gaps with no exchange
+    change nothing."""
+    from mocapkit.swaps import hidden_swap_pairs
+
+    P, _ = _random_take(np.random.default_rng(11), 0)
+    d = np.linalg.norm(P[:, :, None] - P[:, None, :], axis=3).mean(axis=0)
+    np.fill_diagonal(d, np.inf)
+    a = 0
+    b = int(np.argmin(d[a]))
+    Q = P.copy()
+    Q[100:130, [a, b]] = np.nan
+    Q[190:200, [a, b]] = np.nan
+    clean = Q.copy()
+    Q[130:190, [a, b]] = P[130:190, [b, a]]
+    assert find_swaps(Q, np.isfinite(Q).all(axis=2)) == []
+    assert hidden_swap_pairs(Q, np.isfinite(Q).all(axis=2)) == {tuple(sorted((a, b)))}
+    fixed, rep = repair_swaps(_markers(Q, fps=60.0))
+    ok = np.isfinite(Q).all(axis=2)
+    np.testing.assert_allclose(np.asarray(fixed.positions)[ok], P[ok], atol=1e-9)
+    assert [(r["start"], r["stop"]) for r in rep["repaired"]] == [(130, 190)]
+    assert hidden_swap_pairs(clean, np.isfinite(clean).all(axis=2)) == set()
+    same, rep = repair_swaps(_markers(clean, fps=60.0))
+    assert not rep["repaired"]
+
+
 def test_noise_alone_and_markers_passing_each_other_are_no_swap():
     rng = np.random.default_rng(0)
     P = _three(400) + rng.normal(0, 0.3, (400, 3, 3))
