@@ -14,7 +14,9 @@ does) -- with a mask, also swaps that start where a marker reappears after a gap
 15 cm, for the swap length while its own marker is hidden; the neighbour's label is
 missing meanwhile); and 3 swaps that start where both markers come back from a gap of
 1-5 frames they share (``shared gap``: a swap planted anywhere, both markers hidden for
-the frames just before it), and 3 after a shared gap of 6-60 frames (``long shared gap``).
+the frames just before it), 3 after a shared gap of 6-60 frames (``long shared gap``), and
+3 that start and end in shared gaps of 6-60 frames (``between shared gaps``: no step of
+either label is seen).
 Scored:
 
 * ``put back``: planted swaps whose every sample carries its own marker's trajectory
@@ -95,7 +97,8 @@ def run(data: Path, a) -> dict:
                         false_rows.append({"target": name, "mask": mkey, "noise_cm": noise,
                                            "events": len(find_swaps(base.positions, base.observed))})
                     kinds = ("anywhere",) if src is None else ("anywhere", "at a gap end")
-                    for L, kind in [(L, k) for L in LENGTHS for k in kinds + ("shared gap", "long shared gap", "jump")]:
+                    for L, kind in [(L, k) for L in LENGTHS
+                                    for k in kinds + ("shared gap", "long shared gap", "between shared gaps", "jump")]:
                         if L >= tgt.n_frames // 2:
                             continue
                         sw, planted, swaps, held = _plant(base, L, seed, kind)
@@ -174,17 +177,21 @@ def _plant(base, L: int, seed: int, kind: str = "anywhere"):
     sw, planted, swaps, held = base, np.zeros(base.observed.shape, bool), [], base
     for i in range(N_SWAPS):
         ss = np.random.SeedSequence([seed, L, i])
-        if kind in ("shared gap", "long shared gap"):
+        if kind in ("shared gap", "long shared gap", "between shared gaps"):
             nxt, pm = corrupt.label_swaps(sw, n_swaps=1, length=L, max_distance_cm=MAX_DISTANCE_CM, seed=ss)
             if not pm.any() or (pm.any(axis=0) & planted.any(axis=0)).any():
                 continue
-            s0 = int(np.flatnonzero(pm.any(axis=1))[0])
-            g = (1 if kind == "shared gap" else 6) + int(np.random.default_rng(ss).integers(0, 5 if kind == "shared gap" else 55))
+            rows = np.flatnonzero(pm.any(axis=1))
+            s0, e0 = int(rows[0]), int(rows[-1]) + 1
+            rng = np.random.default_rng(ss)
+            g = (1 if kind == "shared gap" else 6) + int(rng.integers(0, 5 if kind == "shared gap" else 55))
+            g2 = 6 + int(rng.integers(0, 55)) if kind == "between shared gaps" else 0
             cols = np.flatnonzero(pm.any(axis=0))
-            if s0 - g < 2 or not sw.observed[s0 - g - 2:s0][:, cols].all():
+            if s0 - g < 2 or not sw.observed[s0 - g - 2:s0][:, cols].all() or e0 + g2 > sw.n_frames:
                 continue
             hide = np.zeros_like(pm)
             hide[s0 - g:s0, cols] = True
+            hide[e0:e0 + g2, cols] = True
             sw = nxt.with_positions(np.asarray(nxt.positions), nxt.observed & ~hide)
             held = held.with_positions(np.asarray(held.positions), held.observed & ~hide)
             planted = planted | pm
@@ -228,6 +235,11 @@ def _auto(sw, truth_motion, planted, name, L, seed, kind="anywhere") -> dict:
             "written_with_repair": float(np.isfinite(res["with"][planted]).all(axis=1).mean())}
 
 
+_KIND_LABEL = {"jump": "a label jump", "shared gap": "after a gap of both",
+               "long shared gap": "after a gap of both, 6-60 frames",
+               "between shared gaps": "between two gaps of both, 6-60 frames (no event)"}
+
+
 def _cases(n: int) -> str:
     return f"{n} case{'' if n == 1 else 's'}"
 
@@ -252,7 +264,8 @@ def to_markdown(res: dict) -> str:
           "## Planted swaps put back", "",
           "| mask | planted | noise (cm) | length (frames) | cases | swaps planted | put back | % | samples wrong before | after | cases worse after | events found | stretches left as measured |",
           "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
-    order = {"anywhere": 0, "at a gap end": 1, "shared gap": 2, "long shared gap": 3, "jump": 4}
+    order = {"anywhere": 0, "at a gap end": 1, "shared gap": 2, "long shared gap": 3, "between shared gaps": 4,
+             "jump": 5}
     keys = sorted({(r["mask"] or "", order[r["kind"]], r["noise_cm"], r["length"]) for r in rows})
     for mk, ko, nz, L in keys:
         kind = next(k for k, v in order.items() if v == ko)
@@ -260,7 +273,7 @@ def to_markdown(res: dict) -> str:
                and r["noise_cm"] == nz and r["length"] == L]
         p = sum(r["planted"] for r in sel)
         b = sum(r["put_back"] for r in sel)
-        md.append(f"| {mk or 'none'} | {'a label jump' if kind == 'jump' else 'after a gap of both' if kind == 'shared gap' else 'after a gap of both, 6-60 frames' if kind == 'long shared gap' else kind} | {nz:g} | {L} | {len(sel)} | {p} | {b} | "
+        md.append(f"| {mk or 'none'} | {_KIND_LABEL.get(kind, kind)} | {nz:g} | {L} | {len(sel)} | {p} | {b} | "
                   f"{100 * b / max(p, 1):.0f} | "
                   f"{sum(r['planted_samples'] for r in sel)} | {sum(r['wrong_after'] for r in sel)} | "
                   f"{sum(r['wrong_after'] > r['planted_samples'] for r in sel)} | "

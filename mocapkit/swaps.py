@@ -94,17 +94,25 @@ swap in the 202-frame HDM05 take, where the swap holds most of the take's frames
 labelling is taken as right (the same before this rule). Pieces with one marker measured
 were put back too at first: a false event on a tennis serve's wrist and finger (0.1 cm
 noise, the basket sprint's mask) then exchanged 18 frames of the wrist alone, 8 cases
-worse. Measured and not kept: events where two labels reappear together after a longer
-shared gap, each marker predicted from its steadiest partner (on the basket sprint
-ForearmL:Marker1/4 at frames 2313, 2382 and 2483, 15 cm off their predictions, 2-3 cm
-after an exchange), with the pair's majority counted over the frames a label is seen
-(over all frames, the extra events flipped the basket pair's majority and lost the
-repairs of frames 684-731 and 1036-1037): long shared gaps 513 -> 527 put back at 0 cm,
-but 1-5 frame shared gaps 606 -> 598 and 4 cases worse.
+worse.
 
-Limits: a swap across a shared gap longer than :data:`SHARED_GAP_FRAMES` of a pair with
-no other event is not seen, nor a jump whose other end is hidden too; those are the
-outlier tests' and the gap policy's.
+A pair whose two labels come back together after a longer shared gap with their samples
+exchanged (:func:`hidden_swap_pairs`: the partners' rigid motion over the gap puts each
+marker where the other shows) is judged the same way even with no event at all: its
+pieces after the frames where both are hidden are put back where the distances say so.
+Such a pair gives no event: a change of labels where neither marker is seen breaks the
+alternation of events. Planted between two shared gaps of 6-60 frames (``between shared
+gaps``, no step of either label seen): 0 -> 263 / 258 / 9 of 604-607 put back at 0 /
+0.1 / 0.5 cm noise, 6 cases worse -- again the 202-frame HDM05 take with a 100-frame
+swap --, every other kind unchanged. Measured and not kept: the same reappearances as
+events (with a translation from one partner), with the pair's majority counted over the
+frames a label is seen (over all frames, the extra events flipped the basket pair's
+majority and lost the repairs of frames 684-731 and 1036-1037): long shared gaps 513 ->
+527 put back at 0 cm, but 1-5 frame shared gaps 606 -> 598 and 4 cases worse.
+
+Limits: a labelling that holds on most of a take is taken as right, whatever it is (a
+100-frame swap in a 202-frame take is put the wrong way); a jump whose other end is
+hidden too is not seen; those are the outlier tests' and the gap policy's.
 
 >>> import numpy as np
 >>> from mocapkit import Motion, Skeleton
@@ -129,7 +137,7 @@ import numpy as np
 
 from .motion import Motion
 
-__all__ = ["SwapEvent", "find_swaps", "repair_swaps", "repair_side_flips", "repair_labels", "summary_line",
+__all__ = ["SwapEvent", "find_swaps", "hidden_swap_pairs", "repair_swaps", "repair_side_flips", "repair_labels", "summary_line",
            "SWAP_FACTOR", "SWAP_FLOOR_CM", "SWAP_RATIO"]
 
 #: a step: the constant-velocity residual over this many times the marker's median residual
