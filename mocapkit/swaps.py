@@ -283,6 +283,26 @@ def find_swaps(positions: np.ndarray, observed: np.ndarray, *, factor: float = S
 SHARED_GAP_FRAMES = 5
 
 
+def _reappearances(obs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every frame ``t`` where marker ``j`` is seen again after a gap, and ``s`` the frame it
+    was last seen before (-1: never): (n,) int arrays each."""
+    T = obs.shape[0]
+    t, j = np.nonzero(obs[1:] & ~obs[:-1])
+    t = t + 1
+    last = np.maximum.accumulate(np.where(obs, np.arange(T)[:, None], -1), axis=0)
+    return t, j, last[t - 1, j]
+
+
+def _pairs_within(key: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For a sorted (n,) ``key``: every pair (u, v), u < v, of positions that share a
+    value, as two index arrays (vectorised: no loop over the groups)."""
+    end = np.searchsorted(key, key, side="right")                          # (n,) each group's end
+    count = end - np.arange(len(key)) - 1
+    u = np.repeat(np.arange(len(key)), count)
+    v = u + 1 + np.arange(len(u)) - np.repeat(np.cumsum(count) - count, count)
+    return u, v
+
+
 def _across_shared_gaps(P: np.ndarray, obs: np.ndarray, thr: np.ndarray, ratio: float,
                         partner: np.ndarray | None) -> list[SwapEvent]:
     """Swaps at the end of a gap both markers share (up to :data:`SHARED_GAP_FRAMES`
@@ -294,27 +314,18 @@ def _across_shared_gaps(P: np.ndarray, obs: np.ndarray, thr: np.ndarray, ratio: 
     distances after the exchange are at most ``ratio`` of those before; only markers that
     keep further apart than their two thresholds. Vectorised over every pair of markers
     that reappear at one frame after the same gap (no loop over frames)."""
-    T = obs.shape[0]
-    t, j = np.nonzero(obs[1:] & ~obs[:-1])
-    t = t + 1                                                               # (t, j): j reappears at t
-    # frames since each marker was last seen (its gap's length where it reappears)
-    last = np.maximum.accumulate(np.where(obs, np.arange(T)[:, None], -1), axis=0)
-    s = last[t - 1, j]
-    g = t - 1 - s
+    t, j, s = _reappearances(obs)                  # j seen again at t, last seen at s
+    g = t - 1 - s                                  # the gap's length
     ok = (s >= 1) & (g <= SHARED_GAP_FRAMES)
     ok[ok] &= obs[s[ok] - 1, j[ok]]
     t, j, s, g = t[ok], j[ok], s[ok], g[ok]
-    # every pair reappearing at one frame after the same gap: sorted by (t, g), each element
-    # with those after it in its group
+    # every pair reappearing at one frame after the same gap: sorted by (t, g)
     key = t * (SHARED_GAP_FRAMES + 1) + g
     order = np.argsort(key, kind="stable")
     t, j, s, g, key = t[order], j[order], s[order], g[order], key[order]
-    end = np.searchsorted(key, key, side="right")                          # (n,) each group's end
-    count = end - np.arange(len(key)) - 1
-    if not count.sum():
+    u, v = _pairs_within(key)
+    if not len(u):
         return []
-    u = np.repeat(np.arange(len(key)), count)
-    v = u + 1 + np.arange(len(u)) - np.repeat(np.cumsum(count) - count, count)
     pred = P[s, j] + (g + 1)[:, None] * (P[s, j] - P[s - 1, j])           # (n, 3) at t
     now = P[t, j]
     own = np.linalg.norm(now - pred, axis=1)
@@ -362,10 +373,7 @@ def hidden_swap_pairs(positions: np.ndarray, observed: np.ndarray, *, factor: fl
     T, J = obs.shape
     if T < 3 or J < 3:
         return set()
-    t, j = np.nonzero(obs[1:] & ~obs[:-1])
-    t = t + 1
-    last = np.maximum.accumulate(np.where(obs, np.arange(T)[:, None], -1), axis=0)
-    s = last[t - 1, j]
+    t, j, s = _reappearances(obs)
     keep = s >= 0
     t, j, s = t[keep], j[keep], s[keep]
     long = (t - 1 - s) > SHARED_GAP_FRAMES
@@ -373,12 +381,7 @@ def hidden_swap_pairs(positions: np.ndarray, observed: np.ndarray, *, factor: fl
     t, j, s, long = t[hot], j[hot], s[hot], long[hot]
     order = np.argsort(t, kind="stable")
     t, j, s, long = t[order], j[order], s[order], long[order]
-    end = np.searchsorted(t, t, side="right")
-    count = end - np.arange(len(t)) - 1
-    if not count.sum():
-        return set()
-    u = np.repeat(np.arange(len(t)), count)                               # every pair at one frame
-    v = u + 1 + np.arange(len(u)) - np.repeat(np.cumsum(count) - count, count)
+    u, v = _pairs_within(t)                   # every pair seen again at one frame
     pick = (long[u] | long[v]) & ((j[u] != j[v]) if partner is None
                                   else (partner[j[u]] == j[v]) & (partner[j[u]] != j[u]))
     u, v = u[pick], v[pick]
