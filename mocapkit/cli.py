@@ -234,6 +234,8 @@ def cmd_info(a: argparse.Namespace) -> int:
             info["side_flips"] = rep["flips"]
         elif rep is not None:
             info["label_swap_steps"] = [{**e, "step_cm": round(e["step_cm"], 1)} for e in rep["events"]]
+            if rep.get("hidden_pairs"):
+                info["label_swaps_hidden"] = rep["hidden_pairs"]
     if a.gaps:
         from .gaps import find_gaps, gap_table
 
@@ -257,6 +259,10 @@ def cmd_info(a: argparse.Namespace) -> int:
                 v = (f"{len(v)} (" + ", ".join(f"{'/'.join(x['markers'])} at frame {x['frame']}" for x in v[:4])
                      + (", ..." if len(v) > 4 else "") + "; `mocapkit denoise` puts back the stretches it can tell)"
                      ) if v else "none"
+            if k == "label_swaps_hidden":
+                k, v = "hidden swaps", (", ".join("/".join(x) for x in v)
+                                        + " (came back exchanged after a gap both share; `mocapkit denoise` "
+                                          "puts back the stretches their distances tell)")
             if k != "diagnosis":
                 print(f"{k:>16}: {v}")
         for line in (diag.lines() if diag is not None else []):

@@ -575,8 +575,9 @@ def repair_swaps(motion: Motion, **options) -> tuple[Motion, dict]:
     is a piece of a stretch of the right labelling that follows such frames and has both
     markers measured in it (a swap made while neither was seen).
 
-    ``options`` go to :func:`find_swaps` (``partner``: whom each marker may swap with).
-    Report: ``events`` (frame, marker names, step cm), ``repaired`` (stretches put back:
+    ``options`` go to :func:`find_swaps` and :func:`hidden_swap_pairs` (``partner``: whom
+    each marker may swap with). Report: ``events`` (frame, marker names, step cm),
+    ``hidden_pairs`` (the pairs of :func:`hidden_swap_pairs`, by name), ``repaired`` (stretches put back:
     markers, start, stop frame), ``unrepaired`` (stretches between two events left as
     measured: both markers missing at a frame inside, or distances that say it is labelled
     right -- a likely swap the repair could not take, which the CLI names), ``doubtful``
@@ -587,9 +588,11 @@ def repair_swaps(motion: Motion, **options) -> tuple[Motion, dict]:
     obs = np.asarray(motion.observed) & np.isfinite(P).all(axis=2)
     names = list(motion.skeleton.names)
     events = find_swaps(P, obs, **options)
+    hidden = hidden_swap_pairs(P, obs, **options)
     report: dict = {"events": [{"frame": e.frame, "markers": [names[e.a], names[e.b]], "step_cm": e.step_cm}
-                               for e in events], "repaired": [], "unrepaired": [], "doubtful": []}
-    pairs = {(e.a, e.b) for e in events} | hidden_swap_pairs(P, obs, **options)
+                               for e in events], "repaired": [], "unrepaired": [], "doubtful": [],
+                    "hidden_pairs": [[names[a], names[b]] for a, b in sorted(hidden)]}
+    pairs = {(e.a, e.b) for e in events} | hidden
     if not pairs:
         return motion, report
     T = P.shape[0]
@@ -755,13 +758,14 @@ def repair_labels(motion: Motion) -> tuple[Motion, dict | None]:
 
 
 def summary_line(report: dict | None) -> str | None:
-    """One line for a user: the swaps put back and those left (None when no event).
+    """One line for a user: the swaps put back and those left (None when there is no event
+    and nothing was put back).
 
     >>> summary_line({"events": [1, 2], "repaired": [{"markers": ["A", "B"], "start": 80, "stop": 120}],
     ...               "unrepaired": []})
     'label swaps: 1 stretch put back (A/B frames 80-119)'
     """
-    if not report or not report.get("events"):
+    if not report or not (report.get("events") or report.get("repaired")):
         return None
 
     def spans(items: list[dict]) -> str:

@@ -237,7 +237,7 @@ def test_a_swap_hidden_in_a_gap_both_markers_share_is_put_back():
     assert any(r["start"] == 132 for r in rep["repaired"]) and T == 240
 
 
-def test_a_swap_after_a_long_shared_gap_is_put_back_with_no_other_event():
+def test_a_swap_after_a_long_shared_gap_is_put_back_with_no_other_event(tmp_path, capsys):
     """Marker 0 and its nearest neighbour in a rigid, turning cluster are hidden together
     for 30 frames and come back exchanged (no step, no event), until both are hidden again
     for 10 frames: the partners' rigid motion puts each where the other is, the distances
@@ -265,6 +265,17 @@ def test_a_swap_after_a_long_shared_gap_is_put_back_with_no_other_event():
     assert hidden_swap_pairs(clean, np.isfinite(clean).all(axis=2)) == set()
     same, rep = repair_swaps(_markers(clean, fps=60.0))
     assert not rep["repaired"]
+    # `mocapkit info --diagnose` names the pair (no step of it is seen) and denoise's line
+    # names the stretch
+    from mocapkit.cli import main
+
+    src = tmp_path / "hidden.trc"
+    io.write(_markers(Q, fps=60.0), src)
+    assert main(["info", str(src), "--diagnose"]) == 0
+    out = capsys.readouterr().out
+    assert "label_swap_steps: none" in out and f"hidden swaps: M{min(a, b)}/M{max(a, b)} (came back" in out
+    assert main(["denoise", str(src), str(tmp_path / "clean.trc")]) == 0
+    assert f"label swaps: 1 stretch put back (M{min(a, b)}/M{max(a, b)} frames 130-189)" in capsys.readouterr().out
 
 
 def test_noise_alone_and_markers_passing_each_other_are_no_swap():

@@ -289,7 +289,7 @@ def _guard(fn):
         fit = self.last_report_.get("model_fit") if self.misfit_check and getattr(self, "warn", True) else None
         out = self._after_policy(apply_policy(motion, raw, evidence=self.fill_evidence, method=self.name,
                                               unvalidated=unvalidated, misfit=misfit, fit=fit))
-        if swaps is not None and swaps["events"]:
+        if swaps is not None and (swaps["events"] or swaps.get("repaired")):
             out = out.with_source(swaps=swaps)
         return out.with_source(**self.last_report_) if self.last_report_ else out
 
