@@ -332,8 +332,7 @@ def _across_shared_gaps(P: np.ndarray, obs: np.ndarray, thr: np.ndarray, ratio: 
     d_uv = np.linalg.norm(now[v] - pred[u], axis=1)                       # v's sample as u's
     d_vu = np.linalg.norm(now[u] - pred[v], axis=1)
     lim = thr[j] * (g + 1)
-    allowed = (j[u] != j[v]) if partner is None else (partner[j[u]] == j[v]) & (partner[j[u]] != j[u])
-    fits = (allowed & (d_uv <= lim[u]) & (d_vu <= lim[v])
+    fits = (_may_swap(j[u], j[v], partner) & (d_uv <= lim[u]) & (d_vu <= lim[v])
             & (d_uv + d_vu <= ratio * (own[u] + own[v])))
     out = []
     for x in np.flatnonzero(fits):                 # (the pairs found: a handful)
@@ -343,8 +342,8 @@ def _across_shared_gaps(P: np.ndarray, obs: np.ndarray, thr: np.ndarray, ratio: 
     return out
 
 
-#: :func:`hidden_swap_pairs`: frames (evenly spaced) on which each marker's steadiest
-#: partners are picked, and how many are tried in turn for one seen at both ends of a gap
+#: :func:`hidden_swap_pairs`: frames (evenly spaced) on which each marker's most rigid
+#: partners are picked, and how many of them carry it over a gap
 HIDDEN_REF_FRAMES = 512
 HIDDEN_PARTNERS = 4
 
@@ -355,11 +354,11 @@ def hidden_swap_pairs(positions: np.ndarray, observed: np.ndarray, *, ratio: flo
     labels reappear at one frame ``t`` after gaps of which one at least is longer than
     :data:`SHARED_GAP_FRAMES` (too long to extrapolate a path over, as
     :func:`_across_shared_gaps` does), and exchanging the two reappearing samples brings
-    each within half their distance of where its steadiest partner puts the other marker
-    (the partner's sample at ``t`` plus the marker's offset from it when last seen; the
-    first of its :data:`HIDDEN_PARTNERS` steadiest, by the spread of their distance on
-    :data:`HIDDEN_REF_FRAMES` frames, seen at both ends of the gap and not the other
-    marker), the two distances at most ``ratio`` of those before the exchange: the
+    each within half their distance of where the other marker's partners put it: its
+    :data:`HIDDEN_PARTNERS` most rigid partners (:func:`mocapkit.rigid.rigid_partners` on
+    :data:`HIDDEN_REF_FRAMES` frames) seen at both ends of its gap, not the other marker,
+    moved rigidly from its last frame to ``t`` (Kabsch with three or more, their mean
+    shift with fewer); the two distances at most ``ratio`` of those before the exchange: the
     prediction's own error must be small against the two markers' distance, so no step
     threshold is asked (with it, as for the steps, pairs within 15 cm under 0.5 cm noise
     were never found: 9 of 607 planted put back, against 191). Not events: no step is seen,
@@ -367,7 +366,7 @@ def hidden_swap_pairs(positions: np.ndarray, observed: np.ndarray, *, ratio: flo
     events; :func:`repair_swaps` judges such a pair by the distances alone, piece by piece
     between the frames where both are hidden. Vectorised over every pair reappearing at one
     frame."""
-    from .rigid import distance_stats
+    from .rigid import rigid_partners
 
     P = np.asarray(positions, dtype=float)
     obs = np.asarray(observed, dtype=bool) & np.isfinite(P).all(axis=2)
@@ -383,15 +382,11 @@ def hidden_swap_pairs(positions: np.ndarray, observed: np.ndarray, *, ratio: flo
     order = np.argsort(t, kind="stable")
     t, j, s, long = t[order], j[order], s[order], long[order]
     u, v = _pairs_within(t)                   # every pair seen again at one frame
-    pick = (long[u] | long[v]) & ((j[u] != j[v]) if partner is None
-                                  else (partner[j[u]] == j[v]) & (partner[j[u]] != j[u]))
+    pick = (long[u] | long[v]) & _may_swap(j[u], j[v], partner)
     u, v = u[pick], v[pick]
     if not len(u):
         return set()
-    idx = np.unique(np.linspace(0, T - 1, min(T, HIDDEN_REF_FRAMES)).astype(int))
-    _, sd, _ = distance_stats(P[idx], obs[idx])
-    sd[np.arange(J), np.arange(J)] = np.nan
-    steady = np.argsort(np.where(np.isfinite(sd), sd, np.inf), axis=1)[:, :HIDDEN_PARTNERS]
+    steady, real, _, _ = rigid_partners(P, obs, n_partners=HIDDEN_PARTNERS, n_ref=HIDDEN_REF_FRAMES)
 
     def predict(x: np.ndarray, other: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(n, 3) where marker j[x] should be at t[x], and (n,) whether a partner said:
@@ -399,7 +394,7 @@ def hidden_swap_pairs(positions: np.ndarray, observed: np.ndarray, *, ratio: flo
         three or more of them seen at both; their mean shift with fewer)."""
         cand = steady[j[x]]                                                   # (n, K)
         ok = (obs[s[x][:, None], cand] & obs[t[x][:, None], cand] & (cand != j[other][:, None])
-              & np.isfinite(sd[j[x][:, None], cand]))
+              & real[j[x]])
         w = ok.astype(float)[:, :, None]
         n = np.maximum(w.sum(axis=1), 1.0)                                    # (n, 1)
         A, B = P[s[x][:, None], cand], P[t[x][:, None], cand]                 # (n, K, 3)
@@ -431,12 +426,17 @@ def _apart(P: np.ndarray, obs: np.ndarray, a: int, b: int) -> float:
     return float(np.median(np.linalg.norm(P[both, a] - P[both, b], axis=1))) if both.any() else 0.0
 
 
-def _allowed(a: np.ndarray, J: int, partner: np.ndarray | None) -> np.ndarray:
-    """(N, J) the markers each of ``a`` (N,) may swap with: any other, or its ``partner``."""
-    others = np.arange(J)[None, :]
+def _may_swap(a: np.ndarray, b: np.ndarray, partner: np.ndarray | None) -> np.ndarray:
+    """Whether marker ``a`` may swap with marker ``b`` (int arrays, broadcast): any other,
+    or its ``partner``."""
     if partner is None:
-        return others != a[:, None]
-    return (others == partner[a][:, None]) & (partner[a] != a)[:, None]
+        return a != b
+    return (b == partner[a]) & (partner[a] != a)
+
+
+def _allowed(a: np.ndarray, J: int, partner: np.ndarray | None) -> np.ndarray:
+    """(N, J) the markers each of ``a`` (N,) may swap with."""
+    return _may_swap(a[:, None], np.arange(J)[None, :], partner)
 
 
 def _pair_toggles(P: np.ndarray, r: np.ndarray, pred: np.ndarray, a: int, b: int, scale: np.ndarray,

@@ -219,7 +219,6 @@ def test_a_swap_hidden_in_a_gap_both_markers_share_is_put_back():
     labelling taken as right; the distances to the other markers say it is exchanged, and
     it goes back. A stretch after a shared gap that is labelled right stays."""
     P, _ = _random_take(np.random.default_rng(7), 0)
-    T = len(P)
     d = np.linalg.norm(P[:, :, None] - P[:, None, :], axis=3).mean(axis=0)
     np.fill_diagonal(d, np.inf)
     a = 0
@@ -234,7 +233,7 @@ def test_a_swap_hidden_in_a_gap_both_markers_share_is_put_back():
     F = np.asarray(fixed.positions)
     ok = np.isfinite(Q).all(axis=2)
     np.testing.assert_allclose(F[ok], P[ok], atol=1e-9)
-    assert any(r["start"] == 132 for r in rep["repaired"]) and T == 240
+    assert any(r["start"] == 132 for r in rep["repaired"])
 
 
 def test_a_swap_after_a_long_shared_gap_is_put_back_with_no_other_event(tmp_path, capsys):

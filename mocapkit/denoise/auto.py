@@ -505,7 +505,7 @@ class Auto(Denoiser):
             hole[:, cols] = np.where(info.hole_map > 0, info.hole_map, hole[:, cols])
         return {"kept": kept, "hole": hole}
 
-    def _fill_long(self, motion: Motion, out: np.ndarray, long: np.ndarray, holes: np.ndarray | None = None
+    def _fill_long(self, motion: Motion, out: np.ndarray, long: np.ndarray, holes: np.ndarray
                    ) -> tuple[np.ndarray, np.ndarray, dict]:
         """Long gaps by fill-auto; returns the new matrix, the per-sample error estimate
         (T, 3J): for every frame fill-auto filled, the validated error of the candidate that
@@ -516,10 +516,9 @@ class Auto(Denoiser):
         filled for fill-auto's candidates (:data:`mocapkit.rigid.KINEMATIC_MAX_GAIN`)."""
         filler = get("fill-auto", candidates=FILL_CANDIDATES, max_error_cm=self.max_fill_error_cm)
         work = motion.with_matrix(np.where(long, np.nan, out), observed=~long[:, ::3])
-        if holes is not None:
-            # the spline's values are no measurement: a fill resting on them must know it
-            short = (holes & ~long).reshape(len(holes), -1, 3).any(axis=2)
-            work = work.with_filled(work.filled | short)
+        # the spline's values are no measurement: a fill resting on them must know it
+        short = (holes & ~long).reshape(len(holes), -1, 3).any(axis=2)
+        work = work.with_filled(work.filled | short)
         filled = filler.denoise(work)
         Y = filled.matrix()
         take = long & np.isfinite(Y)
