@@ -102,9 +102,9 @@ marker where the other shows) is judged the same way even with no event at all: 
 pieces after the frames where both are hidden are put back where the distances say so.
 Such a pair gives no event: a change of labels where neither marker is seen breaks the
 alternation of events. Planted between two shared gaps of 6-60 frames (``between shared
-gaps``, no step of either label seen): 0 -> 361 / 332 / 191 of 604-607 put back at 0 /
+gaps``, no step of either label seen): 0 -> 394 / 365 / 167 of 604-607 put back at 0 /
 0.1 / 0.5 cm noise, 8 cases worse -- again the 202-frame HDM05 take with a 100-frame
-swap --, every other kind unchanged (long shared gaps at 0.5 cm 286 -> 288). Measured and not kept: the same reappearances as
+swap --, every other kind unchanged (long shared gaps at 0.1 cm 499 -> 501). Measured and not kept: the same reappearances as
 events (with a translation from one partner), with the pair's majority counted over the
 frames a label is seen (over all frames, the extra events flipped the basket pair's
 majority and lost the repairs of frames 684-731 and 1036-1037): long shared gaps 513 ->
@@ -361,7 +361,7 @@ def hidden_swap_pairs(positions: np.ndarray, observed: np.ndarray, *, ratio: flo
     shift with fewer); the two distances at most ``ratio`` of those before the exchange: the
     prediction's own error must be small against the two markers' distance, so no step
     threshold is asked (with it, as for the steps, pairs within 15 cm under 0.5 cm noise
-    were never found: 9 of 607 planted put back, against 191). Not events: no step is seen,
+    were never found: 9 of 607 planted put back, against 191 with them). Not events: no step is seen,
     and a labelling that changes where neither marker is seen breaks the alternation of
     events; :func:`repair_swaps` judges such a pair by the distances alone, piece by piece
     between the frames where both are hidden. Vectorised over every pair reappearing at one
