@@ -129,6 +129,12 @@ CANDIDATES = {
     "2,500 pairs per representation": {"n_features": 2500},
     "up to 5 channels per kernel": {"max_channels": 5},
     "up to 16 dilations": {"max_dilations": 16},
+    # fifteenth round (2026-12-06, twenty-third session): style mixing across the training
+    # subjects -- each augmented copy moved by lam (X_j - X_i) towards or away from another
+    # training clip j of its class, lam uniform in +-mix (away: styles beyond the training
+    # subjects', e.g. a lower throw than any of them makes)
+    "same-class style mix 0.3": {"mix": 0.3},
+    "same-class style mix 0.6": {"mix": 0.6},
 }
 # candidate keys that are no RocketClassifier parameter: ``skeleton_weight`` w averages the
 # default's softmax probabilities (1 - w) with the skeleton classifier's (w), a late fusion of
@@ -692,6 +698,13 @@ def main() -> None:
           "representation and 12 channels per kernel had both lowered the inner scores -- 2,500 pairs, at "
           "most 5 channels per kernel, at most 16 dilations (differences above): none reached the rule; the "
           "default is unchanged.", "",
+          "Fifteenth round (twenty-third session): style mixing across the training subjects (`mix`: each "
+          "augmented copy of a clip i moved by lam (X_j - X_i) towards or away from another training clip j "
+          "of its class, lam uniform in +-mix; away from j gives styles beyond the training subjects', e.g. a "
+          "throw lower than any of theirs, which is how test subject 2 throws). mix 0.3 and 0.6 lowered the "
+          "inner cross-subject score (-1.1 / -1.8 points against the default at seed 0) and raised the inner half splits (+0.7 / +0.7): "
+          "a clip mixed with other subjects' clips of its class teaches the classes' common shape, which "
+          "pays where the test subject is also in training (half splits), not for a new subject. Not kept.", "",
           "### Views, HYDRA, seeds, test-time augmentation (`benchmarks/run_recognition_explore.py`)", "",
           "Components: `base0` / `base1` = the previous default (joint trajectories, MultiRocket + augmentation "
           "+ ridge; transform seeds 0 / 1000); `arms` = the same on the arm view (elbow and wrist relative to "

@@ -747,6 +747,33 @@ def test_augment_series_raises_the_arms_rigidly_about_the_shoulders(rng):
     assert np.array_equal(plain, same)
 
 
+def test_augment_series_style_mix_moves_along_same_class_differences():
+    """mix moves each copy by lam (X_j - X_i) with j another series of its own class and
+    |lam| <= mix; mix = 0 (or no labels) gives the copies of the augmentation without it."""
+    rng = np.random.default_rng(3)
+    X = rng.normal(0, 1, (6, 3, 16))
+    labels = np.array(["a", "a", "a", "b", "b", "c"])           # "c" has no partner
+    Xa, owner = rk.augment_series(X, 4, np.random.default_rng(1), rot_deg=0.0, time_warp=0.0, mix=0.5,
+                                  labels=labels, mix_rng=np.random.default_rng(2))
+    for k, i in enumerate(owner):
+        d = Xa[k] - X[i]
+        if labels[i] == "c":
+            assert np.abs(d).max() == 0                          # nothing to mix with
+            continue
+        fits = []
+        for j in np.flatnonzero(labels == labels[i]):
+            if j == i:
+                continue
+            D = X[j] - X[i]
+            lam = float(np.sum(d * D) / np.sum(D * D))
+            fits.append((np.abs(d - lam * D).max(), lam))
+        err, lam = min(fits)
+        assert err < 1e-12 and abs(lam) <= 0.5
+    plain, _ = rk.augment_series(X, 4, np.random.default_rng(1))
+    same, _ = rk.augment_series(X, 4, np.random.default_rng(1), mix=0.0, labels=labels)
+    assert np.array_equal(plain, same)
+
+
 def test_sample_times_trim_idle_ends_and_follow_the_motion_clock():
     """``trim`` cuts the still frames at both ends by the cumulative motion; the motion
     clock puts the samples where the motion is; the defaults are the time clock."""
