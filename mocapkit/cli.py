@@ -382,10 +382,14 @@ def _pooled_note(share: float | None) -> str:
 
 def _cm(x: float) -> str:
     """A length in cm to two significant digits, never fewer than two decimals: 1.30, 0.23,
-    0.019, 0.0056 (two fixed decimals printed a 0.0185 cm estimate as 0.01)."""
+    0.019, 0.0056 (two fixed decimals printed a 0.0185 cm estimate as 0.01); under 0.0001
+    cm (a micrometre, far below any capture's resolution) ``< 0.0001`` (a noise-free clip's
+    estimate of 4e-15 cm had printed as 0.0000000000000037)."""
     x = float(x)
     if not np.isfinite(x) or x <= 0:
         return f"{x:.2f}"
+    if x < 1e-4:
+        return "< 0.0001"
     return f"{x:.{max(2, 1 - int(np.floor(np.log10(x))))}f}"
 
 

@@ -766,6 +766,35 @@ def test_auto_cuts_at_whole_body_jumps(clip, steps):
     assert e_many < 1.5 * e_alone + 0.02, (e_many, e_alone)
 
 
+def test_a_whole_body_excursion_is_no_jump_and_a_short_last_take_is_cleaned(clip):
+    """A frame where most points step away and the rest follow a frame later, all back the
+    frame after (a root spike through a rotation file's IK): the step out stands out alone,
+    but the body comes back -- no jump. A second take of 4 frames after a real jump: a
+    piece too short for the spline is filled linearly, the rest keeps its estimate (auto
+    had stopped with a KeyError)."""
+    from mocapkit.denoise.auto import _jumps
+
+    P = clip.positions.copy()
+    J, t = clip.n_joints, 100
+    rng = np.random.default_rng(0)
+    a = rng.permutation(J)[: int(0.8 * J)]
+    b = np.setdiff1d(np.arange(J), a)
+    P[t, a] += [10.0, 0.0, 0.0]
+    P[t + 1, b] += [10.0, 0.0, 0.0]
+    m = Motion(P, clip.skeleton, clip.fps, np.ones(P.shape[:2], bool), dict(clip.source))
+    assert _jumps(m) == []
+    T = clip.n_frames
+    two = np.concatenate([clip.positions, clip.positions[:4]])
+    many = _noisy(Motion(two, clip.skeleton, clip.fps, np.ones(two.shape[:2], bool), dict(clip.source)),
+                  [("gaussian", {"sigma_cm": 1.0})], seed=4)
+    assert _jumps(many) == [T]
+    out = get("auto").denoise(many)
+    rep = out.source["auto"]
+    assert rep["jumps"] == [T] and out.observed.all()
+    assert rep["estimated_rmse_cm"] is not None and "4 frame(s) in pieces under 8 frames" in rep["how"]
+    assert f"as read: frames {T}-{T + 3} (under 8 frames)" in rep["chain"]
+
+
 def test_the_estimate_is_at_least_what_the_written_bones_prove(clip):
     """A written toe 6 cm out along its bone in one frame: the floor is that frame's worst
     bone, v^2 / 2 over the written coordinates, or all of v^2 where the toe is a fill

@@ -297,6 +297,7 @@ class Auto(Denoiser):
         out = np.zeros((T, 3 * motion.n_joints))
         rejected = 0
         pieces, sq, chain, how, noise, hz = [], 0.0, [], [], [], []
+        unestimated = 0                                          # frames of pieces without one
         emap = np.full((T, motion.n_joints), np.nan, np.float32)     # each piece's own frames
         # linear ramps over each cut's 2 ov shared frames, as tsmc / trnn / slra segments
         for (lo, hi), a, b, w in zip(bounds, starts, stops, _lr.blend_weights(starts, stops)):
@@ -308,15 +309,27 @@ class Auto(Denoiser):
             if src.get("estimate_map") is not None:
                 emap[lo:hi] = src["estimate_map"][lo - a:hi - a]
             pieces.append({"frames": [lo, hi], "chain": src["chain"], "estimated_rmse_cm": est})
-            sq += (est ** 2 if est is not None else np.nan) * (hi - lo)
+            if est is None:
+                unestimated += hi - lo
+            else:
+                sq += est ** 2 * (hi - lo)
+            if hi - lo < 8 and est is None:        # the linear route of a piece too short
+                span = f"frame {lo}" if hi - lo == 1 else f"frames {lo}-{hi - 1}"
+                done = "linear fill of" if not motion.observed[lo:hi].all() else "as read:"
+                src["chain"] = [f"{done} {span} (under 8 frames)"]
             chain += [c for c in src["chain"] if c not in chain]
-            how += [h for h in src["how"].split(", ") if h not in how]
+            how += [h for h in src["how"].split(", ") if h and h not in how]
             noise.append(src["diagnosis"]["noise_cm"])
             hz.append(src["gcv_cutoff_hz"])
         diag = diagnosis_of(motion, float(np.nanmedian(noise)) if np.isfinite(noise).any() else float("nan"),
                             rejected)
-        estimate = float(np.sqrt(sq / T)) if np.isfinite(sq) else None
-        src = {"chain": chain, "diagnosis": diag.as_dict(), "gcv_cutoff_hz": float(np.nanmedian(hz)),
+        # the RMS over the frames of the pieces that have an estimate (a piece under 8
+        # frames after a jump has none: it is said in `how`, and the rest stands)
+        estimate = float(np.sqrt(sq / (T - unestimated))) if T > unestimated else None
+        if unestimated and estimate is not None:
+            how.append(f"{unestimated} frame(s) in pieces under 8 frames not estimated")
+        hz_all = float(np.nanmedian(hz)) if np.isfinite(hz).any() else float("nan")
+        src = {"chain": chain, "diagnosis": diag.as_dict(), "gcv_cutoff_hz": hz_all,
                "rejected": rejected, "estimated_rmse_cm": estimate, "seconds": time.perf_counter() - t0,
                "how": ", ".join(how) + (f"; {n - len(jumps)} pieces of ~{PIECE_FRAMES} frames, cross-faded "
                                         f"over {2 * ov} frames" if n > len(jumps) + 1 else "")
@@ -334,8 +347,13 @@ class Auto(Denoiser):
         t0 = time.perf_counter()
         X, M = motion.matrix(copy=False), motion.matrix_mask()      # read only
         if motion.n_frames < 8:                     # too short to fit a smoothing spline
+            # (a whole clip, or a piece between whole-body jumps: the report has every key
+            # a piece's has)
             return (get("linear").denoise(motion).matrix(),
-                    {"chain": ["linear fill (clip under 8 frames)"], "estimated_rmse_cm": None},
+                    {"chain": ["linear fill (clip under 8 frames)"], "estimated_rmse_cm": None,
+                     "how": "",
+                     "diagnosis": diagnosis_of(motion, float("nan"), 0).as_dict(),
+                     "gcv_cutoff_hz": float("nan"), "estimate_map": None},
                     np.zeros(motion.n_frames, int))
         robust = robust_fit(motion)
         fit, info, usable = robust
@@ -1694,7 +1712,36 @@ def _jumps(motion: Motion) -> list[int]:
         after = np.nanmean(np.stack([pad[3:-1], pad[4:]]), axis=0)
         around = np.fmax(before, after)
         jump = (step > JUMP_MIN_CM) & (step > JUMP_RATIO * around)
+        cand = np.flatnonzero(jump)
+        if len(cand):
+            # a jump stays: the body does not come back within a frame or two, as it does
+            # after a whole-body spike -- in a rotation file a spike on the root moves every
+            # joint, and the writer's IK pulls some back, so the step into the spike can read
+            # small and the step out alone stands out (CMU 131_01 in cgspeed's BVH with 10 %
+            # spikes: two false jumps, one four frames from the end)
+            jump[cand[_comes_back(P, obs, cand, step[cand])]] = False
     return [int(t) + 1 for t in np.flatnonzero(jump)]
+
+
+def _comes_back(P: np.ndarray, obs: np.ndarray, steps: np.ndarray, size: np.ndarray) -> np.ndarray:
+    """(len(steps),) True where the body, across the step from frame t to t + 1 (``steps``:
+    t), is back within half the step's ``size`` (cm) two or three frames apart -- frames
+    (t - 1, t + 1), (t, t + 2), (t - 2, t + 1), (t - 1, t + 2), (t, t + 3): an excursion of
+    one or two frames, not a jump. A jump that :func:`_jumps` flags stands out 8 times
+    from the steps beside it, so three frames of motion take at most 3/8 of it back."""
+    T, J = obs.shape
+    back = np.zeros(len(steps), bool)
+    for da, db in ((-1, 1), (0, 2), (-2, 1), (-1, 2), (0, 3)):
+        a, b = steps + da, steps + db
+        ok = (a >= 0) & (b < T)
+        a, b = np.clip(a, 0, T - 1), np.clip(b, 0, T - 1)
+        both = obs[a] & obs[b]                                              # (n, J)
+        d = np.where(both, np.linalg.norm(P[b] - P[a], axis=2), np.nan)
+        srt = np.sort(d, axis=1)
+        n_ok = both.sum(axis=1)
+        q = np.take_along_axis(srt, np.maximum((0.2 * (n_ok - 1)).astype(int), 0)[:, None], axis=1)[:, 0]
+        back |= ok & (n_ok >= max(3, J // 2)) & (q < 0.5 * size)
+    return back
 
 
 def _piece_cuts(observed: np.ndarray, piece: int, ov: int) -> list[int]:
