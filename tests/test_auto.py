@@ -4,6 +4,8 @@ from __future__ import annotations
 import doctest
 import json
 
+import warnings
+
 import numpy as np
 import pytest
 
@@ -793,6 +795,27 @@ def test_a_whole_body_excursion_is_no_jump_and_a_short_last_take_is_cleaned(clip
     assert rep["jumps"] == [T] and out.observed.all()
     assert rep["estimated_rmse_cm"] is not None and "4 frame(s) in pieces under 8 frames" in rep["how"]
     assert f"as read: frames {T}-{T + 3} (under 8 frames)" in rep["chain"]
+
+
+def test_auto_cleans_every_shared_third_party_bvh_file(shared_data):
+    """The default on the CMU BVH conversions of other tools (cgspeed, Daz, MotionBuilder
+    7.5; first 240 frames): no error, every sample written and finite, an estimate. The
+    Daz files open with a T-pose frame -- a whole-body jump after frame 0 -- on which auto
+    had stopped with a KeyError."""
+    files = sorted((shared_data / "cmu" / "bvh").glob("*/*.bvh"))
+    if not files:
+        pytest.skip("no BVH conversions in the shared data")
+    posed = 0
+    for p in files:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            m = io.read(p).slice(0, 240)
+        out = get("auto").denoise(m)
+        rep = out.source["auto"]
+        assert out.observed.all() and np.isfinite(out.positions).all(), p
+        assert rep["estimated_rmse_cm"] is not None, p
+        posed += rep.get("jumps", []) == [1]
+    assert posed >= 5                        # the Daz files' T-pose frames were cut off
 
 
 def test_the_estimate_is_at_least_what_the_written_bones_prove(clip):
