@@ -209,6 +209,10 @@ def cmd_info(a: argparse.Namespace) -> int:
         "missing_percent": round(100 * m.missing_fraction, 2),
         "units": m.source.get("units", ""),
     }
+    from .denoise.bases import reference_frames
+
+    if reference_frames(m):
+        info["reference_frame"] = "frame 0 is the file's reference pose (a T-pose): every method keeps it as read"
     c3 = m.source.get("c3d") if m.source.get("format") == "c3d" else None
     if c3:                                   # what the file holds besides the markers
         info["first_frame"] = c3.get("first_frame")

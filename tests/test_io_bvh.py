@@ -490,6 +490,37 @@ def test_motionbuilder_bvh_is_cmu_units_in_cm(shared_data):
     np.testing.assert_allclose(m.positions[:2, 0], amc_root * 2.54 / 0.45, rtol=2e-4)
 
 
+def test_a_bvh_t_pose_first_frame_is_the_reference_every_method_keeps(shared_data, tmp_path):
+    """cgspeed's and Daz's first frame is a T-pose (cgspeed: the joint angles zero; Daz: the
+    rest pose): found, not in other files nor after a slice; corrupt leaves it alone, every
+    method writes it as read, and a corrupted file written back keeps it recognisable."""
+    from mocapkit import corrupt
+    from mocapkit.denoise import get
+    from mocapkit.denoise.bases import reference_frames
+
+    root = shared_data / "cmu" / "bvh"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        cg = bvh.read(root / "cgspeed_motionbuilder" / "01_01.bvh").slice(0, 200)
+        daz = bvh.read(root / "daz_friendly" / "10_03.bvh").slice(0, 200)
+        plain = [bvh.read(root / "cgspeed_3dsmax" / "131_01.bvh"), bvh.read(root / "motionbuilder75" / "16_15.bvh")]
+    assert reference_frames(cg) == 1 and reference_frames(daz) == 1
+    assert [reference_frames(m) for m in plain] == [0, 0] and reference_frames(cg.slice(1, None)) == 0
+    noisy, mask = corrupt.combine(cg, "gaussian:sigma_cm=1,outliers:ratio=0.1,magnitude_cm=15", seed=0)
+    assert np.array_equal(noisy.positions[0], cg.positions[0]) and not mask[0].any() and mask[1:].any()
+    for name in ("auto", "kalman-cv", "median"):
+        out = get(name).denoise(noisy)
+        assert np.array_equal(out.positions[0], cg.positions[0]), name
+    out = get("auto").denoise(noisy)
+    assert out.source["auto"]["reference_frames"] == 1
+    assert out.source["auto"]["chain"][0] == "as read: frame 0 (the file's reference pose)"
+    # the T-pose arms are no spikes: the motion after it was cleaned as the rest of the clip
+    e = np.linalg.norm(out.positions - cg.positions, axis=2)
+    assert e[1:4].max() < 8.0 and e.max() < 10.0
+    mio.write(noisy, tmp_path / "n.bvh")
+    assert reference_frames(bvh.read(tmp_path / "n.bvh")) == 1
+
+
 def test_writing_a_skeleton_bvh_holds_amc_or_says_how_far_off(tmp_path):
     """ASF/AMC turns the bones that share a start point (CMU thorax -> lower neck and both
     clavicles) separately; a BVH joint turns its children together: the writer gives each

@@ -286,6 +286,11 @@ def _guard(fn):
             if self.keeps_observed:         # bit-identical measured samples, whatever the shift
                 Q[motion.observed] = motion.positions[motion.observed]
             raw = raw.with_positions(Q, raw.observed)
+        from .bases import reference_frames
+
+        ref = reference_frames(motion)
+        if ref:                             # a file's reference pose (T-pose) is no capture
+            raw = _as_read(raw, motion, ref)
         fit = self.last_report_.get("model_fit") if self.misfit_check and getattr(self, "warn", True) else None
         out = self._after_policy(apply_policy(motion, raw, evidence=self.fill_evidence, method=self.name,
                                               unvalidated=unvalidated, misfit=misfit, fit=fit))
@@ -295,6 +300,14 @@ def _guard(fn):
 
     denoise._gap_policy_guard = True
     return denoise
+
+
+def _as_read(raw: Motion, motion: Motion, n: int) -> Motion:
+    """``raw`` with its first ``n`` frames as ``motion`` has them (positions, observed; not
+    filled): the file's reference pose (:func:`mocapkit.denoise.bases.reference_frames`)."""
+    P, obs, filled = raw.positions.copy(), raw.observed.copy(), raw.filled.copy()
+    P[:n], obs[:n], filled[:n] = motion.positions[:n], motion.observed[:n], False
+    return Motion(P, raw.skeleton, raw.fps, obs, raw.source, filled)
 
 
 def _checked_fit(fn):

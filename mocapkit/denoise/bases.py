@@ -22,7 +22,7 @@ from .constraints import Integral, Interval, Options, Real, center_as_string
 
 _POSITIVE = Interval(Real, 0, None, closed="neither")
 
-__all__ = ["LouChai", "angle_channels", "angle_fk", "decimate"]
+__all__ = ["LouChai", "angle_channels", "angle_fk", "decimate", "reference_frames"]
 
 REFERENCE_HEIGHT_CM = 170.0
 """Body-frame positions are scaled to a person of this skeleton height (``normalize``)."""
@@ -91,6 +91,69 @@ def angle_channels(motion: Motion) -> tuple[np.ndarray, list[str], dict[str, Any
         raise MocapValueError("lou-chai: the motion's joint-angle channels do not match its frames")
     return vals, names, {"key": key, "rotation": rot, "root": root, "names": names,
                          "period": 2 * np.pi if rad else 360.0}
+
+
+#: :func:`reference_frames`: a joint-angle channel is "set" where it is more than this far
+#: from zero (degrees; a radian file's channels are compared in degrees too)
+REFERENCE_TOL_DEG = 1e-3
+
+
+def reference_frames(motion: Motion) -> int:
+    """How many leading frames of ``motion`` are its file's reference pose (0 or 1): a
+    first frame whose non-root joint rotations are almost all exactly zero, where the next
+    frame's are not -- the T-pose that MotionBuilder-style and Daz BVH conversions put
+    before the motion (cgspeed's CMU files: 4 of ~60 rotation channels set, against ~55 in
+    frame 1; the Daz files: 6 against ~80). A captured or solved frame never has its
+    angles at exactly zero. Needs the reader's joint-angle channels (AMC / BVH, kept by
+    ``slice``; dropped by ``resample``); 0 otherwise.
+
+    It is no capture: every method keeps it as read (the shared guard,
+    :mod:`mocapkit.denoise.base`), ``auto`` cleans the motion after it on its own, and
+    :func:`mocapkit.corrupt.combine` leaves it alone -- smoothed or despiked, a T-pose
+    first frame had been pulled into the motion (arms 65 cm off on cgspeed's 01_01 with
+    spikes).
+
+    >>> from mocapkit import io
+    >>> from mocapkit.datasets import bundled
+    >>> reference_frames(io.read(bundled("16_15.amc")))     # a capture from its first frame
+    0
+    """
+    src = motion.source
+    pf = src.get("per_frame") or {}
+    if motion.n_frames < 3 or not (("dofs" in pf and src.get("format") in ("amc", "asf"))
+                                   or ("channels" in pf and src.get("format") == "bvh")):
+        return 0
+    try:
+        vals, _, info = angle_channels(motion)
+    except MocapValueError:
+        return 0
+    rot = info["rotation"] & ~info["root"]
+    scale = 360.0 / info["period"]                                  # to degrees
+    set0 = int((np.abs(vals[0, rot]) * scale > REFERENCE_TOL_DEG).sum())
+    set1 = int((np.abs(vals[1, rot]) * scale > REFERENCE_TOL_DEG).sum())
+    if set1 >= 10 and set0 <= 0.25 * set1:
+        return 1
+    # or the skeleton's rest pose (up to a rigid move), which the next frame leaves far
+    # behind (the Daz conversions' first frame: 1.6-2.3 cm off it, frame 1 11-14 cm)
+    R = motion.skeleton.rest_positions()
+    r0, r1 = (_rigid_residual(motion.positions[t], R) for t in (0, 1))
+    return int(r0 < REFERENCE_REST_CM and r1 > 4.0 * r0)
+
+
+#: :func:`reference_frames`: a first frame within this of the rest pose (cm, the largest
+#: joint distance after the best rigid fit) may be the file's reference pose
+REFERENCE_REST_CM = 5.0
+
+
+def _rigid_residual(A: np.ndarray, B: np.ndarray) -> float:
+    """Largest joint distance (cm) between the points A and B (J, 3) after the best rigid
+    fit of A onto B (Kabsch); inf where A has a missing point."""
+    if not np.isfinite(A).all():
+        return float("inf")
+    a, b = A - A.mean(0), B - B.mean(0)
+    U, _, Vt = np.linalg.svd(a.T @ b)
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
+    return float(np.linalg.norm(a @ (U @ D @ Vt) - b, axis=1).max())
 
 
 def angle_fk(motion: Motion, values: np.ndarray) -> np.ndarray:

@@ -37,7 +37,9 @@ error identically (same message, line and precedence).
   time, and which node each Motion joint is; ``motion.source['per_frame']['channels']``
   holds the raw (T, C) channel values (degrees / file units) so ``Motion.slice`` keeps
   them aligned with the frames. All frames are kept (the first frame of the cgspeed
-  files is a T-pose; it is not guessed away).
+  files is a T-pose; it is not guessed away); such a reference pose is recognised from
+  the channels (:func:`mocapkit.denoise.bases.reference_frames`) and every method keeps
+  it as read.
 * **Errors.** Malformed input raises :class:`~mocapkit.errors.MocapFormatError` with
   the file, the line and what was expected: unknown keyword, missing OFFSET/CHANNELS,
   unbalanced braces, duplicate joint names, missing MOTION section, ``Frames: 0``,
