@@ -493,7 +493,8 @@ def test_motionbuilder_bvh_is_cmu_units_in_cm(shared_data):
 def test_a_bvh_t_pose_first_frame_is_the_reference_every_method_keeps(shared_data, tmp_path):
     """cgspeed's and Daz's first frame is a T-pose (cgspeed: the joint angles zero; Daz: the
     rest pose): found, not in other files nor after a slice; corrupt leaves it alone, every
-    method writes it as read, and a corrupted file written back keeps it recognisable."""
+    method writes it as read, a corrupted file written back keeps it recognisable, and the
+    classifier's input leaves it out."""
     from mocapkit import corrupt
     from mocapkit.denoise import get
     from mocapkit.denoise.bases import reference_frames
@@ -519,6 +520,9 @@ def test_a_bvh_t_pose_first_frame_is_the_reference_every_method_keeps(shared_dat
     assert e[1:4].max() < 8.0 and e.max() < 10.0
     mio.write(noisy, tmp_path / "n.bvh")
     assert reference_frames(bvh.read(tmp_path / "n.bvh")) == 1
+    from mocapkit.recognition.rocket import trajectories     # nor is it part of an action
+
+    assert np.array_equal(trajectories(daz, 32), trajectories(daz.slice(1, None), 32))
 
 
 def test_writing_a_skeleton_bvh_holds_amc_or_says_how_far_off(tmp_path):

@@ -163,18 +163,23 @@ def trajectories(motion: Motion, length: int = 64, *, smooth_s: float = 0.0,
     after the action, which the subjects hold for different times. ``motion_time`` (0-1):
     the resampling clock, 0 = time, 1 = the motion's progress (the cumulative summed joint
     speed), between = their mix: pauses shrink and fast strokes get more samples.
-    Units: body sizes (about 0.9 x standing height). Raises MocapValueError for a motion
-    with no observed joint.
+    Units: body sizes (about 0.9 x standing height). A file's reference pose (a BVH's
+    T-pose first frame, :func:`mocapkit.denoise.bases.reference_frames`) is left out.
+    Raises MocapValueError for a motion with no observed joint.
 
     >>> from mocapkit import datasets, io
     >>> m = io.read(datasets.bundled("16_15.amc")).slice(0, 60)
     >>> trajectories(m, 32).shape, trajectories(m, 32, trim=0.05, motion_time=0.5).shape
     ((93, 32), (93, 32))
     """
+    from ..denoise.bases import reference_frames
     from ..retrieval.features import prepare
 
     if not isinstance(motion, Motion):
         raise MocapValueError(f"expected a Motion, got {type(motion).__name__}")
+    ref = reference_frames(motion)
+    if ref:                        # a BVH's T-pose first frame is no part of the action
+        motion = motion.slice(ref, None)
     length = int(length)
     if length < KERNEL_LENGTH:
         raise MocapValueError(f"length must be at least {KERNEL_LENGTH} samples, got {length}")
