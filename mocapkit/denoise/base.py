@@ -252,7 +252,13 @@ def _guard(fn):
             # method sees them, so that each works on each marker's own path; the rest of
             # the guard judges the method against the input so repaired
             motion, swaps = repair_labels(motion)
-        work, off = _prepare(motion)
+        from .bases import reference_frames
+
+        # a file's reference pose (a BVH's T-pose first frame) is no capture: the method sees
+        # the first frame of the motion in its place (no step to smooth across), and it is
+        # written back as read below
+        ref = reference_frames(motion)
+        work, off = _prepare(_edge_held(motion, ref) if ref else motion)
         work, idx = _as_trained(self, work)
         limit = pol.validate_cm if pol.restrict else None
         token = _INSIDE.set(1)
@@ -286,10 +292,7 @@ def _guard(fn):
             if self.keeps_observed:         # bit-identical measured samples, whatever the shift
                 Q[motion.observed] = motion.positions[motion.observed]
             raw = raw.with_positions(Q, raw.observed)
-        from .bases import reference_frames
-
-        ref = reference_frames(motion)
-        if ref:                             # a file's reference pose (T-pose) is no capture
+        if ref:
             raw = _as_read(raw, motion, ref)
         fit = self.last_report_.get("model_fit") if self.misfit_check and getattr(self, "warn", True) else None
         out = self._after_policy(apply_policy(motion, raw, evidence=self.fill_evidence, method=self.name,
@@ -300,6 +303,15 @@ def _guard(fn):
 
     denoise._gap_policy_guard = True
     return denoise
+
+
+def _edge_held(motion: Motion, n: int) -> Motion:
+    """``motion`` with its first ``n`` frames replaced by frame ``n`` (positions, observed):
+    what a method sees of a file whose first frames are its reference pose. Smoothed
+    across the T-pose, cgspeed's 01_01 had its frame 1 moved 22 cm by kalman-cv."""
+    P, obs = motion.positions.copy(), motion.observed.copy()
+    P[:n], obs[:n] = P[n], obs[n]
+    return Motion(P, motion.skeleton, motion.fps, obs, motion.source, motion.filled)
 
 
 def _as_read(raw: Motion, motion: Motion, n: int) -> Motion:
