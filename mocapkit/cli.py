@@ -357,6 +357,9 @@ def cmd_denoise(a: argparse.Namespace) -> int:
         swaps = summary_line(out.source.get("swaps"))
         if swaps:
             print(swaps)
+        if out.source.get("reference_frames"):
+            print("frame 0 is the file's reference pose (a T-pose): written back as read, the motion "
+                  "after it cleaned")
         if not m.observed.all():
             print(gaps.summary_line(out.source.get("gap_report")))
         _print_auto(out.source.get("auto"), out.source.get("gap_report"))

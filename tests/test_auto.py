@@ -814,7 +814,7 @@ def test_auto_cleans_every_shared_third_party_bvh_file(shared_data):
         rep = out.source["auto"]
         assert out.observed.all() and np.isfinite(out.positions).all(), p
         assert rep["estimated_rmse_cm"] is not None, p
-        posed += rep.get("reference_frames", 0) == 1 and np.array_equal(out.positions[0], m.positions[0])
+        posed += out.source.get("reference_frames", 0) == 1 and np.array_equal(out.positions[0], m.positions[0])
     assert posed == 13                       # 12 Daz files and cgspeed's 01_01: their T-pose kept
 
 

@@ -516,8 +516,7 @@ def test_a_bvh_t_pose_first_frame_is_the_reference_every_method_keeps(shared_dat
     # (kalman-cv had smoothed it 22 cm towards the T-pose)
     assert np.abs(get("kalman-cv").denoise(cg).positions[1:3] - cg.positions[1:3]).max() < 0.5
     out = get("auto").denoise(noisy)
-    assert out.source["auto"]["reference_frames"] == 1
-    assert out.source["auto"]["chain"][0] == "as read: frame 0 (the file's reference pose)"
+    assert out.source["reference_frames"] == 1 and "jumps" not in out.source["auto"]
     # the T-pose arms are no spikes: the motion after it was cleaned as the rest of the clip
     e = np.linalg.norm(out.positions - cg.positions, axis=2)
     assert e[1:4].max() < 8.0 and e.max() < 10.0

@@ -240,14 +240,12 @@ class Auto(Denoiser):
     def denoise(self, motion: Motion) -> Motion:
         from ..solvers._linalg import blas_limit
 
-        from .bases import reference_frames
-
         with blas_limit():          # many small solves: one BLAS thread is fastest
-            ref = reference_frames(motion)
-            # a reference pose (a BVH's T-pose first frame) is no capture: cut off, as read
-            jumps = [j for j in _jumps(motion) if j > ref]
-            if ref or jumps or motion.n_frames > 1.5 * PIECE_FRAMES:
-                return self._denoise_pieces(motion, jumps, ref)
+            # (a file's reference pose -- a BVH's T-pose first frame -- is the shared
+            # guard's: auto sees the motion's first frame in its place)
+            jumps = _jumps(motion)
+            if jumps or motion.n_frames > 1.5 * PIECE_FRAMES:
+                return self._denoise_pieces(motion, jumps)
             out, src, _ = self._denoise(motion)
             codes = src.pop("fill_codes", None)
             res = motion.with_matrix(out, handover=True).with_source(auto=src)
@@ -276,7 +274,7 @@ class Auto(Denoiser):
                 src["estimated_rmse_cm"] = new
         return out.with_source(auto=src)
 
-    def _denoise_pieces(self, motion: Motion, jumps: list[int] = (), ref: int = 0) -> Motion:
+    def _denoise_pieces(self, motion: Motion, jumps: list[int] = ()) -> Motion:
         """Piece by piece: cut hard at the whole-body ``jumps`` (:func:`_jumps`), and a
         stretch longer than 1.5 x :data:`PIECE_FRAMES` into pieces of ~that many frames,
         cross-faded over the overlaps; the report merges the pieces' (``pieces``: each
@@ -285,7 +283,7 @@ class Auto(Denoiser):
         T = motion.n_frames
         ov = min(max(32, int(round(PIECE_OVERLAP_S * motion.fps))), PIECE_FRAMES // 8)
         cuts, hard = [], []
-        edges = [0, *([ref] if ref else []), *jumps, T]
+        edges = [0, *jumps, T]
         for a, b in zip(edges[:-1], edges[1:]):
             if a > 0:
                 cuts.append(a)
@@ -320,8 +318,7 @@ class Auto(Denoiser):
             if hi - lo < 8 and est is None:        # the linear route of a piece too short
                 span = f"frame {lo}" if hi - lo == 1 else f"frames {lo}-{hi - 1}"
                 done = "linear fill of" if not motion.observed[lo:hi].all() else "as read:"
-                why = "the file's reference pose" if lo == 0 and hi == ref else "under 8 frames"
-                src["chain"] = [f"{done} {span} ({why})"]
+                src["chain"] = [f"{done} {span} (under 8 frames)"]
             chain += [c for c in src["chain"] if c not in chain]
             how += [h for h in src["how"].split(", ") if h and h not in how]
             noise.append(src["diagnosis"]["noise_cm"])
@@ -340,9 +337,8 @@ class Auto(Denoiser):
                                         f"over {2 * ov} frames" if n > len(edges) - 1 else "")
                       + (f"; cut at {len(jumps)} whole-body jump(s) (frames "
                          f"{', '.join(map(str, jumps[:5]))}{', ...' if len(jumps) > 5 else ''}), each side "
-                         f"cleaned on its own" if len(jumps) else "")
-                      + (f"; frame 0 is the file's reference pose (kept as read)" if ref else ""),
-               "pieces": pieces, "jumps": list(jumps), "reference_frames": int(ref),
+                         f"cleaned on its own" if len(jumps) else ""),
+               "pieces": pieces, "jumps": list(jumps),
                "left_missing": _left_missing(out, motion.observed.any(axis=0)),
                "max_fill_error_cm": self.max_fill_error_cm, "estimate_map": emap}
         return motion.with_matrix(out, handover=True).with_source(auto=src)

@@ -299,6 +299,8 @@ def _guard(fn):
                                               unvalidated=unvalidated, misfit=misfit, fit=fit))
         if swaps is not None and (swaps["events"] or swaps.get("repaired")):
             out = out.with_source(swaps=swaps)
+        if ref:
+            out = out.with_source(reference_frames=ref)
         return out.with_source(**self.last_report_) if self.last_report_ else out
 
     denoise._gap_policy_guard = True
