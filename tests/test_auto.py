@@ -818,6 +818,14 @@ def test_auto_cleans_every_shared_third_party_bvh_file(shared_data):
     assert posed == 13                       # 12 Daz files and cgspeed's 01_01: their T-pose kept
 
 
+def test_auto_refuses_a_motion_with_nothing_observed(clip):
+    """A file whose every sample is missing (an MSR-Action3D Kinect file of zeros) gets the
+    one-line refusal the other methods give, not a reshape error from inside the spline."""
+    empty = clip.slice(0, 40).with_observed(np.zeros((40, clip.n_joints), bool))
+    with pytest.raises(MocapValueError, match="no observed entries"):
+        get("auto").denoise(empty)
+
+
 def test_the_estimate_is_at_least_what_the_written_bones_prove(clip):
     """A written toe 6 cm out along its bone in one frame: the floor is that frame's worst
     bone, v^2 / 2 over the written coordinates, or all of v^2 where the toe is a fill

@@ -240,6 +240,9 @@ class Auto(Denoiser):
     def denoise(self, motion: Motion) -> Motion:
         from ..solvers._linalg import blas_limit
 
+        from ._refill import check_motion
+
+        check_motion(motion, self.name)      # (a Kinect file of zeros: MSR-Action3D a13_s09_e02)
         with blas_limit():          # many small solves: one BLAS thread is fastest
             # (a file's reference pose -- a BVH's T-pose first frame -- is the shared
             # guard's: auto sees the motion's first frame in its place)
