@@ -818,6 +818,29 @@ def test_auto_cleans_every_shared_third_party_bvh_file(shared_data):
     assert posed == 13                       # 12 Daz files and cgspeed's 01_01: their T-pose kept
 
 
+def test_auto_on_every_shared_kinect_file(shared_data):
+    """The default on all 567 MSR-Action3D skeleton files (real Kinect tracking: thrown
+    limbs, side flips, frames of zeros): a result with an estimate, or for the one file
+    with nothing observed the one-line refusal."""
+    files = sorted((shared_data / "msr_action3d" / "skeleton3d").glob("*_skeleton3D.txt"))
+    if not files:
+        pytest.skip("no MSR-Action3D skeletons in the shared data")
+    refused = []
+    for p in files:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            m = io.read(p)
+            try:
+                out = get("auto").denoise(m)
+            except MocapValueError as e:
+                refused.append((p.name, str(e)))
+                continue
+        assert np.isfinite(out.positions[out.observed]).all(), p
+        assert out.source["auto"]["estimated_rmse_cm"] is not None, p
+    assert [r[0] for r in refused] == ["a13_s09_e02_skeleton3D.txt"], refused
+    assert "no observed entries" in refused[0][1]
+
+
 def test_auto_refuses_a_motion_with_nothing_observed(clip):
     """A file whose every sample is missing (an MSR-Action3D Kinect file of zeros) gets the
     one-line refusal the other methods give, not a reshape error from inside the spline."""
