@@ -99,19 +99,22 @@ REFERENCE_TOL_DEG = 1e-3
 
 
 def reference_frames(motion: Motion) -> int:
-    """How many leading frames of ``motion`` are its file's reference pose (0 or 1): a
-    first frame whose non-root joint rotations are almost all exactly zero, where the next
-    frame's are not -- the T-pose that MotionBuilder-style and Daz BVH conversions put
-    before the motion (cgspeed's CMU files: 4 of ~60 rotation channels set, against ~55 in
-    frame 1; the Daz files: 6 against ~80). A captured or solved frame never has its
-    angles at exactly zero. Needs the reader's joint-angle channels (AMC / BVH, kept by
-    ``slice``; dropped by ``resample``); 0 otherwise.
+    """How many leading frames of ``motion`` are its file's reference pose (0 or 1): the
+    T-pose that MotionBuilder-style and Daz BVH conversions put before the motion. Either
+    its non-root joint rotations are almost all exactly zero where the next frame's are
+    not (cgspeed's MotionBuilder-friendly CMU 01_01: 4 of 90 rotation channels set, 70 in
+    frame 1; a captured or solved frame never has its angles at exactly zero), or it is
+    the skeleton's rest pose up to a rigid move, within :data:`REFERENCE_REST_CM`, and the
+    next frame is over 4 times further from it (the Daz conversions: 1.6-2.3 cm, frame 1
+    11-14 cm). No other shared file has one (174 AMC files, the other 6 BVH). Needs the
+    reader's joint-angle channels (AMC / BVH, kept by ``slice``; dropped by
+    ``resample``); 0 otherwise.
 
-    It is no capture: every method keeps it as read (the shared guard,
-    :mod:`mocapkit.denoise.base`), ``auto`` cleans the motion after it on its own, and
+    It is no capture: every method sees the motion's first frame in its place and writes
+    it back as read (the shared guard, :mod:`mocapkit.denoise.base`), and
     :func:`mocapkit.corrupt.combine` leaves it alone -- smoothed or despiked, a T-pose
     first frame had been pulled into the motion (arms 65 cm off on cgspeed's 01_01 with
-    spikes).
+    spikes) and the motion towards it.
 
     >>> from mocapkit import io
     >>> from mocapkit.datasets import bundled
