@@ -224,12 +224,18 @@ def render(doc: dict) -> str:
     return "\n".join(out) + "\n"
 
 
-def main() -> int:
+def main_in_tmp(out: Path, run_rows, render_doc, doc: str) -> int:
+    """``run_or_render`` with ``run_rows(data, tmp)`` given a temporary folder for its files
+    (the corrupted and cleaned files of a CLI route)."""
     def collect(data: Path, a) -> dict:
         with tempfile.TemporaryDirectory() as d:
-            return {"rows": run(data, Path(d))}
+            return {"rows": run_rows(data, Path(d))}
 
-    return run_or_render(OUT, collect, render, __doc__)
+    return run_or_render(out, collect, render_doc, doc)
+
+
+def main() -> int:
+    return main_in_tmp(OUT, run, render, __doc__)
 
 
 if __name__ == "__main__":
