@@ -155,7 +155,7 @@ from ..gaps import gap_lengths
 from ..motion import Motion
 from ..signal import estimate_noise
 from ..solvers import lowrank as _lr
-from ..solvers.gcv_spline import _BISQUARE, ROBUST_MIN_SCALE, cutoff_hz, gcv_smooth, residual_scale
+from ..solvers.gcv_spline import _BISQUARE, ROBUST_MIN_SCALE, cutoff_hz, gcv_smooth, residual_scale, validated
 from ..windows import frame_blocks
 from ..solvers.mssa import correlated_probe, mssa_denoise, sure_divergence, sure_weights
 from .base import Denoiser, get, register
@@ -360,7 +360,10 @@ class Auto(Denoiser):
                      "diagnosis": diagnosis_of(motion, float("nan"), 0).as_dict(),
                      "gcv_cutoff_hz": float("nan"), "estimate_map": None},
                     np.zeros(motion.n_frames, int))
-        robust = robust_fit(motion)
+        # the robust fit's hole validation only where its fit is the one kept (below): a
+        # clip without spikes is fitted again without the robust weights, and a spiky one
+        # may be too (_refit_floor, _second_look)
+        robust = robust_fit(motion, validate=False)
         fit, info, usable = robust
         diag = diagnose(motion, robust)
         cols = np.repeat(usable, 3)
@@ -383,6 +386,7 @@ class Auto(Denoiser):
         holes = ~M
         holes[:, cols] |= info.rejected
         out = np.where(holes, fit, X)
+        info = validated(info, used_columns(X, cols), used_columns(M, cols), group=3)
         est = self._per_channel_errors(info, cols, smooth)
         if not smooth:
             # samples kept as measured: their error is the noise. The per-channel GCV

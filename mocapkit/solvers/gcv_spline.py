@@ -315,6 +315,23 @@ def gcv_smooth(X, mask=None, *, order: int = 2, s: float | np.ndarray | None = N
     return f, info
 
 
+def validated(info: GCVInfo, X: np.ndarray, mask: np.ndarray, *, order: int = 2, group: int = 1) -> GCVInfo:
+    """``info`` of a :func:`gcv_smooth` fit of ``X`` (T, C) under ``mask`` run with
+    ``validate=False``, with the hole validation ``validate=True`` would have added
+    (:func:`_with_hole_error`; the fit's holes: missing samples and its rejections) --
+    for a caller that knows only after the fit whether it needs it (``auto``: a clip
+    found without spikes is fitted again without the robust weights, and the robust
+    fit's validation was two solves for nothing)."""
+    Y = np.asarray(X, dtype=float)
+    M = np.asarray(mask, bool) & np.isfinite(Y)
+    W = M & ~info.rejected
+    if not (~W).any() or info.hole_map is not None:
+        return info
+    from ..gaps import fill                           # the one gap filler
+
+    return _with_hole_error(info, Y if M.all() else fill(Y, M), W, info.s, order, group)
+
+
 def _trace(T: int, s: np.ndarray, order: int) -> np.ndarray:
     """tr(H_s) per channel from (G7), a block of channels at a time (the (T, C) gains of
     all channels at once were two matrices of temporaries)."""
