@@ -86,16 +86,18 @@ class Diagnosis:
         return d
 
 
-def robust_fit(motion: Motion, validate: bool = True) -> tuple[np.ndarray, GCVInfo, np.ndarray]:
+def robust_fit(motion: Motion, validate: bool = True, plain_out: list | None = None
+               ) -> tuple[np.ndarray, GCVInfo, np.ndarray]:
     """Robust GCV spline fit of the observed points. Returns (fit (T, 3J), info, usable
     (J,) bool -- points with at least one observed sample; the fit covers those only).
     ``validate``: the error at the fit's holes too (:func:`gcv_smooth`; later with
-    :func:`mocapkit.solvers.gcv_spline.validated` where it is needed)."""
+    :func:`mocapkit.solvers.gcv_spline.validated` where it is needed); ``plain_out``: gets
+    the plain fit of the used columns (:func:`mocapkit.solvers.gcv_spline.plain_fit`)."""
     X, M = motion.matrix(copy=False), motion.matrix_mask()       # read only
     usable = motion.observed.any(axis=0)
     cols = np.repeat(usable, 3)
     f, info = gcv_smooth(used_columns(X, cols), used_columns(M, cols), robust=True, group=3,
-                         validate=validate)
+                         validate=validate, plain_out=plain_out)
     if cols.all():
         return f, info, usable
     fit = np.full_like(X, np.nan)

@@ -50,3 +50,29 @@ def test_a_numerically_singular_column_falls_back_and_the_others_are_untouched()
     for c in (1, 2, 3):
         assert _backward_error(out[:, c], Y[:, c], W[:, c], s[c], 2) < 1e-13
     assert g._solve_weighted(np.zeros((0, 3)), np.zeros((0, 3)), np.ones(3), 2).shape == (0, 3)
+
+
+def test_the_plain_fit_and_the_validation_afterwards_are_the_ones_gcv_smooth_gives():
+    """auto fits robustly first and keeps the plain fit on a clip without spikes: the
+    robust iteration's first fit (``plain_out``) with :func:`plain_fit` is exactly
+    ``gcv_smooth`` without the robust weights, and a robust fit run without validation,
+    :func:`validated` afterwards, exactly the validated one."""
+    rng = np.random.default_rng(5)
+    T, C = 300, 6
+    t = np.linspace(0, 4 * np.pi, T)[:, None]
+    X = np.sin(t * np.arange(1, C + 1)) * 10 + rng.normal(0, 0.3, (T, C))
+    X[rng.random((T, C)) < 0.02] += 15.0                      # spikes the robust fit rejects
+    M = rng.random((T, C)) > 0.1
+    M[:, 3:] = M[:, :3]                                       # points of 3 coordinates
+    first = []
+    f_r, i_r = g.gcv_smooth(X, M, robust=True, group=3, validate=False, plain_out=first)
+    f_p, i_p = g.gcv_smooth(X, M, group=3)
+    f_q, i_q = g.plain_fit(X, M, first[0], group=3)
+    np.testing.assert_array_equal(f_p, f_q)
+    for k in ("s", "sigma", "error", "hole_error", "hole_map", "rejected"):
+        np.testing.assert_array_equal(getattr(i_p, k), getattr(i_q, k), err_msg=k)
+    _, i_v = g.gcv_smooth(X, M, robust=True, group=3)
+    i_l = g.validated(i_r, X, M, group=3)
+    assert i_r.hole_map is None and i_l.hole_map is not None and i_r.rejected.any()
+    for k in ("hole_error", "hole_map", "error"):
+        np.testing.assert_array_equal(getattr(i_v, k), getattr(i_l, k), err_msg=k)

@@ -155,7 +155,8 @@ from ..gaps import gap_lengths
 from ..motion import Motion
 from ..signal import estimate_noise
 from ..solvers import lowrank as _lr
-from ..solvers.gcv_spline import _BISQUARE, ROBUST_MIN_SCALE, cutoff_hz, gcv_smooth, residual_scale, validated
+from ..solvers.gcv_spline import (_BISQUARE, ROBUST_MIN_SCALE, cutoff_hz, gcv_smooth, plain_fit, residual_scale,
+                                  validated)
 from ..windows import frame_blocks
 from ..solvers.mssa import correlated_probe, mssa_denoise, sure_divergence, sure_weights
 from .base import Denoiser, get, register
@@ -363,15 +364,17 @@ class Auto(Denoiser):
         # the robust fit's hole validation only where its fit is the one kept (below): a
         # clip without spikes is fitted again without the robust weights, and a spiky one
         # may be too (_refit_floor, _second_look)
-        robust = robust_fit(motion, validate=False)
+        first: list = []                     # its first fit, the plain one (kept below)
+        robust = robust_fit(motion, validate=False, plain_out=first)
         fit, info, usable = robust
         diag = diagnose(motion, robust)
         cols = np.repeat(usable, 3)
         spiky = diag.spike_rate > float(self.spike_rate)
         flagged = info.rejected                          # the robust fit's, spiky or not
         if not spiky:                                    # nothing rejected: plain GCV fit
-            f, info = gcv_smooth(used_columns(X, cols), used_columns(M, cols), group=3)
+            f, info = plain_fit(used_columns(X, cols), used_columns(M, cols), first[0], group=3)
             fit[:, cols] = f
+        del first
         smooth = not (diag.noise_cm < float(self.min_noise_cm))
         if spiky and smooth:
             # a noisy clip: the robust fit's residual-scale floor (1 cm, there so that the

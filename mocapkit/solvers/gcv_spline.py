@@ -245,7 +245,8 @@ def _select_and_fit(Y: np.ndarray, W: np.ndarray, order: int, s_fixed: np.ndarra
 
 def gcv_smooth(X, mask=None, *, order: int = 2, s: float | np.ndarray | None = None,
                robust: bool = False, group: int = 1, min_scale: float = ROBUST_MIN_SCALE,
-               n_robust: int = 3, validate: bool = True) -> tuple[np.ndarray, GCVInfo]:
+               n_robust: int = 3, validate: bool = True, plain_out: list | None = None
+               ) -> tuple[np.ndarray, GCVInfo]:
     """Smooth every column of ``X`` (T, C) with its own GCV-chosen smoothing spline.
 
     Parameters
@@ -273,6 +274,8 @@ def gcv_smooth(X, mask=None, *, order: int = 2, s: float | np.ndarray | None = N
         to every hole, a trusted stretch of the same length (two extra fits; see
         :func:`_with_hole_error`); otherwise ``info.error`` covers the smoothing of
         trusted samples only.
+    plain_out : with ``robust``, a list that gets the robust iteration's first fit --
+        the plain (unweighted) one -- as ``(fit, s)``, for :func:`plain_fit`.
 
     Returns
     -------
@@ -303,6 +306,8 @@ def gcv_smooth(X, mask=None, *, order: int = 2, s: float | np.ndarray | None = N
     W = M
     f, s_ = _select_and_fit(Y0, W, order, s_fixed, Y0)
     n_iter = 0
+    if robust and plain_out is not None:
+        plain_out.append((f.copy(), np.array(s_, dtype=float)))
     if robust:
         for n_iter in range(1, n_robust + 1):
             W = _bisquare(Y0, f, M, _trace(T, s_, order) / T, group, min_scale)
@@ -312,6 +317,24 @@ def gcv_smooth(X, mask=None, *, order: int = 2, s: float | np.ndarray | None = N
     info = _info(Y0, f, M, W, _trace(T, s_, order), s_, n_iter)
     if validate and (W == 0).any():
         info = _with_hole_error(info, Y0, W, s_, order, group)
+    return f, info
+
+
+def plain_fit(X: np.ndarray, mask: np.ndarray, first: tuple[np.ndarray, np.ndarray], *, order: int = 2,
+              group: int = 1, validate: bool = True) -> tuple[np.ndarray, GCVInfo]:
+    """What ``gcv_smooth(X, mask, order=order, group=group, validate=validate)`` returns,
+    from the first fit of a robust :func:`gcv_smooth` of the same data (``plain_out``):
+    the robust iteration starts with exactly that fit (``auto`` needs both, and a clip
+    without spikes keeps the plain one)."""
+    Y = np.asarray(X, dtype=float)
+    M = np.asarray(mask, bool) & np.isfinite(Y)
+    from ..gaps import fill                           # the one gap filler
+
+    Y0 = Y if M.all() else fill(Y, M)
+    f, s_ = first
+    info = _info(Y0, f, M, M, _trace(Y.shape[0], s_, order), s_, 0)
+    if validate and (~M).any():
+        info = _with_hole_error(info, Y0, M, s_, order, group)
     return f, info
 
 
