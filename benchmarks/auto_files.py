@@ -84,6 +84,19 @@ def _cli(*args: str) -> str:
     return r.stdout
 
 
+def cli_route(src: Path, noisy: Path, outp: Path, cond: str, seed: int) -> tuple[str, Motion, Motion, float]:
+    """``mocapkit corrupt SRC NOISY`` with the protocol's condition ``cond`` and ``seed``,
+    then ``mocapkit denoise NOISY OUTP`` with no options: (denoise's printed text, the
+    corrupted and the cleaned file as read back, denoise's seconds)."""
+    _cli("corrupt", str(src), str(noisy), "--spec", _spec(cond), "--seed", str(seed), "-q")
+    t0 = time.perf_counter()
+    text = _cli("denoise", str(noisy), str(outp))
+    dt = time.perf_counter() - t0
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return text, io.read(noisy), io.read(outp), dt
+
+
 def _by_name(m: Motion, names) -> np.ndarray:
     idx = {n: i for i, n in enumerate(m.skeleton.names)}
     return m.positions[:, [idx[n] for n in names]]
@@ -115,13 +128,7 @@ def run(data: Path, tmp: Path) -> list[dict]:
                     for p in (noisy, outp):
                         for q in (p, p.with_suffix(".asf")):
                             q.unlink(missing_ok=True)
-                    _cli("corrupt", str(clean), str(noisy), "--spec", _spec(cond), "--seed", str(i), "-q")
-                    t0 = time.perf_counter()
-                    text = _cli("denoise", str(noisy), str(outp))
-                    dt = time.perf_counter() - t0
-                    with warnings.catch_warnings():
-                        warnings.simplefilter("ignore")
-                        nm, out = io.read(noisy), io.read(outp)
+                    text, nm, out, dt = cli_route(clean, noisy, outp, cond, i)
                     # the oracle on the corrupted file, scored against the clean one
                     Pn = _by_name(nm, truth.skeleton.names)
                     obs = np.isfinite(Pn).all(axis=2)

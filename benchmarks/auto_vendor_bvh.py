@@ -24,7 +24,6 @@ for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_v, "1")
 
 import sys  # noqa: E402
-import time  # noqa: E402
 import warnings  # noqa: E402
 from collections import defaultdict  # noqa: E402
 from pathlib import Path  # noqa: E402
@@ -35,7 +34,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from auto_files import EST_RE, _by_name, _cli, _rmse, _spec, main_in_tmp  # noqa: E402
+from auto_files import EST_RE, _by_name, _rmse, cli_route, main_in_tmp  # noqa: E402
 from mocapkit import io  # noqa: E402
 from mocapkit.bench.protocols import auto as P  # noqa: E402
 from mocapkit.denoise.bases import reference_frames  # noqa: E402
@@ -54,13 +53,7 @@ def run(data: Path, tmp: Path) -> list[dict]:
         ref = reference_frames(truth)
         for cond in CONDITIONS:
             noisy, outp = tmp / f"{i}_{cond}.bvh", tmp / f"{i}_{cond}_out.bvh"
-            _cli("corrupt", str(f), str(noisy), "--spec", _spec(cond), "--seed", str(i), "-q")
-            t0 = time.perf_counter()
-            text = _cli("denoise", str(noisy), str(outp))
-            dt = time.perf_counter() - t0
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")
-                nm, out = io.read(noisy), io.read(outp)
+            text, nm, out, dt = cli_route(f, noisy, outp, cond, i)
             Pn = _by_name(nm, truth.skeleton.names)
             orc = P.oracle_classical(truth, Motion(Pn, truth.skeleton, truth.fps, np.isfinite(Pn).all(axis=2)))
             m = EST_RE.search(text)

@@ -362,9 +362,9 @@ class Auto(Denoiser):
                      "gcv_cutoff_hz": float("nan"), "estimate_map": None},
                     np.zeros(motion.n_frames, int))
         # the robust fit's hole validation only where its fit is the one kept (below): a
-        # clip without spikes is fitted again without the robust weights, and a spiky one
-        # may be too (_refit_floor, _second_look)
-        first: list = []                     # its first fit, the plain one (kept below)
+        # clip without spikes keeps the robust iteration's first, plain pass instead, and a
+        # spiky one may be fitted again (_refit_floor, _second_look)
+        first: list = []                     # that first pass
         robust = robust_fit(motion, validate=False, plain_out=first)
         fit, info, usable = robust
         diag = diagnose(motion, robust)

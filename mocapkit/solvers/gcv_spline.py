@@ -343,8 +343,8 @@ def validated(info: GCVInfo, X: np.ndarray, mask: np.ndarray, *, order: int = 2,
     ``validate=False``, with the hole validation ``validate=True`` would have added
     (:func:`_with_hole_error`; the fit's holes: missing samples and its rejections) --
     for a caller that knows only after the fit whether it needs it (``auto``: a clip
-    found without spikes is fitted again without the robust weights, and the robust
-    fit's validation was two solves for nothing)."""
+    found without spikes keeps the plain fit, :func:`plain_fit`, and the robust fit's
+    validation was two solves for nothing)."""
     Y = np.asarray(X, dtype=float)
     M = np.asarray(mask, bool) & np.isfinite(Y)
     W = M & ~info.rejected
