@@ -205,7 +205,7 @@ def cmd_info(a: argparse.Namespace) -> int:
         "fps": m.fps,
         "duration_s": round(m.duration, 3),
         "joints": m.n_joints,
-        "height_cm": round(m.height(), 1),
+        "height_cm": round(m.height(), 1) if np.isfinite(m.height()) else "n/a (no joint seen)",
         "missing_percent": round(100 * m.missing_fraction, 2),
         "units": m.source.get("units", ""),
     }
