@@ -205,7 +205,7 @@ def cmd_info(a: argparse.Namespace) -> int:
         "fps": m.fps,
         "duration_s": round(m.duration, 3),
         "joints": m.n_joints,
-        "height_cm": round(m.height(), 1) if np.isfinite(m.height()) else "n/a (no joint seen)",
+        "height_cm": round(m.height(), 1) if np.isfinite(m.height()) else None,     # no joint seen
         "missing_percent": round(100 * m.missing_fraction, 2),
         "units": m.source.get("units", ""),
     }
@@ -256,6 +256,8 @@ def cmd_info(a: argparse.Namespace) -> int:
         print(json.dumps(info, indent=1, default=str))
     else:
         for k, v in info.items():
+            if k == "height_cm" and v is None:
+                v = "n/a (no joint seen)"
             if k == "side_flips":
                 v = (f"at frame {', '.join(map(str, v))} (the tracker exchanged the body's sides; "
                      f"`mocapkit denoise` puts them back)") if v else "none"
