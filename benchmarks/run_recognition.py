@@ -704,7 +704,9 @@ def main() -> None:
           "throw lower than any of theirs, which is how test subject 2 throws). mix 0.3 and 0.6 lowered the "
           "inner cross-subject score (-1.1 / -1.8 points against the default at seed 0) and raised the inner half splits (+0.7 / +0.7): "
           "a clip mixed with other subjects' clips of its class teaches the classes' common shape, which "
-          "pays where the test subject is also in training (half splits), not for a new subject. Not kept.", "",
+          "pays where the test subject is also in training (half splits), not for a new subject. Not kept. "
+          "The nearest miss so far, the motion clock 0.5 (+0.4 / +0.0 at seed 0), run at seed 1 too: -1.1 / "
+          "+0.3, over both seeds -0.4 / +0.2 against the default: its seed-0 gain was one clip's noise.", "",
           "### Views, HYDRA, seeds, test-time augmentation (`benchmarks/run_recognition_explore.py`)", "",
           "Components: `base0` / `base1` = the previous default (joint trajectories, MultiRocket + augmentation "
           "+ ridge; transform seeds 0 / 1000); `arms` = the same on the arm view (elbow and wrist relative to "
