@@ -240,6 +240,11 @@ def cmd_info(a: argparse.Namespace) -> int:
             info["label_swap_steps"] = [{**e, "step_cm": round(e["step_cm"], 1)} for e in rep["events"]]
             if rep.get("hidden_pairs"):
                 info["label_swaps_hidden"] = rep["hidden_pairs"]
+        from .denoise.auto import _jumps
+
+        # where the whole body jumps (an edit point, two takes in one file, a loop seam): auto
+        # cleans each side on its own, and a user had no way to see it before
+        info["whole_body_jumps"] = [j for j in _jumps(m) if j > reference_frames(m)]
     if a.gaps:
         from .gaps import find_gaps, gap_table
 
@@ -269,6 +274,10 @@ def cmd_info(a: argparse.Namespace) -> int:
                 k, v = "hidden swaps", (", ".join("/".join(x) for x in v)
                                         + " (came back exchanged after a gap both share; `mocapkit denoise` "
                                           "puts back the stretches their distances tell)")
+            if k == "whole_body_jumps":
+                k, v = "jumps", ((f"whole body at frame {', '.join(map(str, v[:8]))}{', ...' if len(v) > 8 else ''} "
+                                  f"(an edit point or two takes in one file? `auto` cleans each side on its own)")
+                                 if v else "none")
             if k != "diagnosis":
                 print(f"{k:>16}: {v}")
         for line in (diag.lines() if diag is not None else []):

@@ -358,6 +358,15 @@ def test_cli_info_diagnose_and_default_is_auto(tmp_path, capsys, clip):
     assert main(["denoise", str(src), str(tmp_path / "out.trc"), "--method", "auto"]) == 0
     text = capsys.readouterr().out
     assert "auto:" in text and "estimated error" in text
+    # a whole-body jump (two takes in one file) is named, as auto cuts there
+    assert main(["info", "--diagnose", str(src)]) == 0
+    assert "jumps: none" in capsys.readouterr().out
+    T = clip.n_frames
+    two = Motion(np.concatenate([noisy.positions] * 2), clip.skeleton, clip.fps,
+                 np.ones((2 * T, clip.n_joints), bool))
+    io.write(two, tmp_path / "two.trc")
+    assert main(["info", "--diagnose", "--json", str(tmp_path / "two.trc")]) == 0
+    assert json.loads(capsys.readouterr().out)["whole_body_jumps"] == [T]
 
 
 @pytest.mark.shared_data
