@@ -92,7 +92,7 @@ def run(data: Path) -> dict:
     T = 10_000
     # tiled forwards and backwards, so that the tiles join without a jump (tiled forwards
     # only, the body jumps back at each seam and auto -- since 2026-12-05 -- cleans each
-    # tile on its own: _jumps)
+    # tile on its own: whole_body_jumps)
     reps = int(np.ceil(T / clip.n_frames))
     pos = np.concatenate([clip.positions if k % 2 == 0 else clip.positions[::-1] for k in range(reps)])[:T]
     long = Motion(pos, clip.skeleton, clip.fps, np.ones(pos.shape[:2], bool), dict(clip.source))

@@ -5,7 +5,7 @@ Writes docs/results/auto_speed.json + .md.
 
 10,000 frames of CMU 131_03 (120 fps, 31 joints), tiled forwards and backwards so that the
 tiles join without a whole-body jump (tiled forwards only, auto cuts at every seam:
-``auto._jumps``), corrupted with the ``auto`` protocol's conditions (seed 0); CPU seconds of
+``auto.whole_body_jumps``), corrupted with the ``auto`` protocol's conditions (seed 0); CPU seconds of
 ``denoise()`` with one BLAS thread, best of 2, each (tree, condition) in its own process.
 With ``--base`` the same runs on that revision (a temporary ``git worktree``), round by
 round interleaved with this tree's, since this machine's speed drifts by 5-10 % within the

@@ -205,13 +205,14 @@ def cmd_info(a: argparse.Namespace) -> int:
         "fps": m.fps,
         "duration_s": round(m.duration, 3),
         "joints": m.n_joints,
-        "height_cm": round(m.height(), 1) if np.isfinite(m.height()) else None,     # no joint seen
+        "height_cm": round(height, 1) if np.isfinite(height := m.height()) else None,    # no joint seen
         "missing_percent": round(100 * m.missing_fraction, 2),
         "units": m.source.get("units", ""),
     }
     from .denoise.bases import reference_frames
 
-    if reference_frames(m):
+    ref = reference_frames(m)
+    if ref:
         info["reference_frame"] = "frame 0 is the file's reference pose (a T-pose): every method keeps it as read"
     c3 = m.source.get("c3d") if m.source.get("format") == "c3d" else None
     if c3:                                   # what the file holds besides the markers
@@ -240,11 +241,11 @@ def cmd_info(a: argparse.Namespace) -> int:
             info["label_swap_steps"] = [{**e, "step_cm": round(e["step_cm"], 1)} for e in rep["events"]]
             if rep.get("hidden_pairs"):
                 info["label_swaps_hidden"] = rep["hidden_pairs"]
-        from .denoise.auto import _jumps
+        from .denoise.auto import whole_body_jumps
 
         # where the whole body jumps (an edit point, two takes in one file, a loop seam): auto
         # cleans each side on its own, and a user had no way to see it before
-        info["whole_body_jumps"] = [j for j in _jumps(m) if j > reference_frames(m)]
+        info["whole_body_jumps"] = [j for j in whole_body_jumps(m) if j > ref]
     if a.gaps:
         from .gaps import find_gaps, gap_table
 

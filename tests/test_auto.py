@@ -763,13 +763,13 @@ def test_auto_cuts_at_whole_body_jumps(clip, steps):
     """Two takes in one file (the clip tiled 3 times: the body jumps back at each seam):
     each side is cleaned on its own, about as well as the clip alone; the report names the
     jumps. Smoothing across them had put a 4-times tiled walk 5.6 cm off (0.22 alone)."""
-    from mocapkit.denoise.auto import _jumps
+    from mocapkit.denoise.auto import whole_body_jumps
 
     T = clip.n_frames
     tiled = Motion(np.concatenate([clip.positions] * 3), clip.skeleton, clip.fps,
                    np.ones((3 * T, clip.n_joints), bool), dict(clip.source))
     alone, many = _noisy(clip, steps, seed=4), _noisy(tiled, steps, seed=4)
-    assert _jumps(alone) == [] and _jumps(many) == [T, 2 * T]
+    assert whole_body_jumps(alone) == [] and whole_body_jumps(many) == [T, 2 * T]
     out = get("auto").denoise(many)
     assert out.source["auto"]["jumps"] == [T, 2 * T] and "jump" in out.source["auto"]["how"]
     e_many = metrics.rmse(tiled, out, mask=out.observed)
@@ -783,7 +783,7 @@ def test_a_whole_body_excursion_is_no_jump_and_a_short_last_take_is_cleaned(clip
     but the body comes back -- no jump. A second take of 4 frames after a real jump: a
     piece too short for the spline is filled linearly, the rest keeps its estimate (auto
     had stopped with a KeyError)."""
-    from mocapkit.denoise.auto import _jumps
+    from mocapkit.denoise.auto import whole_body_jumps
 
     P = clip.positions.copy()
     J, t = clip.n_joints, 100
@@ -793,12 +793,12 @@ def test_a_whole_body_excursion_is_no_jump_and_a_short_last_take_is_cleaned(clip
     P[t, a] += [10.0, 0.0, 0.0]
     P[t + 1, b] += [10.0, 0.0, 0.0]
     m = Motion(P, clip.skeleton, clip.fps, np.ones(P.shape[:2], bool), dict(clip.source))
-    assert _jumps(m) == []
+    assert whole_body_jumps(m) == []
     T = clip.n_frames
     two = np.concatenate([clip.positions, clip.positions[:4]])
     many = _noisy(Motion(two, clip.skeleton, clip.fps, np.ones(two.shape[:2], bool), dict(clip.source)),
                   [("gaussian", {"sigma_cm": 1.0})], seed=4)
-    assert _jumps(many) == [T]
+    assert whole_body_jumps(many) == [T]
     out = get("auto").denoise(many)
     rep = out.source["auto"]
     assert rep["jumps"] == [T] and out.observed.all()

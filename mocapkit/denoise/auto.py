@@ -70,9 +70,10 @@ memory then stays that of one piece (docs/results/scaling.md: 13.6x -> 2.8x the 
 is the whole-clip one within noise (docs/results/auto_pieces.md). The report lists the
 pieces (``source['auto']['pieces']``: frames, chain, estimate) and merges them.
 
-**Whole-body jumps** (two takes in one file, an edit point, a loop seam: :func:`_jumps`) cut
-the clip hard, and each side is cleaned on its own (``source['auto']['jumps']``); smoothing,
-fills and the noise estimate across a jump would mix two motions.
+**Whole-body jumps** (two takes in one file, an edit point, a loop seam:
+:func:`whole_body_jumps`; ``mocapkit info --diagnose`` lists them) cut the clip hard, and
+each side is cleaned on its own (``source['auto']['jumps']``); smoothing, fills and the
+noise estimate across a jump would mix two motions.
 
 The error estimate (cm RMS over all coordinates, ``source['auto']['estimated_rmse_cm']``)
 is the RMS over every written sample of an estimate per sample -- over what the gap
@@ -164,7 +165,7 @@ from .fill_auto import SHORT_FRAMES
 from .constraints import Integral, Interval, Real
 from .fill_auto import DEFAULT_CANDIDATES
 
-__all__ = ["Auto", "FILL_CANDIDATES"]
+__all__ = ["Auto", "FILL_CANDIDATES", "whole_body_jumps"]
 
 #: fills auto's fill-auto chooses from for long gaps: fill-auto's own. ``trnn`` (low-rank
 #: completion) was one more until 2026-12-05: on ten 60-frame gaps of 16_15 at 120 fps it
@@ -247,7 +248,7 @@ class Auto(Denoiser):
         with blas_limit():          # many small solves: one BLAS thread is fastest
             # (a file's reference pose -- a BVH's T-pose first frame -- is the shared
             # guard's: auto sees the motion's first frame in its place)
-            jumps = _jumps(motion)
+            jumps = whole_body_jumps(motion)
             if jumps or motion.n_frames > 1.5 * PIECE_FRAMES:
                 return self._denoise_pieces(motion, jumps)
             out, src, _ = self._denoise(motion)
@@ -279,7 +280,7 @@ class Auto(Denoiser):
         return out.with_source(auto=src)
 
     def _denoise_pieces(self, motion: Motion, jumps: list[int] = ()) -> Motion:
-        """Piece by piece: cut hard at the whole-body ``jumps`` (:func:`_jumps`), and a
+        """Piece by piece: cut hard at the whole-body ``jumps`` (:func:`whole_body_jumps`), and a
         stretch longer than 1.5 x :data:`PIECE_FRAMES` into pieces of ~that many frames,
         cross-faded over the overlaps; the report merges the pieces' (``pieces``: each
         one's frames, chain and estimate; ``jumps``)."""
@@ -1685,9 +1686,9 @@ def _how(smooth: bool, holes: bool, long: bool) -> str:
     return ", ".join(parts)
 
 
-#: :func:`_jumps`: a frame-to-frame step of the whole body (the 20th percentile over the
-#: points seen in both frames) larger than this many times the steps before it and the
-#: steps after it, and than
+#: :func:`whole_body_jumps`: a frame-to-frame step of the whole body (the 20th percentile
+#: over the points seen in both frames) larger than this many times the steps before it and
+#: the steps after it, and than
 #: :data:`JUMP_MIN_CM`, is a discontinuity -- an edit point, two takes in one file, a loop
 #: seam -- not motion: a spike moves one point, and the step of even a sprint at 30 fps
 #: (about 27 cm) is matched by the steps beside it
@@ -1695,7 +1696,7 @@ JUMP_RATIO = 8.0
 JUMP_MIN_CM = 5.0
 
 
-def _jumps(motion: Motion) -> list[int]:
+def whole_body_jumps(motion: Motion) -> list[int]:
     """Frames where the whole body jumps (the first frame after each jump; see
     :data:`JUMP_RATIO`). auto cleans each side on its own: smoothing, fills and the noise
     estimate across such a jump mix two motions -- a CMU walk tiled 4 times with 1 cm of
@@ -1739,7 +1740,7 @@ def _comes_back(P: np.ndarray, obs: np.ndarray, steps: np.ndarray, size: np.ndar
     """(len(steps),) True where the body, across the step from frame t to t + 1 (``steps``:
     t), is back within half the step's ``size`` (cm) two or three frames apart -- frames
     (t - 1, t + 1), (t, t + 2), (t - 2, t + 1), (t - 1, t + 2), (t, t + 3): an excursion of
-    one or two frames, not a jump. A jump that :func:`_jumps` flags stands out 8 times
+    one or two frames, not a jump. A jump that :func:`whole_body_jumps` flags stands out 8 times
     from the steps beside it, so three frames of motion take at most 3/8 of it back."""
     T, J = obs.shape
     back = np.zeros(len(steps), bool)
