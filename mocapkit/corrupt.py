@@ -727,16 +727,14 @@ def combine(motion: Motion, steps: Sequence[tuple[str, dict]] | str, seed: Any) 
     for (func, kwargs), rng in zip(parsed, children):
         out, m = func(out, seed=rng, **kwargs)
         mask |= m
-    from .denoise.bases import reference_frames
+    from .denoise.bases import reference_as_read, reference_frames
 
     ref = reference_frames(motion)
     if ref:
         # the file's reference pose (a BVH's T-pose first frame) is no capture, and a
         # capture's noise does not reach it: left as it is
-        P, obs = out.positions.copy(), out.observed.copy()
-        P[:ref], obs[:ref] = motion.positions[:ref], motion.observed[:ref]
+        out = reference_as_read(out, motion, ref)
         mask[:ref] = False
-        out = out.with_positions(P, obs)
     return out, mask
 
 

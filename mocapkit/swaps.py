@@ -366,7 +366,7 @@ def hidden_swap_pairs(positions: np.ndarray, observed: np.ndarray, *, ratio: flo
     events; :func:`repair_swaps` judges such a pair by the distances alone, piece by piece
     between the frames where both are hidden. Vectorised over every pair reappearing at one
     frame."""
-    from .rigid import rigid_partners
+    from .rigid import apply_rigid, kabsch, rigid_partners
 
     P = np.asarray(positions, dtype=float)
     obs = np.asarray(observed, dtype=bool) & np.isfinite(P).all(axis=2)
@@ -395,18 +395,15 @@ def hidden_swap_pairs(positions: np.ndarray, observed: np.ndarray, *, ratio: flo
         cand = steady[j[x]]                                                   # (n, K)
         ok = (obs[s[x][:, None], cand] & obs[t[x][:, None], cand] & (cand != j[other][:, None])
               & real[j[x]])
-        w = ok.astype(float)[:, :, None]
-        n = np.maximum(w.sum(axis=1), 1.0)                                    # (n, 1)
         A, B = P[s[x][:, None], cand], P[t[x][:, None], cand]                 # (n, K, 3)
-        A, B = np.where(ok[:, :, None], A, 0.0), np.where(ok[:, :, None], B, 0.0)
-        ca, cb = (w * A).sum(axis=1) / n, (w * B).sum(axis=1) / n
-        H = np.einsum("nki,nkj->nij", w * (A - ca[:, None]), B - cb[:, None])
-        U, _, Vt = np.linalg.svd(H)
-        D = np.ones((len(x), 3))
-        D[:, 2] = np.sign(np.linalg.det(np.einsum("nij,njk->nik", U, Vt)))
-        R = np.einsum("nji,nj,nkj->nik", Vt, D, U)                          # V diag(D) U^T
-        R[ok.sum(axis=1) < 3] = np.eye(3)
-        return cb + np.einsum("nij,nj->ni", R, P[s[x], j[x]] - ca), ok.any(axis=1)
+        R, shift = kabsch(A, B, weights=ok)
+        few = ok.sum(axis=1) < 3                     # no rotation from fewer: their mean shift
+        if few.any():
+            w = ok[few][:, :, None]
+            n = np.maximum(w.sum(axis=1), 1)
+            R[few] = np.eye(3)
+            shift[few] = (np.where(w, B[few], 0.0).sum(axis=1) - np.where(w, A[few], 0.0).sum(axis=1)) / n
+        return apply_rigid(R, shift, P[s[x], j[x]]), ok.any(axis=1)
 
     pu, hu = predict(u, v)
     pv, hv = predict(v, u)

@@ -212,17 +212,22 @@ def test_a_real_label_jump_in_the_basket_sprint(shared_data):
     assert not [x for x in rep["repaired"] if x["markers"] == ["ForearmL:Marker2", "ForearmL:Marker3"]]
 
 
+def _marker_and_nearest(seed: int) -> tuple[np.ndarray, int, int]:
+    """A random rigid take (:func:`_random_take`), its marker 0 and the marker nearest it
+    on average."""
+    P, _ = _random_take(np.random.default_rng(seed), 0)
+    d = np.linalg.norm(P[:, :, None] - P[:, None, :], axis=3).mean(axis=0)
+    np.fill_diagonal(d, np.inf)
+    return P, 0, int(np.argmin(d[0]))
+
+
 def test_a_swap_hidden_in_a_gap_both_markers_share_is_put_back():
     """Markers 0 and 1 of a rigid cluster trade labels once where both can be seen (an
     event: the pair is looked at), and again while both are hidden for 12 frames, then
     back in another shared gap: no event marks the second stretch, which lies in the
     labelling taken as right; the distances to the other markers say it is exchanged, and
     it goes back. A stretch after a shared gap that is labelled right stays."""
-    P, _ = _random_take(np.random.default_rng(7), 0)
-    d = np.linalg.norm(P[:, :, None] - P[:, None, :], axis=3).mean(axis=0)
-    np.fill_diagonal(d, np.inf)
-    a = 0
-    b = int(np.argmin(d[a]))
+    P, a, b = _marker_and_nearest(7)
     Q = P.copy()
     Q[40:60, [a, b]] = P[40:60, [b, a]]                  # seen: two events
     Q[120:132, [a, b]] = np.nan                          # both hidden, then exchanged
@@ -245,11 +250,7 @@ def test_a_swap_after_a_long_shared_gap_is_put_back_with_no_other_event(tmp_path
     change nothing."""
     from mocapkit.swaps import hidden_swap_pairs
 
-    P, _ = _random_take(np.random.default_rng(11), 0)
-    d = np.linalg.norm(P[:, :, None] - P[:, None, :], axis=3).mean(axis=0)
-    np.fill_diagonal(d, np.inf)
-    a = 0
-    b = int(np.argmin(d[a]))
+    P, a, b = _marker_and_nearest(11)
     Q = P.copy()
     Q[100:130, [a, b]] = np.nan
     Q[190:200, [a, b]] = np.nan

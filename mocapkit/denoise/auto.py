@@ -1705,18 +1705,9 @@ def whole_body_jumps(motion: Motion) -> list[int]:
     T, J = obs.shape
     if T < 6 or J < 3:
         return []
-    ok = obs[1:] & obs[:-1]
+    step = _body_step(P, obs, np.arange(T - 1), np.arange(1, T))
     with np.errstate(invalid="ignore"), warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)          # frames with no point seen twice
-        # a low quantile over the points, not their median: every point moves in a jump,
-        # while spikes (10 % of the samples: 16 of 31 points were off in one step of CMU
-        # 131_01 at 120 fps) or holes can take half of a step's points
-        # (the k-th smallest of each row, NaN sorted last: np.nanpercentile took 0.3 s on
-        # 10,000 frames, a tenth of auto's time)
-        srt = np.sort(np.where(ok, np.linalg.norm(P[1:] - P[:-1], axis=2), np.nan), axis=1)
-        n_ok = ok.sum(axis=1)
-        step = np.take_along_axis(srt, np.maximum((0.2 * (n_ok - 1)).astype(int), 0)[:, None], axis=1)[:, 0]
-        step[n_ok < max(3, J // 2)] = np.nan
         # against both sides: the larger of the two steps' mean before and after (a jump
         # stands out from both; a landing at 30 fps -- 6.7 cm a frame, then 0.4 -- does not
         # stand out from the steps before it)
@@ -1736,24 +1727,36 @@ def whole_body_jumps(motion: Motion) -> list[int]:
     return [int(t) + 1 for t in np.flatnonzero(jump)]
 
 
+def _body_step(P: np.ndarray, obs: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(n,) how far the whole body is between frames ``a`` and ``b`` (n,): the 20th
+    percentile of the distances of the points seen in both (cm); NaN where fewer than
+    max(3, J / 2) are. A low quantile over the points, not their median: every point moves
+    in a jump, while spikes (10 % of the samples: 16 of 31 points were off in one step of
+    CMU 131_01 at 120 fps) or holes can take half of a step's points. (The k-th smallest
+    of each row, NaN sorted last: np.nanpercentile took 0.3 s on 10,000 frames, a tenth
+    of auto's time.)"""
+    J = obs.shape[1]
+    both = obs[a] & obs[b]                                                  # (n, J)
+    with np.errstate(invalid="ignore"):
+        srt = np.sort(np.where(both, np.linalg.norm(P[b] - P[a], axis=2), np.nan), axis=1)
+    n_ok = both.sum(axis=1)
+    q = np.take_along_axis(srt, np.maximum((0.2 * (n_ok - 1)).astype(int), 0)[:, None], axis=1)[:, 0]
+    return np.where(n_ok >= max(3, J // 2), q, np.nan)
+
+
 def _comes_back(P: np.ndarray, obs: np.ndarray, steps: np.ndarray, size: np.ndarray) -> np.ndarray:
     """(len(steps),) True where the body, across the step from frame t to t + 1 (``steps``:
     t), is back within half the step's ``size`` (cm) two or three frames apart -- frames
     (t - 1, t + 1), (t, t + 2), (t - 2, t + 1), (t - 1, t + 2), (t, t + 3): an excursion of
     one or two frames, not a jump. A jump that :func:`whole_body_jumps` flags stands out 8 times
     from the steps beside it, so three frames of motion take at most 3/8 of it back."""
-    T, J = obs.shape
+    T = obs.shape[0]
     back = np.zeros(len(steps), bool)
     for da, db in ((-1, 1), (0, 2), (-2, 1), (-1, 2), (0, 3)):
         a, b = steps + da, steps + db
         ok = (a >= 0) & (b < T)
-        a, b = np.clip(a, 0, T - 1), np.clip(b, 0, T - 1)
-        both = obs[a] & obs[b]                                              # (n, J)
-        d = np.where(both, np.linalg.norm(P[b] - P[a], axis=2), np.nan)
-        srt = np.sort(d, axis=1)
-        n_ok = both.sum(axis=1)
-        q = np.take_along_axis(srt, np.maximum((0.2 * (n_ok - 1)).astype(int), 0)[:, None], axis=1)[:, 0]
-        back |= ok & (n_ok >= max(3, J // 2)) & (q < 0.5 * size)
+        with np.errstate(invalid="ignore"):                 # NaN: too few points seen in both
+            back |= ok & (_body_step(P, obs, np.clip(a, 0, T - 1), np.clip(b, 0, T - 1)) < 0.5 * size)
     return back
 
 

@@ -252,7 +252,7 @@ def _guard(fn):
             # method sees them, so that each works on each marker's own path; the rest of
             # the guard judges the method against the input so repaired
             motion, swaps = repair_labels(motion)
-        from .bases import reference_frames
+        from .bases import reference_as_read, reference_frames
 
         # a file's reference pose (a BVH's T-pose first frame) is no capture: the method sees
         # the first frame of the motion in its place (no step to smooth across), and it is
@@ -293,7 +293,7 @@ def _guard(fn):
                 Q[motion.observed] = motion.positions[motion.observed]
             raw = raw.with_positions(Q, raw.observed)
         if ref:
-            raw = _as_read(raw, motion, ref)
+            raw = reference_as_read(raw, motion, ref)
         fit = self.last_report_.get("model_fit") if self.misfit_check and getattr(self, "warn", True) else None
         out = self._after_policy(apply_policy(motion, raw, evidence=self.fill_evidence, method=self.name,
                                               unvalidated=unvalidated, misfit=misfit, fit=fit))
@@ -314,14 +314,6 @@ def _edge_held(motion: Motion, n: int) -> Motion:
     P, obs = motion.positions.copy(), motion.observed.copy()
     P[:n], obs[:n] = P[n], obs[n]
     return Motion(P, motion.skeleton, motion.fps, obs, motion.source, motion.filled)
-
-
-def _as_read(raw: Motion, motion: Motion, n: int) -> Motion:
-    """``raw`` with its first ``n`` frames as ``motion`` has them (positions, observed; not
-    filled): the file's reference pose (:func:`mocapkit.denoise.bases.reference_frames`)."""
-    P, obs, filled = raw.positions.copy(), raw.observed.copy(), raw.filled.copy()
-    P[:n], obs[:n], filled[:n] = motion.positions[:n], motion.observed[:n], False
-    return Motion(P, raw.skeleton, raw.fps, obs, raw.source, filled)
 
 
 def _checked_fit(fn):

@@ -22,7 +22,7 @@ from .constraints import Integral, Interval, Options, Real, center_as_string
 
 _POSITIVE = Interval(Real, 0, None, closed="neither")
 
-__all__ = ["LouChai", "angle_channels", "angle_fk", "decimate", "reference_frames"]
+__all__ = ["LouChai", "angle_channels", "angle_fk", "decimate", "reference_as_read", "reference_frames"]
 
 REFERENCE_HEIGHT_CM = 170.0
 """Body-frame positions are scaled to a person of this skeleton height (``normalize``)."""
@@ -150,13 +150,22 @@ REFERENCE_REST_CM = 5.0
 
 def _rigid_residual(A: np.ndarray, B: np.ndarray) -> float:
     """Largest joint distance (cm) between the points A and B (J, 3) after the best rigid
-    fit of A onto B (Kabsch); inf where A has a missing point."""
+    fit of A onto B (:func:`mocapkit.rigid.kabsch`); inf where A has a missing point."""
+    from ..rigid import apply_rigid, kabsch
+
     if not np.isfinite(A).all():
         return float("inf")
-    a, b = A - A.mean(0), B - B.mean(0)
-    U, _, Vt = np.linalg.svd(a.T @ b)
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
-    return float(np.linalg.norm(a @ (U @ D @ Vt) - b, axis=1).max())
+    R, t = kabsch(A, B)
+    return float(np.linalg.norm(apply_rigid(R, t, A) - B, axis=1).max())
+
+
+def reference_as_read(out: Motion, motion: Motion, n: int) -> Motion:
+    """``out`` with its first ``n`` frames as ``motion`` has them (positions, observed,
+    filled): the file's reference pose (:func:`reference_frames`), which the shared guard
+    writes back after every method and :func:`mocapkit.corrupt.combine` leaves alone."""
+    P, obs, filled = out.positions.copy(), out.observed.copy(), out.filled.copy()
+    P[:n], obs[:n], filled[:n] = motion.positions[:n], motion.observed[:n], motion.filled[:n]
+    return Motion(P, out.skeleton, out.fps, obs, out.source, filled)
 
 
 def angle_fk(motion: Motion, values: np.ndarray) -> np.ndarray:
