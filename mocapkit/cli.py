@@ -209,11 +209,11 @@ def cmd_info(a: argparse.Namespace) -> int:
         "missing_percent": round(100 * m.missing_fraction, 2),
         "units": m.source.get("units", ""),
     }
-    from .denoise.bases import reference_frames
+    from .denoise.bases import reference_frames, reference_words
 
     ref = reference_frames(m)
     if ref:
-        info["reference_frame"] = "frame 0 is the file's reference pose (a T-pose): every method keeps it as read"
+        info["reference_frame"] = f"{reference_words(ref)}: every method keeps {'it' if ref == 1 else 'them'} as read"
     c3 = m.source.get("c3d") if m.source.get("format") == "c3d" else None
     if c3:                                   # what the file holds besides the markers
         info["first_frame"] = c3.get("first_frame")
@@ -370,7 +370,9 @@ def cmd_denoise(a: argparse.Namespace) -> int:
         if swaps:
             print(swaps)
         if out.source.get("reference_frames"):
-            print("frame 0 is the file's reference pose (a T-pose): written back as read, the motion "
+            from .denoise.bases import reference_words
+
+            print(f"{reference_words(out.source['reference_frames'])}: written back as read, the motion "
                   "after it cleaned")
         if not m.observed.all():
             print(gaps.summary_line(out.source.get("gap_report")))

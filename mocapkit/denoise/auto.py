@@ -61,6 +61,10 @@ The chain, decided from the clip's own diagnosis (:mod:`mocapkit.diagnose`):
    :func:`mocapkit.rigid.fixed_bones`) get their length back (:func:`_hold_bones`); the
    estimate drops by the mean squared move. Smoothing shortens a rotating bone; the
    writers' IK would restore the length on output anyway.
+5. **Rigid groups** -- after the bones, groups of at least five joints or markers that the
+   input shows moving as one rigid body (:func:`mocapkit.rigid.steady_clusters`: a Daz
+   skeleton's hand and chest, a marker plate) are held rigid (:func:`_hold_clusters`);
+   their points' estimate drops by the mean squared move.
 
 **Long clips** (over 1.5 x :data:`PIECE_FRAMES` = 12,288 frames) are cleaned in pieces of
 ~8,192 frames, each with 2 s of its neighbours' frames each side, cross-faded over the
@@ -473,11 +477,14 @@ class Auto(Denoiser):
         moved2 = None
         if smooth:
             kept_e = np.broadcast_to(np.asarray(est["kept"], float), (out.shape[1],))
-            out, moved2 = _hold_bones(motion, out, usable,
-                                      err=np.sqrt(np.mean(kept_e.reshape(-1, 3) ** 2, axis=1)))
+            out, moved2, bones = _hold_bones(motion, out, usable,
+                                             err=np.sqrt(np.mean(kept_e.reshape(-1, 3) ** 2, axis=1)))
             if moved2 is not None:
                 chain.append("bone lengths held")
-                moved2 *= _off_skeleton_share(X, ~holes, usable, sigma_s)
+                moved2 *= _off_skeleton_share(X, ~holes, *bones, sigma_s)
+            out, held = _hold_clusters(X, ~holes, out, usable, est, motion.fps)
+            if held:
+                chain.append(held)
         estimate, emap = _combine(est, holes, long, e_long, usable, out, per_point=True)
         if estimate is not None and moved2 is not None:
             # the move is (nearly) orthogonal to the error left: the smoothed pose lies off
@@ -1455,32 +1462,117 @@ def _refit_floor(X: np.ndarray, M: np.ndarray, cols: np.ndarray, fit: np.ndarray
     return fit, info
 
 
-def _off_skeleton_share(X: np.ndarray, kept: np.ndarray, usable: np.ndarray, sigma: float) -> float:
+def _off_skeleton_share(X: np.ndarray, kept: np.ndarray, bones: np.ndarray, lengths: np.ndarray,
+                        sigma: float) -> float:
     """Share (0-1) of the kept samples' noise that lies off the skeleton's poses: the noise
-    the rigid distances read (:func:`mocapkit.rigid.distance_noise`, cm per coordinate: it
-    holds only the noise along the bones) squared over ``sigma`` squared. 0 where the
-    input's bones hold their length, e.g. positions read from an AMC / BVH file: there
-    noise is in the joint angles, and holding the bones after smoothing only undoes the
-    smoother's shortening of them, not noise (held-out 01_01@120 through AMC, Gaussian 3
-    cm: true RMSE 0.714 -> 0.712 by the hold while the full Pythagoras subtraction took the
-    estimate 0.53 -> 0.27). 1 where the distances say nothing (NaN: too few rigid pairs)."""
-    from ..rigid import distance_noise
+    the bones' lengths read squared over ``sigma`` squared. The bones (B, 2) (child,
+    parent) the format fixes, ``lengths`` (B,) cm (:func:`mocapkit.rigid.fixed_bones`):
+    white noise of std s per coordinate on both ends moves a bone's length by s sqrt(2)
+    (for bones over 3 cm), read from its fourth differences over the kept frames (no
+    motion leaks in: the length is fixed); the median over the bones. 0 where the input's
+    bones hold their length, e.g. positions read from an AMC / BVH file: there noise is in
+    the joint angles, and holding the bones after smoothing only undoes the smoother's
+    shortening of them, not noise (held-out 01_01@120 through AMC, Gaussian 3 cm: true
+    RMSE 0.714 -> 0.712 by the hold while the full Pythagoras subtraction took the estimate
+    0.53 -> 0.27). 1 where no bone says anything.
+
+    (Until 2026-12-06 the noise was :func:`mocapkit.rigid.distance_noise`'s, from each
+    point's most rigid partner; on the bones the format fixes the two read alike, and this
+    one costs a tenth: 3 ms of a 240-frame clip's 80.)"""
+    from ..signal import estimate_noise
 
     T = X.shape[0]
-    K = kept.reshape(T, -1, 3).all(axis=2)[:, usable]
-    # 64 reference frames: a share needs no more, and the default 512 cost 7 ms, 8 % of
-    # auto on a 118-frame clip (the protocol's mixed@30 time ratio 8.9 -> 9.6)
-    sd = distance_noise(X.reshape(T, -1, 3)[:, usable], K, n_ref=64)
-    if not (sigma > 0 and np.isfinite(sd)):
+    K = kept.reshape(T, -1, 3).all(axis=2)
+    use = np.asarray(lengths, float) >= 3.0
+    c, p = bones[use, 0], bones[use, 1]
+    if not (sigma > 0) or not len(c):
         return 1.0
-    return float(min(sd ** 2 / sigma ** 2, 1.0))
+    P = X.reshape(T, -1, 3)
+    d = np.linalg.norm(P[:, c] - P[:, p], axis=2)
+    ok = K[:, c] & K[:, p] & np.isfinite(d)
+    n = np.asarray(estimate_noise(np.where(ok, d, 0.0), ok, method="diff4-rms"), float)
+    n = n[np.isfinite(n)]
+    if not n.size:
+        return 1.0
+    return float(min(np.median(n) ** 2 / 2.0 / sigma ** 2, 1.0))
+
+
+#: a point joins a rigid group held by :func:`_hold_clusters` where the slow part of its
+#: distances and of its rigid-fit residual varies by at most this times the smoothing's
+#: estimated error (std, cm): a group that bends by less is held -- the bend becomes
+#: error, a third of what the hold removes. Measured 2026-12-06 on the 19 vendor BVH files
+#: (in memory, Gaussian 1 / 3 cm and mixed): at an absolute 0.3 cm, groups bending by up
+#: to 0.23 cm were held on the cgspeed skeletons and gauss1 got worse (131_03 +8 %); at
+#: 0.3 x the estimate none of the cgspeed files changes by over 1 % and every Daz file
+#: gains 2-8 %
+CLUSTER_TOL = 0.3
+
+#: the window (s) of the slow part :func:`_hold_clusters` tests
+CLUSTER_WINDOW_S = 0.25
+
+#: :func:`_hold_clusters` holds groups of at least this many points (at distinct places).
+#: Four-point groups (a CMU hand: wrist, hand, fingers, thumb) gained 1 % on the protocol's
+#: clips at 30 fps and cost a tenth of auto's time there; the Daz hands (12) and chests (7)
+#: are what the hold is for
+CLUSTER_MIN_POINTS = 5
+
+
+def _hold_clusters(X: np.ndarray, kept: np.ndarray, out: np.ndarray, usable: np.ndarray,
+                   est: dict, fps: float) -> tuple[np.ndarray, str]:
+    """The smoothed (T, 3J) ``out`` with the groups of joints or markers that move as one
+    rigid body held rigid (:func:`mocapkit.rigid.steady_clusters` on the input ``X``'s
+    ``kept`` samples, :func:`mocapkit.rigid.hold_clusters` on ``out``), and the chain's
+    words for it ('' where no group is found). The smoothing's estimate of the held points
+    (``est['kept']``, updated in place) loses the mean squared move: the truth is rigid,
+    the noise is not, so the move is (nearly) orthogonal to the error left (as for the
+    bones, :func:`_hold_bones`), floored at half the estimate.
+
+    Why: a rigid body's points carry independent noise, and a smoother works on each
+    point's path alone; the rigid fit keeps the 6 coordinates a body's motion has out of
+    its points' 3K. Vendor BVH conversions carry such bodies: in the Daz-friendly CMU
+    files each hand (forearm, wrist, ten finger joints) and the chest (abdomen, chest,
+    neck, collars, shoulders) are rigid to 0.3 cm, and the writer's IK turns their 1-3 cm
+    finger bones almost at random under noise. So do marker plates, head bands and the
+    pelvis of a marker set. Measured (2026-12-06, vendor BVH files in memory): Daz
+    gauss3 / mixed auto / oracle 60_09 0.841 / 0.822 -> 0.779 / 0.771, every Daz file 2-8 %
+    lower; the cgspeed and CMU skeletons, whose joints all turn, have no group or gain
+    under 1 %. End to end: docs/results/auto_vendor_bvh.md."""
+    from ..rigid import hold_clusters, steady_clusters
+
+    T = X.shape[0]
+    e = float(np.sqrt(np.mean(np.asarray(est["kept"], float) ** 2)))
+    if not (e > 0):
+        return out, ""
+    idx = np.flatnonzero(usable)
+    Pin = X.reshape(T, -1, 3)[:, idx]
+    ok = kept.reshape(T, -1, 3).all(axis=2)[:, idx]
+    P = out.reshape(T, -1, 3)
+    # the groups' shapes from the smoothed positions: the input's 1-3 cm finger bones under
+    # 3 cm of noise read short (the mean of noisy directions lies inside the sphere; a Daz
+    # hand's template from the input was up to 1.2 cm off its true shape)
+    groups, shapes = steady_clusters(Pin, ok, fps, CLUSTER_TOL * e, window_s=CLUSTER_WINDOW_S,
+                                     min_size=CLUSTER_MIN_POINTS, shape_from=P[:, idx], return_shapes=True)
+    if not groups:
+        return out, ""
+    held = hold_clusters(P[:, idx], groups, shapes)
+    moved = np.nanmean((held - P[:, idx]) ** 2, axis=(0, 2))            # cm^2 per coordinate
+    P = P.copy()
+    P[:, idx] = held
+    ek = np.broadcast_to(np.asarray(est["kept"], float), (out.shape[1],)).copy().reshape(-1, 3)
+    pts = np.unique(np.concatenate(groups))                             # positions in idx
+    e2 = ek[idx[pts]] ** 2
+    ek[idx[pts]] = np.sqrt(np.maximum(e2 - np.nan_to_num(moved[pts])[:, None], 0.25 * e2))
+    est["kept"] = ek.reshape(-1)
+    n = sum(len(g) for g in groups)
+    return P.reshape(T, -1), f"{len(groups)} rigid group{'s' if len(groups) > 1 else ''} held ({n} points)"
 
 
 def _hold_bones(motion: Motion, out: np.ndarray, usable: np.ndarray,
-                err: np.ndarray) -> tuple[np.ndarray, float | None]:
+                err: np.ndarray) -> tuple[np.ndarray, float | None, tuple[np.ndarray, np.ndarray]]:
     """The smoothed (T, 3J) ``out`` with the bones the file format fixes given their length
-    back (:func:`mocapkit.rigid.fixed_bones`, :func:`mocapkit.rigid.hold_lengths`); and
-    the mean squared move per written coordinate (cm^2), None when the format fixes no bone.
+    back (:func:`mocapkit.rigid.fixed_bones`, :func:`mocapkit.rigid.hold_lengths`); the
+    mean squared move per written coordinate (cm^2), None when the format fixes no bone;
+    and those bones (B, 2) with their lengths (B,) (bones between usable joints).
     The two-bone spans that stay steady in ``out`` against ``err`` (J,) (the smoothing's
     estimated error per coordinate, cm) are held too (:func:`mocapkit.rigid.steady_spans`).
 
@@ -1561,7 +1653,7 @@ def _hold_bones(motion: Motion, out: np.ndarray, usable: np.ndarray,
     # IK did
     bones, lengths = fixed_bones(motion, P, zero_length=True)
     if not len(bones):
-        return out, None
+        return out, None, (bones, lengths)
     spans, span_len = steady_spans(P, bones, lengths, err)   # (one with a missing sample is not)
     if len(spans):
         # the spans with the bones, then the bones alone: the format fixes those exactly,
@@ -1574,7 +1666,8 @@ def _hold_bones(motion: Motion, out: np.ndarray, usable: np.ndarray,
     cols = np.repeat(usable, 3)
     d = (held - out)[:, cols]
     fin = np.isfinite(d)
-    return held, float(np.mean(d[fin] ** 2)) if fin.any() else None
+    both = usable[bones[:, 0]] & usable[bones[:, 1]]
+    return held, (float(np.mean(d[fin] ** 2)) if fin.any() else None), (bones[both], lengths[both])
 
 
 #: sweeps of :func:`_hold_bones`' projection onto the bones and the steady spans together

@@ -16,6 +16,7 @@ __all__ = ["estimate_noise"]
 _MAD = 1.4826          # 1 / Phi^-1(3/4): a Gaussian's sigma from its median absolute deviation
 _WAVELET_MAD = 0.6745  # Phi^-1(3/4) as Donoho & Johnstone (1994) write it: sigma = median|d| / 0.6745
 _BLOCK = 16            # channels per block of the per-channel estimate (memory: ~4 arrays of a block)
+_BLOCK_SAMPLES = 1 << 18  # ... or as many as make this many samples
 
 METHODS = ("diff2-mad", "diff2-rms", "diff4-mad", "diff4-rms", "wavelet-mad")
 #: difference order of each ``diff*`` method
@@ -108,8 +109,11 @@ def estimate_noise(X, mask=None, /, *,
     elif pool == "all":
         return _pooled_diff(A, M, method, fallback)
     else:
-        s = np.concatenate([_channel_diff(A[:, j:j + _BLOCK], M[:, j:j + _BLOCK], method)
-                            for j in range(0, A.shape[1], _BLOCK)]) if A.shape[1] else np.zeros(0)
+        # blocks of channels, at least _BLOCK and about _BLOCK_SAMPLES samples (a short
+        # clip's thousands of channels -- every pair distance of a marker set -- in a few)
+        b = max(_BLOCK, _BLOCK_SAMPLES // max(A.shape[0], 1))
+        s = np.concatenate([_channel_diff(A[:, j:j + b], M[:, j:j + b], method)
+                            for j in range(0, A.shape[1], b)]) if A.shape[1] else np.zeros(0)
     if pool == "median":
         s = s[np.isfinite(s)]
         return float(np.median(s)) if s.size else float(fallback)
@@ -142,11 +146,13 @@ def _channel_diff(A: np.ndarray, M: np.ndarray, method: str) -> np.ndarray:
     if A.shape[0] < k + 1:
         return np.full(A.shape[1], np.nan)
     D, ok = _diff(A, M, k)
+    if method.endswith("-rms"):                 # (no NaN copy: nanmean was most of its time)
+        D = np.where(ok, D, 0.0)
+        with np.errstate(invalid="ignore", divide="ignore"):     # channels with none -> NaN
+            return np.sqrt(np.einsum("tc,tc->c", D, D) / ok.sum(axis=0)) / _gain(k)
     D = np.where(ok, D, np.nan)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)          # all-NaN channels -> NaN
-        if method.endswith("-rms"):
-            return np.sqrt(np.nanmean(D ** 2, axis=0)) / _gain(k)
         med = np.nanmedian(D, axis=0)
         return _MAD * np.nanmedian(np.abs(D - med), axis=0) / _gain(k)
 
