@@ -812,13 +812,15 @@ def steady_clusters(P: np.ndarray, observed: np.ndarray, fps: float, tol_cm: flo
         g = np.flatnonzero(lab == k)
         if len(g) < min_size:
             continue
-        full = obs[:, g].all(axis=1) & np.isfinite(S[:, g]).all(axis=(1, 2))
+        full = obs[:, g].all(axis=1) & np.isfinite(S[:, g]).all(axis=(1, 2))      # (S: the shapes)
         if full.sum() < 4 * w:
             continue
         Q = P[full][:, g]
-        # the shape once, from frames spread over the clip (a dropped point leaves the
-        # others' as it is)
-        tm = _template(S[full][:, g], rounds=1)    # (cleaned positions: one round holds)
+        # the test's shape once, from the tested positions themselves (a dropped point
+        # leaves the others' as it is): a shape from other positions -- the cleaned ones --
+        # differs from these by a bias that turns with the body and reads as a slow bend
+        # (the noisy 1-3 cm finger bones of a Daz hand read short: no group was confirmed)
+        tm = _template(Q, rounds=1)
         keep = np.arange(len(g))
         while len(keep) >= min_size:
             B = np.broadcast_to(tm[keep], (len(Q), len(keep), 3))
@@ -827,7 +829,7 @@ def steady_clusters(P: np.ndarray, observed: np.ndarray, fps: float, tol_cm: flo
             ex = np.sqrt(np.maximum(slow_var(r, np.ones(r.shape, bool)).reshape(len(keep), 3).sum(axis=1) / 3, 0.0))
             if ex.max() <= tol_cm:
                 if _apart(tm[keep], apart_cm) >= min_size:
-                    out.append((g[keep].tolist(), tm[keep]))
+                    out.append((g[keep].tolist(), full))
                 break
             # the worst point goes, and with it every point off by over twice the limit
             # (one fit less per such point; the rest are judged again without them)
@@ -835,7 +837,9 @@ def steady_clusters(P: np.ndarray, observed: np.ndarray, fps: float, tol_cm: flo
             keep = keep[~drop]
     out.sort(key=lambda gs: (-len(gs[0]), gs[0][0]))
     groups = [g for g, _ in out]
-    return (groups, [tm for _, tm in out]) if return_shapes else groups
+    if not return_shapes:
+        return groups
+    return groups, [_template(S[full][:, g]) for g, full in out]
 
 
 #: frames (evenly spread) a rigid group's template is made from: its median shape needs
