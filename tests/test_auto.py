@@ -939,6 +939,16 @@ def test_auto_puts_zero_offset_joints_on_their_parents(clip, tmp_path):
     assert np.sqrt(np.mean((back.positions - out.positions) ** 2)) < 0.1
 
 
+def _daz_60_09(shared_data, a: int, b: int) -> Motion:
+    """Frames a..b of the shared Daz conversion of CMU 60_09 (skips without it)."""
+    p = shared_data / "cmu" / "bvh" / "daz_friendly" / "60_09.bvh"
+    if not p.exists():
+        pytest.skip("no Daz conversion in the shared data")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return io.read(p).slice(a, b)
+
+
 def test_a_daz_blend_out_of_the_t_pose_is_kept_as_read(shared_data):
     """The Daz conversions ease from the T-pose into the motion over frames 1-4 (14-22 cm
     a frame): with 3 cm of noise on every frame (a user's file, not mocapkit corrupt's)
@@ -946,12 +956,7 @@ def test_a_daz_blend_out_of_the_t_pose_is_kept_as_read(shared_data):
     been taken for spikes and refilled 8-18 cm RMS off."""
     from mocapkit.denoise.bases import reference_frames, reference_words
 
-    p = shared_data / "cmu" / "bvh" / "daz_friendly" / "60_09.bvh"
-    if not p.exists():
-        pytest.skip("no Daz conversion in the shared data")
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        clean = io.read(p).slice(0, 360)
+    clean = _daz_60_09(shared_data, 0, 360)
     rng = np.random.default_rng(0)
     P = clean.positions + rng.normal(0, 3.0, clean.positions.shape)
     P[0] = clean.positions[0]                              # the T-pose as the file holds it
@@ -971,12 +976,7 @@ def test_auto_holds_the_rigid_groups_of_a_daz_skeleton(shared_data):
     skeleton, whose joints all turn, has none."""
     import mocapkit.denoise.auto as A
 
-    p = shared_data / "cmu" / "bvh" / "daz_friendly" / "60_09.bvh"
-    if not p.exists():
-        pytest.skip("no Daz conversion in the shared data")
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        clean = io.read(p).slice(5, 1205)
+    clean = _daz_60_09(shared_data, 5, 1205)
     noisy, _ = corrupt.combine(clean, "gaussian:sigma_cm=3", seed=1)
     out = get("auto").denoise(noisy)
     held = [c for c in out.source["auto"]["chain"] if "rigid group" in c]
