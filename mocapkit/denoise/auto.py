@@ -1501,10 +1501,10 @@ def _off_skeleton_share(X: np.ndarray, kept: np.ndarray, bones: np.ndarray, leng
 #: distances and of its rigid-fit residual varies by at most this times the smoothing's
 #: estimated error (std, cm): a group that bends by less is held -- the bend becomes
 #: error, a third of what the hold removes. Measured 2026-12-06 on the 19 vendor BVH files
-#: (in memory, Gaussian 1 / 3 cm and mixed): at an absolute 0.3 cm, groups bending by up
-#: to 0.23 cm were held on the cgspeed skeletons and gauss1 got worse (131_03 +8 %); at
-#: 0.3 x the estimate none of the cgspeed files changes by over 1 % and every Daz file
-#: gains 2-8 %
+#: (in memory, Gaussian 1 / 3 cm and mixed; a first version, groups from four points): at
+#: an absolute 0.3 cm, groups bending by up to 0.23 cm were held on the cgspeed skeletons
+#: and gauss1 got worse (131_03 +8 %); at 0.3 x the estimate none of the cgspeed files
+#: changed by over 1 % and every Daz file gained 2-8 %
 CLUSTER_TOL = 0.3
 
 #: the window (s) of the slow part :func:`_hold_clusters` tests
@@ -1533,10 +1533,13 @@ def _hold_clusters(X: np.ndarray, kept: np.ndarray, out: np.ndarray, usable: np.
     files each hand (forearm, wrist, ten finger joints) and the chest (abdomen, chest,
     neck, collars, shoulders) are rigid to 0.3 cm, and the writer's IK turns their 1-3 cm
     finger bones almost at random under noise. So do marker plates, head bands and the
-    pelvis of a marker set. Measured (2026-12-06, vendor BVH files in memory): Daz
-    gauss3 / mixed auto / oracle 60_09 0.841 / 0.822 -> 0.779 / 0.771, every Daz file 2-8 %
-    lower; the cgspeed and CMU skeletons, whose joints all turn, have no group or gain
-    under 1 %. End to end: docs/results/auto_vendor_bvh.md."""
+    pelvis of a marker set. Measured (2026-12-06, twenty-fourth session, same seeds): the 19
+    vendor BVH files through the CLI (docs/results/auto_vendor_bvh.md, with the Daz blend
+    written back as read, :func:`mocapkit.denoise.bases.reference_frames`): worst auto /
+    oracle gauss3 / mixed 0.83 / 0.83 -> 0.74 / 0.77; the held-out CMU clips through BVH
+    (auto_files.md) gauss3@30 0.813 -> 0.78; in memory (auto.md, auto_heldout.md: some CMU
+    forearm-and-hand and spine groups at 30 fps) mean RMSE gauss1 / gauss3 @30 -0.7..-1.5 %,
+    no case worse by over 0.6 %, 120 fps within 0.2 %."""
     from ..rigid import hold_clusters, steady_clusters
 
     T = X.shape[0]

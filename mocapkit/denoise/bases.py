@@ -186,10 +186,8 @@ def _blend_frames(motion: Motion) -> int:
         warnings.simplefilter("ignore", RuntimeWarning)
         step = np.nanmedian(np.where(both, np.linalg.norm(P[2:] - P[1:-1], axis=2), np.nan), axis=1)
         typical = np.nanmedian(step)                      # step[i]: frame i + 1 to i + 2
-    n = 0
-    while n < cap and step[n] > BLEND_RATIO * typical:
-        n += 1
-    return n
+    big = step[:cap] > BLEND_RATIO * typical             # (NaN: no joint seen twice -> no)
+    return int(cap if big.all() else np.argmin(big))
 
 
 #: :func:`reference_frames`: a first frame within this of the rest pose (cm, the largest
