@@ -169,7 +169,7 @@ def render(doc: dict) -> str:
         # what it wrote and kept out of the ratios (listed below the table)
         ratio = [r["auto"] / r["oracle"] for r in rs if r["oracle"] > 0 and not r.get("left")]
         inp = [r["input"] for r in rs if r["input"] is not None]
-        est = sum(1 for r in rs if r["estimate"] and r["auto"] > 0 and 1 / 1.5 <= r["estimate"] / r["auto"] <= 1.5)
+        est = sum(P.estimate_within(r["estimate"], r["auto"]) for r in rs)
         mean_in = f"{np.mean(inp):.3f}" if inp else ""
         out.append(f"| {fmt} | {cond}@{fps} | {len(rs)} | {mean_in} | {np.mean([r['auto'] for r in rs]):.3f} | "
                    f"{np.mean([r['oracle'] for r in rs]):.3f} | {np.median(ratio):.2f} | {np.max(ratio):.2f} | "
@@ -194,13 +194,14 @@ def render(doc: dict) -> str:
     bvh_g = worst("bvh", ("gauss1", "gauss3"))
     gauss = (f"on Gaussian noise the AMC route stays at {min(amc_g):.2f}-{max(amc_g):.2f} x the oracle in "
              f"its worst clip, where C3D is at most {max(c3d_g):.2f}" if amc_g and c3d_g else "")
-    bvh_e = [r["estimate"] / r["auto"] for r in rows if r["format"] == "bvh" and r["estimate"]
-             and r["condition"] in ("gauss1", "gauss3") and r["auto"] > 0]
+    bvh_r = [r for r in rows if r["format"] == "bvh" and r["estimate"] and r["condition"] in ("gauss1", "gauss3")
+             and r["auto"] > 0]
     bvh = (f" Written to BVH, the noise is projected onto the skeleton's poses by the writer's "
            f"least-squares IK, as it is for AMC (module docstring); on Gaussian noise auto's worst clip is "
            f"at {min(bvh_g):.2f}-{max(bvh_g):.2f} x the oracle, and "
-           f"{sum(1 for e in bvh_e if 1 / 1.5 <= e <= 1.5)} of its {len(bvh_e)} estimates are within 1.5x "
-           f"(those that are not: {', '.join(f'{e:.2f}' for e in sorted(bvh_e) if not 1 / 1.5 <= e <= 1.5) or 'none'})."
+           f"{sum(P.estimate_within(r['estimate'], r['auto']) for r in bvh_r)} of its {len(bvh_r)} estimates are "
+           "within 1.5x (those that are not: "
+           f"{', '.join(f'{e:.2f}' for e in sorted(r['estimate'] / r['auto'] for r in bvh_r if not P.estimate_within(r['estimate'], r['auto']))) or 'none'})."
            if bvh_g else "")
     out += ["", "Means over clips; `input` is the corrupted file's RMSE where it has no missing sample; "
             "auto and the oracle are scored on the samples auto wrote (`left`: samples of long gaps "

@@ -76,7 +76,7 @@ def run(data: Path, tmp: Path) -> list[dict]:
 
 def _within(r: dict) -> bool:
     """auto's estimate within a factor 1.5 of its true error (the issue's test)."""
-    return bool(r["estimate"]) and 1 / 1.5 <= r["estimate"] / r["auto"] <= 1.5
+    return P.estimate_within(r["estimate"], r["auto"])
 
 
 def render(doc: dict) -> str:
@@ -112,7 +112,7 @@ def render(doc: dict) -> str:
     out += ["", f"- estimate within 1.5x of the true error: {n_est} of {len(rows)} runs "
                 f"({100 * n_est / len(rows):.0f} %)",
             f"- files whose frame 0 is a reference pose (a T-pose): {len({r['file'] for r in refs})} "
-            f"({', '.join(f'{n} with {k} frame(s)' for k, n in sorted(Counter(r['reference'] for r in refs[::len(CONDITIONS)]).items()))}: "
+            f"({', '.join(f'{n} with {k} frame(s)' for k, n in sorted(Counter({r['file']: r['reference'] for r in refs}.values()).items()))}: "
             "the T-pose and, in the Daz conversions, the blend out of it); `corrupt` leaves those frames "
             "alone, and `denoise` writes back as read the ones it finds in the corrupted file "
             f"({', '.join(f'{k} in {n} runs' for k, n in sorted(Counter(r.get('reference_read', r['reference']) for r in refs).items()))}): "

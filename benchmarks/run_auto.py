@@ -130,7 +130,7 @@ def _estimate_misses(rows: list[dict]) -> list[str]:
                 or r["metric"] != "rmse" or "glitch_share" not in x):
             continue
         est, v = x.get("estimate"), r["value"]
-        if est and v > 0 and not 1 / 1.5 <= est / v <= 1.5:
+        if est and v > 0 and not P.estimate_within(est, v):
             cause = ("glitch" if x["glitch_share"] >= 0.7 else
                      "ten-gap" if r["condition"] == "gaps10x60" else "other")
             miss.append((r, est / v, cause))

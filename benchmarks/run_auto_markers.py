@@ -33,7 +33,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from mocapkit import corrupt, io, metrics  # noqa: E402
-from mocapkit.bench.protocols.auto import _method  # noqa: E402
+from mocapkit.bench.protocols.auto import _method, estimate_within  # noqa: E402
 from _report import run_or_render  # noqa: E402
 
 OUT = ROOT / "docs" / "results" / "auto_markers.md"
@@ -101,7 +101,7 @@ def render(doc: dict) -> str:
         ratio = a["rmse"] / k if "rmse" in a and k else float("nan")
         if est is not None and a.get("rmse", 0) > 0 and not a.get("filled_own"):
             n += 1                      # the estimate also covers the file's own gaps it filled
-            ok += 1 / 1.5 <= est / a["rmse"] <= 1.5
+            ok += estimate_within(est, a["rmse"])
         better += ratio < 1
         out.append(f"| {f.split('/')[-1]} | {a.get('fps', 0):g} | {cond} | " + " | ".join(cells)
                    + f" | {'' if est is None else f'{est:.3f}'} | {ratio:.2f} | {' -> '.join(a.get('chain') or [])} |")

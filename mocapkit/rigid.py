@@ -42,7 +42,7 @@ from __future__ import annotations
 import json
 import os
 import warnings
-from typing import Sequence
+from typing import Literal, Sequence
 
 import numpy as np
 
@@ -820,7 +820,8 @@ def steady_clusters(P: np.ndarray, observed: np.ndarray, fps: float, tol_cm: flo
         Q = P[full][:, g]
         # the test's shape once, from the tested positions themselves (a dropped point
         # leaves the others' as it is)
-        tm = _template(Q, rounds=1)
+        tm = cluster_template(Q, np.ones(Q.shape[:2], bool), n_iter=1, max_frames=TEMPLATE_FRAMES,
+                              start="middle")
         keep = np.arange(len(g))
         while len(keep) >= min_size:
             B = np.broadcast_to(tm[keep], (len(Q), len(keep), 3))
@@ -843,25 +844,14 @@ def steady_clusters(P: np.ndarray, observed: np.ndarray, fps: float, tol_cm: flo
     groups = [g for g, _ in out]
     if not return_shapes:
         return groups
-    return groups, [_template(S[full][:, g]) for g, full in out]
+    return groups, [cluster_template(S[full][:, g], np.ones((int(full.sum()), len(g)), bool), n_iter=2,
+                                     max_frames=TEMPLATE_FRAMES, start="middle") for g, full in out]
 
 
-#: frames (evenly spread) a rigid group's template is made from: its median shape needs
-#: no more, and all frames of a long clip made :func:`steady_clusters` a third of auto's time
+#: frames (evenly spread) :func:`steady_clusters` and :func:`hold_clusters` take a group's
+#: shape from (:func:`cluster_template`'s ``max_frames``): a median shape needs no more, and
+#: all frames of a long clip made :func:`steady_clusters` a third of auto's time
 TEMPLATE_FRAMES = 128
-
-
-def _template(Q: np.ndarray, rounds: int = 2) -> np.ndarray:
-    """The median shape (K, 3) of a rigid group's complete frames Q (T, K, 3): the frames
-    (at most :data:`TEMPLATE_FRAMES`, spread) aligned onto the middle one, their median,
-    and (``rounds`` 2) once more onto that -- :func:`cluster_template` without its
-    missing-point bookkeeping."""
-    Q = Q[spaced_frames(len(Q), TEMPLATE_FRAMES)]
-    tm = Q[len(Q) // 2]
-    for _ in range(int(rounds)):
-        R, t = kabsch(np.broadcast_to(tm, Q.shape), Q)
-        tm = np.median(np.einsum("tji,tkj->tki", R, Q - t[:, None, :]), axis=0)
-    return tm
 
 
 #: :func:`steady_clusters`: pairs whose distance's slow part varies by up to this times
@@ -915,7 +905,7 @@ def hold_clusters(P: np.ndarray, clusters: Sequence[Sequence[int]],
             continue
         Q = P[:, g]
         ok = np.isfinite(Q).all(axis=2)
-        tm[c, :len(g)] = _template(Q[ok.all(axis=1)]) if ok.all(axis=1).sum() >= 3 else cluster_template(Q, ok)
+        tm[c, :len(g)] = cluster_template(Q, ok, n_iter=2, max_frames=TEMPLATE_FRAMES)
     inn &= np.isfinite(tm).all(axis=2)
     tm = np.where(inn[..., None], tm, 0.0)
     Q = P[:, idx]                                                       # (T, G, K, 3)
@@ -1164,14 +1154,18 @@ def parse_clusters(spec, names: Sequence[str]) -> list[list[int]]:
 
 # -- the fill -----------------------------------------------------------------------------
 def cluster_template(P: np.ndarray, observed: np.ndarray, *, n_iter: int = 5,
-                     min_points: int = 3) -> np.ndarray:
+                     min_points: int = 3, max_frames: int | None = None,
+                     start: Literal["most", "middle"] = "most") -> np.ndarray:
     """Robust average shape of a rigid cluster: generalised Procrustes with missing markers.
 
     P : (T, K, 3) the cluster's markers (cm), observed (T, K). Every frame that sees at
     least ``min_points`` markers is rigidly aligned (:func:`kabsch`) onto the current
     template and the template is the per-marker median of the aligned positions;
     ``n_iter`` rounds, vectorised over frames. Returns (K, 3) cm (NaN for a marker never
-    seen in an aligned frame), in the frame of the frame that sees most markers.
+    seen in an aligned frame), in the frame of the frame it starts from: the one that sees
+    most markers (``start="most"``), or the middle one (``"middle"``: complete frames of a
+    group whose first frames may be unlike the rest). ``max_frames``: at most that many
+    frames, evenly spread, are used (a median shape needs no more).
     """
     P = np.asarray(P, dtype=float)
     obs = np.asarray(observed, bool) & np.isfinite(P).all(axis=-1)
@@ -1179,9 +1173,17 @@ def cluster_template(P: np.ndarray, observed: np.ndarray, *, n_iter: int = 5,
     if not use.any():
         return np.full(P.shape[1:], np.nan)
     Q, o = P[use], obs[use]
-    best = int(np.argmax(o.sum(axis=1)))
+    if max_frames is not None and len(Q) > max_frames:
+        sub = spaced_frames(len(Q), max_frames)
+        Q, o = Q[sub], o[sub]
+    best = int(np.argmax(o.sum(axis=1))) if start == "most" else len(Q) // 2
     tmpl = np.where(o[best][:, None], Q[best], np.nan)
+    complete = bool(o.all())
     for _ in range(int(n_iter)):
+        if complete:                # (no missing-point bookkeeping: three times faster)
+            R, t = kabsch(np.broadcast_to(tmpl, Q.shape), Q)
+            tmpl = np.median(np.einsum("tji,tkj->tki", R, Q - t[:, None, :]), axis=0)
+            continue
         have = np.isfinite(tmpl).all(axis=1)
         w = (o & have[None, :]).astype(float)
         R, t = kabsch(np.where(have[:, None], tmpl, 0.0)[None].repeat(len(Q), 0), Q, w)

@@ -1477,8 +1477,10 @@ def _off_skeleton_share(X: np.ndarray, kept: np.ndarray, bones: np.ndarray, leng
     0.53 -> 0.27). 1 where no bone says anything.
 
     (Until 2026-12-06 the noise was :func:`mocapkit.rigid.distance_noise`'s, from each
-    point's most rigid partner; on the bones the format fixes the two read alike, and this
-    one costs a tenth: 3 ms of a 240-frame clip's 80.)"""
+    point's most rigid partner: 2.8 ms of a 240-frame clip's 80, where this one costs a
+    tenth. Measured on 20 of the protocol's cases with white 1 / 3 cm noise the share reads
+    0.73-0.99 (the partner search's 0.55-1.00), and 0 on six AMC / BVH read-backs, as
+    before.)"""
     from ..signal import estimate_noise
 
     T = X.shape[0]
