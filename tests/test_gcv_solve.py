@@ -76,3 +76,24 @@ def test_the_plain_fit_and_the_validation_afterwards_are_the_ones_gcv_smooth_giv
     assert i_r.hole_map is None and i_l.hole_map is not None and i_r.rejected.any()
     for k in ("hole_error", "hole_map", "error"):
         np.testing.assert_array_equal(getattr(i_v, k), getattr(i_l, k), err_msg=k)
+
+
+@pytest.mark.parametrize("T, J, order", [(62, 31, 2), (9, 4, 3)])
+def test_a_points_three_columns_share_one_factorisation_with_the_same_numbers(T, J, order):
+    """Columns in triples with one point's weights and s (group=3 fits, point masks) are
+    solved with one factor and three right-hand sides: bit for bit the per-column solve."""
+    rng = np.random.default_rng(T + J)
+    Y = rng.normal(size=(T, 3 * J)).cumsum(axis=0)
+    Wp = (rng.random((T, J)) > 0.3) * rng.uniform(0.2, 1.0, (T, J))
+    Wp[1:, 1] = 0.0                                                   # too few: the point keeps Y
+    W = np.repeat(Wp, 3, axis=1)
+    s = np.repeat(10.0 ** rng.uniform(-1, 4, J), 3)
+    assert g._shared_triples(W, s)
+    out = g._solve_weighted(Y, W, s, order)
+    W2 = W.copy()
+    W2[:, 2] *= 0.5                                                   # one column apart: no triples
+    assert not g._shared_triples(W2, s)
+    per_column = np.column_stack([g._solve_weighted(Y[:, [c]], W[:, [c]], s[[c]], order)[:, 0]
+                                  for c in range(3 * J)])
+    np.testing.assert_array_equal(out, per_column)
+    np.testing.assert_array_equal(out[:, 3:6], Y[:, 3:6])

@@ -163,7 +163,8 @@ from ..solvers import lowrank as _lr
 from ..solvers.gcv_spline import (_BISQUARE, ROBUST_MIN_SCALE, cutoff_hz, gcv_smooth, plain_fit, residual_scale,
                                   validated)
 from ..windows import frame_blocks
-from ..solvers.mssa import correlated_probe, mssa_denoise, sure_divergence, sure_weights
+from ..solvers.mssa import (correlated_probe, mssa_denoise, sure_divergence, sure_divergence_stacked,
+                            sure_weights)
 from .base import Denoiser, get, register
 from .fill_auto import SHORT_FRAMES
 from .constraints import Integral, Interval, Real
@@ -1377,12 +1378,19 @@ def _smooth(Y: np.ndarray, kept: np.ndarray, fit: np.ndarray, sigma: float,
     # is this refit, and a reference other than f(Y) puts (f(Y) - fit) / e, e = 0.01 sigma,
     # into the divergence (on spiky clips it made SURE pick the spline alone: run@30 mixed
     # 1.68 cm where the mix below gives 1.30)
-    fns = {"gcv-spline": f_gcv, "mssa": f_mssa, "kalman-cv": f_kal}
+    fns = {"gcv-spline": f_gcv, "mssa": f_mssa}
     outs = {k: (fit if k == "gcv-spline" and s is not None else f(Y)) for k, f in fns.items()}
     # one probe for all: the divergence is linear in f, so a mix's is the mix of theirs
     # the probe correlated across channels as the noise is (None, too few differences: +-1)
     probe = correlated_probe(Y, kept, sigma, rng=0)
     div = {k: sure_divergence(f, Y, sigma, mask=kept, fy=outs[k], rng=0, probe=probe) for k, f in fns.items()}
+    if Y.shape[0] < KALMAN_STACK_FRAMES:  # the Kalman smoother's run and its probe's in one pass
+        outs["kalman-cv"], div["kalman-cv"] = sure_divergence_stacked(f_kal, Y, sigma, mask=kept, rng=0,
+                                                                      probe=probe)
+    else:
+        outs["kalman-cv"] = f_kal(Y)
+        div["kalman-cv"] = sure_divergence(f_kal, Y, sigma, mask=kept, fy=outs["kalman-cv"], rng=0,
+                                           probe=probe)
     names = list(outs)
     w, _ = sure_weights(Y, [outs[k] for k in names], sigma, [div[k] for k in names], mask=kept)
     out = outs[names[0]] * w[0]
@@ -1404,6 +1412,15 @@ def _smooth(Y: np.ndarray, kept: np.ndarray, fit: np.ndarray, sigma: float,
     return out, picked, float(sigma * np.sqrt(max(df, 0.0) / N)), sigma
 
 
+#: below this many frames :func:`_smooth` runs the Kalman smoother on the clip and on its
+#: SURE probe in one call (:func:`mocapkit.solvers.mssa.sure_divergence_stacked`; the same
+#: numbers): its per-frame loop is then Python overhead on small arrays (a 62-frame clip:
+#: ~2.5 ms a run), paid once for both. Longer clips take the RTS's steady-state path
+#: (``lfilter`` per channel, :func:`mocapkit.signal.rts_smoother`), where stacking saves
+#: nothing and doubles the memory
+KALMAN_STACK_FRAMES = 1024
+
+
 def _kalman_cv(Y: np.ndarray, kept: np.ndarray, sigma: float, fps: float):
     """A fixed linear smoother for :func:`_smooth`: constant-velocity Kalman filter + RTS
     (:class:`mocapkit.denoise.kalman.KalmanCV`'s model, no gate) with measurement noise
@@ -1414,15 +1431,19 @@ def _kalman_cv(Y: np.ndarray, kept: np.ndarray, sigma: float, fps: float):
 
     dt = 1.0 / float(fps)
     q, _ = signal.select_process_noise(Y, kept, dt=dt, r=sigma ** 2, order=2)
-    F, Q = signal.cv_model(dt, q, order=2)
     C = Y.shape[1]
     first = np.argmax(kept, axis=0)
     P0 = np.diag([1e4, 1e6])                 # vague prior, as kalman-cv: 100 cm, 1000 cm/s
 
     def f(Z: np.ndarray) -> np.ndarray:
-        x0 = np.zeros((C, 2))
-        x0[:, 0] = Z[first, np.arange(C)]
-        xs, _ = signal.rts_smoother(Z, kept, F=F, Q=Q, R=sigma ** 2, x0=x0, P0=P0)
+        # Z may hold k copies of the channels side by side (k C columns; the SURE probe's
+        # run with Y's, :func:`mocapkit.solvers.mssa.sure_divergence_stacked`): one loop
+        # over the frames for all, each column's numbers as alone
+        k = Z.shape[1] // C
+        F, Q = signal.cv_model(dt, np.tile(q, k), order=2)
+        x0 = np.zeros((k * C, 2))
+        x0[:, 0] = Z[np.tile(first, k), np.arange(k * C)]
+        xs, _ = signal.rts_smoother(Z, np.tile(kept, (1, k)), F=F, Q=Q, R=sigma ** 2, x0=x0, P0=P0)
         return xs[:, :, 0]
 
     return f

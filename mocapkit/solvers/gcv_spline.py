@@ -176,6 +176,9 @@ def _solve_weighted(Y: np.ndarray, W: np.ndarray, s: np.ndarray, order: int,
     T = Y.shape[0]
     P = _penalty_bands(T, order)
     s = np.broadcast_to(np.asarray(s, float), ok.shape)
+    if _shared_triples(W, s):
+        _solve_triples(Y, W, s, P, order, ok, out)
+        return out
     idx = np.flatnonzero(ok)
     # ~8,000 unknowns a call: the per-call cost is gone by then, and a longer system leaves
     # the cache (10,000 frames took 7 % longer in blocks of 16 columns than one by one)
@@ -192,6 +195,41 @@ def _solve_weighted(Y: np.ndarray, W: np.ndarray, s: np.ndarray, order: int,
             for c in cols:
                 out[:, c] = _solve_column(Y[:, c], W[:, c], s[c], P, order)
     return out
+
+
+def _shared_triples(W: np.ndarray, s: np.ndarray) -> bool:
+    """Whether the columns come in triples (a point's x, y, z) with the same weights and
+    the same s -- as ``group=3`` fits and point masks make them -- so that each triple's
+    three systems have one matrix."""
+    C = W.shape[1]
+    if C % 3 or C < 3:
+        return False
+    return bool(np.array_equal(s[0::3], s[1::3]) and np.array_equal(s[0::3], s[2::3])
+                and np.array_equal(W[:, 0::3], W[:, 1::3]) and np.array_equal(W[:, 0::3], W[:, 2::3]))
+
+
+def _solve_triples(Y: np.ndarray, W: np.ndarray, s: np.ndarray, P: np.ndarray, order: int,
+                   ok: np.ndarray, out: np.ndarray) -> None:
+    """:func:`_solve_weighted` for columns in triples sharing their matrix
+    (:func:`_shared_triples`): one banded Cholesky per point and its three coordinates as
+    three right-hand sides (LAPACK ``dpbsv`` with nrhs = 3 solves each with the factor as
+    a single solve would: the same numbers), half the time of three factorisations (a
+    62-frame, 31-point clip: 0.40 -> 0.20 ms a solve; ``auto`` makes ~11)."""
+    T = Y.shape[0]
+    pts = np.flatnonzero(ok[0::3])
+    for sl in channel_blocks(len(pts), max(1, _SOLVE_BLOCK // max(T, 1))):
+        c0 = 3 * pts[sl]
+        Wb = np.asarray(W[:, c0], float).T                          # (c, T)
+        ab = s[c0][None, :, None] * P[:, None, :]                   # (m + 1, c, T)
+        ab[order] += Wb
+        rhs = np.stack([(Wb * Y[:, c0 + k].T).reshape(-1) for k in range(3)], axis=1)
+        _, x, info = dpbsv(ab.reshape(order + 1, -1), rhs, overwrite_ab=1, overwrite_b=1)
+        for k in range(3):
+            if info == 0:
+                out[:, c0 + k] = x[:, k].reshape(len(c0), T).T
+            else:                  # a point numerically singular: each column on its own
+                for c in c0 + k:
+                    out[:, c] = _solve_column(Y[:, c], W[:, c], s[c], P, order)
 
 
 def _solve_column(y: np.ndarray, w: np.ndarray, s: float, P: np.ndarray, order: int) -> np.ndarray:
