@@ -597,18 +597,27 @@ def hold_lengths(P: np.ndarray, pairs: np.ndarray, lengths: np.ndarray, *, sweep
             if not (wa.any() or wb.any()):
                 continue
         steps.append((a, b, L[g][:, None], wa, wb))
-    for _ in range(int(sweeps)):
-        for a, b, l, wa, wb in steps:
-            d = Q[a] - Q[b]                                                   # (G, T, 3)
-            n = np.sqrt(np.einsum("gti,gti->gt", d, d))                       # NaN with a missing end
-            with np.errstate(invalid="ignore"):
+    # (a group's ends are distinct points, so each end is gathered once a step and written
+    # back once; with every point finite -- a smoothed clip -- no NaN needs masking: ~30 %
+    # less per step, where a short clip's time is the per-operation cost; the same numbers)
+    complete = bool(np.isfinite(Q).all())
+    with np.errstate(invalid="ignore"):
+        for _ in range(int(sweeps)):
+            for a, b, l, wa, wb in steps:
+                Qa, Qb = Q[a], Q[b]
+                d = Qa - Qb                                                   # (G, T, 3)
+                n = np.sqrt(np.einsum("gti,gti->gt", d, d))                   # NaN with a missing end
                 k = np.where(n > 1e-9, (n - l) / np.maximum(n, 1e-9), 0.0)
                 if mo is not None:
                     lim = np.where(np.broadcast_to(wa[..., 0], k.shape) > 0, mo[a], mo[b])
                     k = np.where(np.abs(n - l) <= lim, k, 0.0)
-            c = np.where((k != 0.0)[..., None], k[..., None] * d, 0.0)        # 0 with a missing end
-            Q[a] -= wa * c
-            Q[b] += wb * c
+                c = k[..., None] * d
+                if not complete:
+                    c = np.where((k != 0.0)[..., None], c, 0.0)               # 0 with a missing end
+                Qa -= wa * c
+                Qb += wb * c
+                Q[a] = Qa
+                Q[b] = Qb
     return Q.transpose(1, 0, 2).copy()
 
 

@@ -275,6 +275,10 @@ def _select_and_fit(Y: np.ndarray, W: np.ndarray, order: int, s_fixed: np.ndarra
     lam = _eig(Y.shape[0], order)
     if out is None:
         out = np.empty(Y.shape)
+    if passes > 1 and np.isfinite(f).all() and (W.all() if W.dtype == bool else bool((W == 1.0).all())):
+        # every weight 1: the completed series is Y itself whatever f is (W y + 0 f), so a
+        # second pass would choose the same s and make the same fit
+        passes = 1
     for _ in range(passes):
         s, _ = _choose_s(_completed_dct(Y, W, f, out), lam, n_obs)
         f = _solve_weighted(Y, W, s, order, out=out)
