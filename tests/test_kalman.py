@@ -388,3 +388,20 @@ def test_kalman_on_real_clip(shared_data):
             assert out.observed.all() and np.isfinite(out.positions).all()
         err = np.sqrt(np.mean((m.denoise(noisy).positions - test.positions) ** 2))
         assert err < 2.0, (m.name, err)
+
+
+def test_process_noise_selection_runs_shared_covariances_with_the_same_numbers():
+    """Every frame observed and one noise level: the innovations' covariances are run once
+    per grid point, not once per channel -- the same innovations and variances."""
+    from mocapkit.signal import statespace as ss
+
+    rng = np.random.default_rng(3)
+    Y = rng.normal(size=(70, 6)).cumsum(axis=0)
+    q = ss.cutoff_to_q(np.repeat([0.5, 2.0, 6.0], 6), r=0.25, dt=1 / 30)
+    F, Qm = ss.cv_model(1 / 30, q, order=2)
+    Yb, Mb = np.tile(Y, (1, 3)), np.ones((70, 18), bool)
+    first, Rb = np.tile(Y[0], 3), np.full(18, 0.25)
+    plain = ss._innovations_2(Yb, Mb, F, Qm, Rb, first)
+    shared = ss._innovations_2(Yb, Mb, F, Qm, Rb, first, shared=6)
+    for a, b in zip(plain, shared):
+        np.testing.assert_array_equal(a, b)

@@ -101,7 +101,11 @@ def select_process_noise(Y, mask=None, /, *, dt: float, r, order: int = 2,
     Rb = np.tile(rr, G)
     first = np.tile(A[np.argmax(M, axis=0), np.arange(C)] if x0 is None
                     else np.asarray(x0, float).reshape(C), G)
-    if F.shape[0] <= 2:
+    if F.shape[0] == 2 and M.all() and np.all(rr == rr[0]):
+        # every frame observed and one noise level: the covariances depend on the grid
+        # point only (the same numbers for its C channels), so they are run on G filters
+        NU, SS = _innovations_2(Yb, Mb, F, Qm, Rb, first, shared=C)
+    elif F.shape[0] <= 2:
         NU, SS = _innovations_2(Yb, Mb, F, Qm, Rb, first)
     else:
         NU, SS = _innovations_n(Yb, Mb, F, Qm, Rb, first)
@@ -123,10 +127,28 @@ def _cutoff_grid(grid_hz, fs: float) -> np.ndarray:
     return np.asarray(grid_hz, dtype=float)
 
 
-def _innovations_2(Yb, Mb, F, Qm, Rb, first) -> tuple[np.ndarray, np.ndarray]:
+def _innovations_2(Yb, Mb, F, Qm, Rb, first, shared: int | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Forward Kalman pass for n <= 2 states with the 2x2 algebra on (B,) component
     arrays (as :func:`mocapkit.signal.rts._rts_scalar`): innovations and their variances
-    (T, B); prior x = (first, 0), P = diag(1e4, 1e6)."""
+    (T, B); prior x = (first, 0), P = diag(1e4, 1e6). ``shared`` = k: every sample
+    observed and the filters in runs of k with one model (Qm, Rb): the covariances and
+    gains are run once per run (:func:`_gains_2`), the frame loop then updates the means
+    only -- the same numbers, a third of the operations a frame."""
+    if shared is not None and F.shape[0] == 2:
+        k = int(shared)
+        S, K0, K1 = _gains_2(Yb.shape[0], float(F[0, 1]), Qm[::k], Rb[::k])
+        S, K0, K1 = (np.repeat(a, k, axis=1) for a in (S, K0, K1))
+        NU = np.empty(Yb.shape)
+        d = float(F[0, 1])
+        x0_, x1 = first.copy(), np.zeros(Yb.shape[1])
+        for t in range(Yb.shape[0]):
+            if t > 0:
+                x0_ = x0_ + d * x1
+            nu = Yb[t] - x0_
+            NU[t] = nu
+            x0_ = x0_ + K0[t] * nu
+            x1 = x1 + K1[t] * nu
+        return NU, S
     T, B = Yb.shape
     n = F.shape[0]
     NU = np.empty((T, B))
@@ -165,6 +187,29 @@ def _innovations_2(Yb, Mb, F, Qm, Rb, first) -> tuple[np.ndarray, np.ndarray]:
             p01 = p01 - k0 * p01
         p00 = p00 - k0 * p00
     return NU, SS
+
+
+def _gains_2(T: int, d: float, Qm: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The covariance recursion of :func:`_innovations_2` (F = [[1, d], [0, 1]], every
+    frame observed) for filters with process covariances Qm (B, 2, 2) and noise R (B,):
+    innovation variances and the two gains, each (T, B)."""
+    q00, q01, q11 = (np.ascontiguousarray(Qm[:, i, j]) for i, j in ((0, 0), (0, 1), (1, 1)))
+    B = len(R)
+    S, K0, K1 = np.empty((T, B)), np.empty((T, B)), np.empty((T, B))
+    p00, p01, p11 = np.full(B, 1e4), np.zeros(B), np.full(B, 1e6)
+    for t in range(T):
+        if t > 0:           # the operations of _innovations_2, in its order
+            p00 = p00 + 2 * d * p01 + d * d * p11 + q00
+            p01 = p01 + d * p11 + q01
+            p11 = p11 + q11
+        S[t] = s = p00 + R
+        inv_s = 1.0 / s
+        K0[t] = k0 = p00 * inv_s
+        K1[t] = k1 = p01 * inv_s
+        p11 = p11 - k1 * p01
+        p01 = p01 - k0 * p01
+        p00 = p00 - k0 * p00
+    return S, K0, K1
 
 
 def _innovations_n(Yb, Mb, F, Qm, Rb, first) -> tuple[np.ndarray, np.ndarray]:
