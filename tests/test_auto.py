@@ -705,6 +705,29 @@ def test_truth_glitches_flag_a_one_frame_step_and_not_smooth_motion(clip):
     assert abs(glitch_share(truth, smooth.with_positions(out_P)) - 0.5) < 1e-9
 
 
+def test_the_protocols_chain_methods_are_what_the_chain_ran():
+    """The time ratio's second yardstick: each candidate method whose work auto's chain
+    holds, once -- the smoothers of the SURE mix by name, the robust spline for spike
+    removal, the spline for short fills (not every step with 'spline' in it), MSSA for the
+    low-rank fill; the holds are auto's own."""
+    from mocapkit.bench.protocols.auto import _chain_methods
+
+    class Case:
+        def __init__(self, chain):
+            self.extra = {"chain": chain}
+
+    def methods(*chain):
+        return _chain_methods({"auto": Case(list(chain))})
+
+    assert methods("mssa 0.70 + gcv-spline 0.28 + kalman-cv 0.01", "bone lengths held",
+                   "1 rigid group held (5 points)") == ["mssa", "gcv-spline", "kalman-cv"]
+    assert methods("spike removal", "mssa 0.75 + gcv-spline 0.25") == ["gcv-spline-robust", "mssa", "gcv-spline"]
+    assert methods("spline fill", "partner-relative fill", "low-rank fill",
+                   "low-rank fill (4-frame window)", "fill-auto") == ["gcv-spline", "mssa", "fill-auto"]
+    assert methods("spike removal", "gcv-spline") == ["gcv-spline-robust", "gcv-spline"]
+    assert methods() == []
+
+
 def test_auto_on_corruption_spread_by_the_amc_writer(clip, tmp_path, monkeypatch):
     """Written to AMC, a corrupted clip is what the writer's IK fits: a spike moves the
     joints around it (a mixture of exact samples and ones off by 0.3-5 cm) and noise lies
