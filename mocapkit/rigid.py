@@ -381,7 +381,7 @@ def fixed_bones(motion, positions: np.ndarray | None = None, *, zero_length: boo
         with np.errstate(invalid="ignore"), warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)          # a bone never seen: NaN
             pos = lengths > 0
-            ratio = np.nanmedian(bone_lengths(P, bones[pos]), axis=0) / lengths[pos]
+            ratio = nanmedian0(bone_lengths(P, bones[pos])) / lengths[pos]
         if not np.isfinite(ratio).any() or not 0.8 <= float(np.nanmedian(ratio)) <= 1.25:
             return bones[:0], lengths[:0]
     return bones, lengths
@@ -1200,9 +1200,7 @@ def cluster_template(P: np.ndarray, observed: np.ndarray, *, n_iter: int = 5,
         aligned = np.einsum("tji,tkj->tki", R, np.where(o[..., None], Q, 0.0) - t[:, None, :])
         ok = o & (w.sum(axis=1) >= min_points)[:, None]
         aligned[~ok] = np.nan
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)
-            new = np.nanmedian(aligned, axis=0)
+        new = nanmedian0(aligned)
         tmpl = np.where(np.isfinite(new), new, tmpl)
     return tmpl
 

@@ -2,6 +2,8 @@
 channels flattened, and the complete-data check."""
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 
 from ..errors import MocapValueError
@@ -73,12 +75,19 @@ def require_finite(A: np.ndarray, what: str) -> None:
             f"fill the gaps first (mocapkit.gaps.fill)")
 
 
+#: columns longer than this go to numpy's own ``nanmedian`` in :func:`nanmedian0`
+NANMEDIAN_SORT_MAX = 2048
+
+
 def nanmedian0(A: np.ndarray) -> np.ndarray:
-    """``np.nanmedian(A, axis=0)`` (NaN where a column has no finite value) by one sort:
+    """``np.nanmedian(A, axis=0)`` (NaN where a column has no finite value, no warning),
+    the same numbers, by one sort for columns of up to :data:`NANMEDIAN_SORT_MAX` values:
     NaN sort last, so the median of the n finite values of a column sits at rows
-    (n - 1) // 2 and n // 2. For short, wide arrays: numpy's own took 3x longer on the
-    (960, 31, 31) pairwise distances of :func:`mocapkit.rigid.rigid_partners` (72 vs
-    21 ms), but on long columns its partition wins (10,000 x 93 with NaN: 47 vs 124 ms).
+    (n - 1) // 2 and n // 2. numpy's own took 3x longer on the (960, 31, 31) pairwise
+    distances of :func:`mocapkit.rigid.rigid_partners` (72 vs 21 ms), and under 600
+    values a column it goes through masked arrays (``auto`` on a 240-frame clip: ~2 ms
+    in 4 calls); on long columns its partition wins (10,000 x 93 with NaN: 47 vs 124 ms)
+    and is used.
 
     >>> A = np.array([[1.0, np.nan], [3.0, 2.0], [2.0, np.nan], [np.nan, np.nan]])
     >>> nanmedian0(A)
@@ -87,6 +96,10 @@ def nanmedian0(A: np.ndarray) -> np.ndarray:
     A = np.asarray(A, dtype=np.float64)
     if A.shape[0] == 0:
         return np.full(A.shape[1:], np.nan)
+    if A.shape[0] > NANMEDIAN_SORT_MAX:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)           # all-NaN columns -> NaN
+            return np.nanmedian(A, axis=0)
     S = np.sort(A, axis=0)
     n = np.isfinite(A).sum(axis=0)
     lo = np.take_along_axis(S, np.maximum((n - 1) // 2, 0)[None], axis=0)[0]

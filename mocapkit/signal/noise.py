@@ -2,13 +2,12 @@
 from __future__ import annotations
 
 import math
-import warnings
 from typing import Literal
 
 import numpy as np
 
 from ..errors import MocapValueError
-from ._arrays import as_2d_view
+from ._arrays import as_2d_view, nanmedian0
 from ..windows import frame_blocks
 
 __all__ = ["estimate_noise"]
@@ -151,10 +150,8 @@ def _channel_diff(A: np.ndarray, M: np.ndarray, method: str) -> np.ndarray:
         with np.errstate(invalid="ignore", divide="ignore"):     # channels with none -> NaN
             return np.sqrt(np.einsum("tc,tc->c", D, D) / ok.sum(axis=0)) / _gain(k)
     D = np.where(ok, D, np.nan)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)          # all-NaN channels -> NaN
-        med = np.nanmedian(D, axis=0)
-        return _MAD * np.nanmedian(np.abs(D - med), axis=0) / _gain(k)
+    med = nanmedian0(D)                                          # all-NaN channels -> NaN
+    return _MAD * nanmedian0(np.abs(D - med)) / _gain(k)
 
 
 def _pooled_diff(A: np.ndarray, M: np.ndarray, method: str, fallback: float) -> float:

@@ -46,18 +46,17 @@ True
 """
 from __future__ import annotations
 
-import warnings
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy.fft import dct, idct
+from scipy.fft import dct
 from scipy.linalg import solve_banded
 from scipy.linalg.lapack import dpbsv
 from scipy.stats import chi2
 
 from ..errors import MocapValueError
 from ..gaps import _runs
-from ..signal._arrays import channel_blocks
+from ..signal._arrays import channel_blocks, nanmedian0
 from ..windows import frame_blocks
 
 __all__ = ["gcv_smooth", "GCVInfo", "cutoff_hz"]
@@ -525,9 +524,7 @@ def residual_scale(Y: np.ndarray, f: np.ndarray, M: np.ndarray, h: np.ndarray, g
     # median of a chi distribution with `group` dof: the MAD constant 0.6745 for group 1
     med = float(np.sqrt(chi2.ppf(0.5, group)))
     lev = np.sqrt(np.maximum(1 - h.reshape(-1, group).mean(axis=1), 1e-6))
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)          # a point never observed: NaN
-        return np.nanmedian(norm, axis=0) / med / lev, norm
+    return nanmedian0(norm) / med / lev, norm              # a point never observed: NaN
 
 
 def _bisquare(Y: np.ndarray, f: np.ndarray, M: np.ndarray, h: np.ndarray, group: int,
