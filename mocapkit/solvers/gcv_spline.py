@@ -213,7 +213,9 @@ def _solve_triples(Y: np.ndarray, W: np.ndarray, s: np.ndarray, P: np.ndarray, o
     (:func:`_shared_triples`): one banded Cholesky per point and its three coordinates as
     three right-hand sides (LAPACK ``dpbsv`` with nrhs = 3 solves each with the factor as
     a single solve would: the same numbers), half the time of three factorisations (a
-    62-frame, 31-point clip: 0.40 -> 0.20 ms a solve; ``auto`` makes ~11)."""
+    62-frame, 31-point clip: 0.40 -> 0.20 ms a solve). Where it applies: one s for every
+    column (the interpolating splines of ``auto``'s short-hole fills) or an s held per
+    point; a GCV fit chooses s per column, and its solves take the general path."""
     T = Y.shape[0]
     pts = np.flatnonzero(ok[0::3])
     for sl in channel_blocks(len(pts), max(1, _SOLVE_BLOCK // max(T, 1))):

@@ -46,7 +46,8 @@ import numpy as np
 from ..errors import MocapValueError
 from ..signal.noise import _diff, _gain     # the noise estimator's differences and gain
 
-__all__ = ["mssa_denoise", "shrink", "sure", "sure_divergence", "sure_divergence_stacked", "sure_risk", "sure_weights", "correlated_probe"]
+__all__ = ["mssa_denoise", "shrink", "sure", "sure_divergence", "sure_divergence_stacked", "sure_risk",
+           "sure_weights", "correlated_probe"]
 
 
 def shrink(y: np.ndarray, beta: float) -> np.ndarray:

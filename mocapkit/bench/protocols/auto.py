@@ -86,7 +86,8 @@ UNSEEN_CLIPS = (("131_02", "cmu/asfamc/131/131_02.amc"), ("131_07", "cmu/asfamc/
                 ("135_08", "cmu/asfamc/135/135_08.amc"),
                 ("hdm05-jog", "hdm05/asfamc/jogLeftCircle4StepsRstart/HDM_tr_jogLeftCircle4StepsRstart_014_120.amc"),
                 ("hdm05-sneak", "hdm05/asfamc/sneak2StepsLStart/HDM_dg_sneak2StepsLStart_007_120.amc"),
-                ("hdm05-arms", "hdm05/asfamc/rotateArmsBothBackward1Reps/HDM_mm_rotateArmsBothBackward1Reps_011_120.amc"),
+                ("hdm05-arms",
+                 "hdm05/asfamc/rotateArmsBothBackward1Reps/HDM_mm_rotateArmsBothBackward1Reps_011_120.amc"),
                 ("hdm05-elbow-knee",
                  "hdm05/asfamc/elbowToKnee1RepsLelbowStart/HDM_bk_elbowToKnee1RepsLelbowStart_007_120.amc"))
 CLIP_SETS = {"protocol": CLIPS, "heldout": HELDOUT_CLIPS, "unseen": UNSEEN_CLIPS}
