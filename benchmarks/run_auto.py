@@ -57,9 +57,10 @@ def render(doc: dict) -> str:
     if cset == "unseen":
         out += ["Clips: `UNSEEN_CLIPS` of the protocol module (CMU 131_02, 131_07, 131_11, 135_05, "
                 "135_08; HDM05 jog, sneak, arm rotation and elbow-to-knee, each by another actor than "
-                "the protocol's HDM05 clips), in neither other set, same conditions and seeds. The set "
-                "was added after auto's last change and no choice of auto was made on it before its "
-                "first run: the issue's check on clips not seen.", ""]
+                "the protocol's HDM05 clips), in neither other set, same conditions and seeds. No "
+                "choice of auto was made on it: it was added and first run (2026-12-06) before that "
+                "session's changes, which left every output as it was -- the issue's check on clips "
+                "not seen.", ""]
     out += [
            "## Targets, per frame rate and condition", "",
            "auto / oracle-tuned classical (median, worst over clips), auto / best candidate; auto's "
