@@ -109,14 +109,18 @@ def render(doc: dict) -> str:
         est = sum(map(_within, rs))
         out.append(f"| {cond} | {len(rs)} | {np.median(ratio):.2f} | {np.max(ratio):.2f} | {est} of {len(rs)} |")
     n_est = sum(map(_within, rows))
+    # reference frames per file, and as denoise found them in each corrupted file
+    per_file = Counter({r["file"]: r["reference"] for r in refs}.values())
+    per_run = Counter(r.get("reference_read", r["reference"]) for r in refs)
+    ref_err = max((r["reference_err_cm"] or 0 for r in refs), default=0)
     out += ["", f"- estimate within 1.5x of the true error: {n_est} of {len(rows)} runs "
                 f"({100 * n_est / len(rows):.0f} %)",
             f"- files whose frame 0 is a reference pose (a T-pose): {len({r['file'] for r in refs})} "
-            f"({', '.join(f'{n} with {k} frame(s)' for k, n in sorted(Counter({r['file']: r['reference'] for r in refs}.values()).items()))}: "
+            f"({', '.join(f'{n} with {k} frame(s)' for k, n in sorted(per_file.items()))}: "
             "the T-pose and, in the Daz conversions, the blend out of it); `corrupt` leaves those frames "
             "alone, and `denoise` writes back as read the ones it finds in the corrupted file "
-            f"({', '.join(f'{k} in {n} runs' for k, n in sorted(Counter(r.get('reference_read', r['reference']) for r in refs).items()))}): "
-            f"their largest error after cleaning {max((r['reference_err_cm'] or 0 for r in refs), default=0):.2g} cm", "",
+            f"({', '.join(f'{k} in {n} runs' for k, n in sorted(per_run.items()))}): "
+            f"their largest error after cleaning {ref_err:.2g} cm", "",
             "The Daz files (twenty-fourth session, 2026-12-06). 22 of the Daz skeleton's 43 joints are finger "
             "segments and eyes, bones of 1-3 cm that the writer's IK turns almost at random under centimetres "
             "of noise (as the CMU hands through AMC, auto_files.md): they held 48-83 % of auto's squared "

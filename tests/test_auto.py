@@ -993,7 +993,7 @@ def test_a_daz_blend_out_of_the_t_pose_is_kept_as_read(shared_data):
     assert e[1:n].max() < 4.0 and e[n:].mean() < 1.5
 
 
-def test_auto_holds_the_rigid_groups_of_a_daz_skeleton(shared_data):
+def test_auto_holds_the_rigid_groups_of_a_daz_skeleton(shared_data, monkeypatch):
     """Daz's hands (forearm, wrist and ten finger joints) and chest move as rigid bodies;
     auto finds them under 3 cm of noise, holds them, and its error there falls; the CMU
     skeleton, whose joints all turn, has none."""
@@ -1004,12 +1004,9 @@ def test_auto_holds_the_rigid_groups_of_a_daz_skeleton(shared_data):
     out = get("auto").denoise(noisy)
     held = [c for c in out.source["auto"]["chain"] if "rigid group" in c]
     assert held
-    mp = pytest.MonkeyPatch()
-    mp.setattr(A, "_hold_clusters", lambda X, kept, out, usable, est, fps: (out, ""))
-    try:
+    with monkeypatch.context() as mp:
+        mp.setattr(A, "_hold_clusters", lambda X, kept, out, usable, est, fps: (out, ""))
         plain = get("auto").denoise(noisy)
-    finally:
-        mp.undo()
     names = clean.skeleton.names
     hand = [names.index(n) for n in names if n[1:] in ("Hand", "Index1", "Index2", "Mid1", "Mid2", "Ring1",
                                                          "Ring2", "Pinky1", "Pinky2", "Thumb1", "Thumb2")]

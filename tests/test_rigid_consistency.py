@@ -96,8 +96,7 @@ def test_steady_clusters_find_a_noisy_rigid_body_and_not_a_swinging_limb():
     truth_body = np.einsum("tij,kj->tki", R, body)
     # a limb 40 cm long swinging out of the body's plane about its first point
     a = 0.8 * np.sin(2 * np.pi * 0.7 * t)
-    limb = np.stack([40 * np.cos(a) * 0 + 2, 40 * np.cos(a) * 0 + 1, -40 * np.cos(a)], 1)
-    limb = limb + np.stack([0 * t, 40 * np.sin(a), 0 * t], 1)
+    limb = np.stack([np.full(T, 2.0), 1.0 + 40 * np.sin(a), -40 * np.cos(a)], 1)
     truth = np.concatenate([truth_body, np.einsum("tij,tj->ti", R, limb)[:, None]], axis=1)
     noisy = truth + rng.normal(0, 2.0, truth.shape)
     groups = steady_clusters(noisy, np.ones((T, 6), bool), 120.0, 0.3)

@@ -1384,13 +1384,11 @@ def _smooth(Y: np.ndarray, kept: np.ndarray, fit: np.ndarray, sigma: float,
     # the probe correlated across channels as the noise is (None, too few differences: +-1)
     probe = correlated_probe(Y, kept, sigma, rng=0)
     div = {k: sure_divergence(f, Y, sigma, mask=kept, fy=outs[k], rng=0, probe=probe) for k, f in fns.items()}
-    if Y.shape[0] < KALMAN_STACK_FRAMES:  # the Kalman smoother's run and its probe's in one pass
-        outs["kalman-cv"], div["kalman-cv"] = sure_divergence_stacked(f_kal, Y, sigma, mask=kept, rng=0,
-                                                                      probe=probe)
-    else:
-        outs["kalman-cv"] = f_kal(Y)
-        div["kalman-cv"] = sure_divergence(f_kal, Y, sigma, mask=kept, fy=outs["kalman-cv"], rng=0,
-                                           probe=probe)
+    # the Kalman smoother's run and its probe's in one call, side by side: its loop over the
+    # frames is paid once for both (a 62-frame clip: ~2.5 ms a run, Python overhead on small
+    # arrays); the same numbers as two runs
+    outs["kalman-cv"], div["kalman-cv"] = sure_divergence_stacked(f_kal, Y, sigma, mask=kept, rng=0,
+                                                                  probe=probe)
     names = list(outs)
     w, _ = sure_weights(Y, [outs[k] for k in names], sigma, [div[k] for k in names], mask=kept)
     out = outs[names[0]] * w[0]
@@ -1410,15 +1408,6 @@ def _smooth(Y: np.ndarray, kept: np.ndarray, fit: np.ndarray, sigma: float,
     N = max(int(np.count_nonzero(kept)), 1)
     df = float(np.dot(w, [div[k] for k in names]))
     return out, picked, float(sigma * np.sqrt(max(df, 0.0) / N)), sigma
-
-
-#: below this many frames :func:`_smooth` runs the Kalman smoother on the clip and on its
-#: SURE probe in one call (:func:`mocapkit.solvers.mssa.sure_divergence_stacked`; the same
-#: numbers): its per-frame loop is then Python overhead on small arrays (a 62-frame clip:
-#: ~2.5 ms a run), paid once for both. Longer clips take the RTS's steady-state path
-#: (``lfilter`` per channel, :func:`mocapkit.signal.rts_smoother`), where stacking saves
-#: nothing and doubles the memory
-KALMAN_STACK_FRAMES = 1024
 
 
 def _kalman_cv(Y: np.ndarray, kept: np.ndarray, sigma: float, fps: float):

@@ -7,7 +7,6 @@ motions into the (T, L) arrays it works on and back.
 from __future__ import annotations
 
 import dataclasses
-import warnings
 from typing import Any, Sequence
 
 import numpy as np
@@ -16,6 +15,7 @@ from .. import signal
 from ..errors import MocapValueError
 from ..frames import MARKER_ORIGIN, Frame, check_marker_origin, frame_in_place, heading_frame, mirror_local, mirror_permutation, up_axis_of
 from ..motion import Motion
+from ..signal._arrays import nanmedian0
 from ..solvers import robust_bases as rb
 from ..solvers.evidence import evidence_blend
 from .base import Denoiser, check_trained_joints, register, report_convergence
@@ -182,11 +182,10 @@ def _blend_frames(motion: Motion) -> int:
     if cap < 1:
         return 0
     both = obs[1:-1] & obs[2:]
-    with np.errstate(invalid="ignore"), warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        step = np.nanmedian(np.where(both, np.linalg.norm(P[2:] - P[1:-1], axis=2), np.nan), axis=1)
-        typical = np.nanmedian(step)                      # step[i]: frame i + 1 to i + 2
-    big = step[:cap] > BLEND_RATIO * typical             # (NaN: no joint seen twice -> no)
+    step = nanmedian0(np.where(both, np.linalg.norm(P[2:] - P[1:-1], axis=2), np.nan).T)
+    typical = nanmedian0(step[:, None])[0]                # step[i]: frame i + 1 to i + 2
+    with np.errstate(invalid="ignore"):
+        big = step[:cap] > BLEND_RATIO * typical         # (NaN: no joint seen twice -> no)
     return int(cap if big.all() else np.argmin(big))
 
 
