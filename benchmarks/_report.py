@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import sys
 import time
 from pathlib import Path
@@ -61,3 +62,38 @@ def method_time(main: Callable[[], Any]) -> Any:
 
     with use_policy(validate_cm=None):
         return main()
+
+
+def replace_section(out: Path, begin: str, end: str, lines: Sequence[str],
+                    title: str = "# I/O results") -> str:
+    """Write ``lines`` between the markers ``begin`` and ``end`` of the shared Markdown
+    report ``out`` (several scripts own a section each of one file, e.g. docs/results/io.md):
+    the section is replaced where it stands, or appended; a missing file starts with
+    ``title``. Returns the section written.
+
+    >>> import tempfile
+    >>> out = Path(tempfile.mkdtemp()) / "io.md"
+    >>> _ = replace_section(out, "<!-- A -->", "<!-- /A -->", ["one"])
+    >>> _ = replace_section(out, "<!-- B -->", "<!-- /B -->", ["two"])
+    >>> _ = replace_section(out, "<!-- A -->", "<!-- /A -->", ["three"])
+    >>> print(out.read_text())
+    # I/O results
+    <BLANKLINE>
+    <!-- A -->
+    three
+    <!-- /A -->
+    <BLANKLINE>
+    <!-- B -->
+    two
+    <!-- /B -->
+    <BLANKLINE>
+    """
+    section = begin + "\n" + "\n".join(lines).rstrip() + "\n" + end + "\n"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    old = out.read_text() if out.exists() else title + "\n\n"
+    if begin in old and end in old:
+        new = re.sub(re.escape(begin) + r".*?" + re.escape(end) + r"\n?", lambda _: section, old, flags=re.S)
+    else:
+        new = old.rstrip("\n") + "\n\n" + section
+    out.write_text(new)
+    return section

@@ -29,6 +29,8 @@ from mocapkit.errors import MocapFormatError
 from mocapkit.io import _kinematics
 from mocapkit.io.units import CMU_CM_PER_UNIT
 
+from _report import replace_section
+
 BEGIN, END = "<!-- BEGIN ASF/AMC/C3D -->", "<!-- END ASF/AMC/C3D -->"
 
 
@@ -286,16 +288,7 @@ def main(argv=None):
         lines += ik_section(tmp)
         lines += bvh_agreement_section()
         lines += c3d_section(data, tmp, a.fuzz)
-    section = BEGIN + "\n" + "\n".join(lines).rstrip() + "\n" + END + "\n"
-    out = Path(a.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    old = out.read_text() if out.exists() else "# I/O results\n\n"
-    if BEGIN in old and END in old:
-        new = re.sub(re.escape(BEGIN) + r".*?" + re.escape(END) + r"\n?", lambda _: section, old, flags=re.S)
-    else:
-        new = old.rstrip("\n") + "\n\n" + section
-    out.write_text(new)
-    print(section)
+    print(replace_section(Path(a.out), BEGIN, END, lines))
 
 
 if __name__ == "__main__":

@@ -10,7 +10,6 @@ from __future__ import annotations
 import argparse
 import os
 import platform
-import re
 import tempfile
 import time
 import warnings
@@ -20,6 +19,8 @@ import numpy as np
 
 from mocapkit.datasets import shared_data_dir
 from mocapkit.io import bvh, kinect, trc
+
+from _report import replace_section
 
 BEGIN, END = "<!-- BEGIN BVH/TRC/Kinect -->", "<!-- END BVH/TRC/Kinect -->"
 
@@ -254,16 +255,7 @@ def main(argv=None):
         lines += bvh_section(data, tmp)
         lines += trc_section(data, tmp)
         lines += kinect_section(data, tmp)
-    section = BEGIN + "\n" + "\n".join(lines).rstrip() + "\n" + END + "\n"
-    out = Path(a.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    old = out.read_text() if out.exists() else "# I/O results\n\n"
-    if BEGIN in old and END in old:
-        new = re.sub(re.escape(BEGIN) + r".*?" + re.escape(END) + r"\n?", lambda _: section, old, flags=re.S)
-    else:
-        new = old.rstrip("\n") + "\n\n" + section
-    out.write_text(new)
-    print(section)
+    print(replace_section(Path(a.out), BEGIN, END, lines))
 
 
 if __name__ == "__main__":
