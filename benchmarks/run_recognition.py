@@ -265,7 +265,7 @@ def readout_note() -> str:
     ridge = [k for k in rows if k.startswith("ridge alpha")]
     flat = [k for k in ridge if pc(k) == pc(ridge[0])]
     from run_recognition_readout import SUBJECT_CENTRED as sc
-    others = [k for k in rows if not k.startswith(("ridge alpha", "ridge after NAP")) and k != sc]
+    others = [k for k in rows if not k.startswith(("ridge alpha", "ridge after NAP") + MARGIN) and k != sc]
     best = max(others, key=lambda k: rows[k]["cross-subject"] + rows[k]["half"])
     return ("Eleventh round, the read-out (`benchmarks/run_recognition_readout.py`, "
             f"recognition_readout.json; transform seed {doc['rows'][0]['seed']}): the default's "
@@ -277,7 +277,34 @@ def readout_note() -> str:
             "is harmless. Every other read-out of the same features is lower -- "
             + ", ".join(f"{k} {pc(k)}" for k in others)
             + f" (best of them: {best}) --, so the linear read-out stays."
-            + _centred_note(rows, ridge[0], sc, doc["n"]["cross-subject"]) + _nap_note(rows, ridge[0]))
+            + _centred_note(rows, ridge[0], sc, doc["n"]["cross-subject"]) + _nap_note(rows, ridge[0])
+            + _margin_note(rows, ridge[0]))
+
+
+#: the read-outs of the sixteenth round (run_recognition_readout.margin_readouts)
+MARGIN = ("linear SVM", "logistic")
+
+
+def _margin_note(rows: dict, base: str) -> str:
+    """The sixteenth round's sentence: linear classifiers of the same features with the
+    hinge and logistic losses (run_recognition_readout.margin_readouts) against the ridge."""
+    keys = [k for k in rows if k.startswith(MARGIN)]
+    if not keys:
+        return ""
+    best = {m: max((k for k in keys if k.startswith(m)), key=lambda k: rows[k]["cross-subject"] + rows[k]["half"])
+            for m in MARGIN if any(k.startswith(m) for k in keys)}
+
+    def pc(k: str) -> str:
+        return f"{100 * rows[k]['cross-subject']:.1f} / {100 * rows[k]['half']:.1f}"
+
+    return (" Sixteenth round (twenty-sixth session), in the same run: the same features read out by "
+            "other losses than the ridge's squared one -- the max-margin linear SVM (hinge loss, "
+            "one-vs-one, scikit-learn's `SVC` on the Gram matrix) and multinomial logistic regression "
+            "(fitted in the span of the training rows' features, which holds an L2-penalised linear "
+            "model's solution), each at C = " + ", ".join(sorted({k.split("=")[-1] for k in keys}, key=float))
+            + ": " + "; ".join(f"{k} {pc(k)}" for k in keys)
+            + ". Best of each: " + ", ".join(f"{v} {pc(v)}" for v in best.values())
+            + f", against the ridge's {pc(base)}: the squared loss's near minimum-norm interpolant stays.")
 
 
 def _nap_note(rows: dict, base: str) -> str:
