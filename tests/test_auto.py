@@ -725,7 +725,27 @@ def test_the_protocols_chain_methods_are_what_the_chain_ran():
     assert methods("spline fill", "partner-relative fill", "low-rank fill",
                    "low-rank fill (4-frame window)", "fill-auto") == ["gcv-spline", "mssa", "fill-auto"]
     assert methods("spike removal", "gcv-spline") == ["gcv-spline-robust", "gcv-spline"]
+    assert methods("spike test (no spike confirmed)") == ["gcv-spline-robust"]
     assert methods() == []
+
+
+def test_a_clean_clip_whose_flagged_samples_all_stay_is_reported_so(tmp_path):
+    """The first 30 frames of the bundled walk, read back as C3D markers (no skeleton to
+    vouch for a joint): the robust test flags ~1 % of the samples, the second look keeps
+    them all, so nothing is removed -- the chain says no spike was confirmed (not 'spike
+    removal'), the output is the input, and no end spike is charged to the estimate (it
+    was 0.48 cm with the robust test's rate as the prior)."""
+    from mocapkit import datasets, io
+
+    path = tmp_path / "short.c3d"
+    io.write(io.read(datasets.bundled("16_15.amc")).slice(0, 30), path)
+    m = io.read(path)
+    out = get("auto").denoise(m)
+    src = out.source["auto"]
+    assert src["diagnosis"]["spike_rate"] > 0.005 and src["rejected"] == 0
+    assert src["chain"] == ["spike test (no spike confirmed)"]
+    assert np.array_equal(out.positions, m.positions)
+    assert src["estimated_rmse_cm"] < 0.01
 
 
 def test_auto_on_corruption_spread_by_the_amc_writer(clip, tmp_path, monkeypatch):

@@ -286,12 +286,13 @@ def _picked(case: dict[str, Row]) -> str:
         return "mssa"
     if any("kalman" in c for c in chain):
         return "kalman-cv"
-    return "gcv-spline-robust" if "spike removal" in chain else "gcv-spline"
+    return "gcv-spline-robust" if any(c.startswith(("spike removal", "spike test")) for c in chain) else "gcv-spline"
 
 
 #: a step of auto's chain (its report's words) -> the candidate method that does that
 #: work on its own (:func:`_chain_methods`); the holds (bones, rigid groups) are auto's own
-CHAIN_METHODS = (("spike removal", "gcv-spline-robust"), ("spline fill", "gcv-spline"),
+CHAIN_METHODS = (("spike removal", "gcv-spline-robust"), ("spike test", "gcv-spline-robust"),
+                 ("spline fill", "gcv-spline"),
                  ("low-rank fill", "mssa"), ("mssa", "mssa"), ("gcv-spline", "gcv-spline"),
                  ("kalman-cv", "kalman-cv"), ("fill-auto", "fill-auto"))
 
