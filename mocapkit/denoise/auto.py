@@ -22,7 +22,9 @@ The chain, decided from the clip's own diagnosis (:mod:`mocapkit.diagnose`):
    kept (development clips at 30 fps: 0.259 -> 0.067, 0.183 -> 0.113 cm), but on clips
    of 20-35 frames of fast motion at 30 fps a measured end sample's extrapolation misses
    by more than the limit, and rejecting it cost up to 1.5 cm RMSE (protocol run of
-   docs/results/auto.md: run@30 1.015 -> 2.542), so it is not the default.
+   docs/results/auto.md: run@30 1.015 -> 2.542), so it is not the default. The chain
+   says ``spike removal`` where samples stayed rejected, and ``spike test (no spike
+   confirmed)`` where the second look kept every flagged one.
 2. **Noise** -- three smoothers on the samples kept, mixed by the convex weights of lowest
    Monte-Carlo SURE (Ramani et al. 2008, :func:`mocapkit.solvers.mssa.sure_weights`; its
    probe correlated across channels as the noise is, Eldar 2009,

@@ -286,7 +286,8 @@ def _picked(case: dict[str, Row]) -> str:
         return "mssa"
     if any("kalman" in c for c in chain):
         return "kalman-cv"
-    return "gcv-spline-robust" if any(c.startswith(("spike removal", "spike test")) for c in chain) else "gcv-spline"
+    spikes = any(c.startswith(("spike removal", "spike test")) for c in chain)
+    return "gcv-spline-robust" if spikes else "gcv-spline"
 
 
 #: a step of auto's chain (its report's words) -> the candidate method that does that
