@@ -380,11 +380,12 @@ def cmd_denoise(a: argparse.Namespace) -> int:
         auto = out.source.get("fill_auto") or (out.source.get("auto") or {}).get("fill_auto")
         if auto and auto.get("estimated_rmse_cm") is not None:
             chose = ", ".join(f"{k} {v}" for k, v in sorted(auto["chosen"].items(), key=lambda kv: -kv[1]))
-            print(f"fill-auto: {auto['gaps']} gaps, best validated fill per gap: {chose or 'none'}; "
-                  f"estimated fill error "
-                  f"{_cm(auto['estimated_rmse_cm'])} cm RMSE (from observed stretches hidden like the "
-                  f"file's own gaps)" + (f"; {auto['left_gaps']} gaps left missing (no fill validated "
-                                        f"under {auto['max_error_cm']:g} cm)" if auto["left_gaps"] else "")
+            n, left = auto["gaps"], auto["left_gaps"]
+            print(f"fill-auto: {n} gap{'s' if n > 1 else ''}, best validated fill per gap: {chose or 'none'}; "
+                  f"estimated fill error {_cm(auto['estimated_rmse_cm'])} cm RMSE (from observed stretches "
+                  "hidden like the file's own gaps)"
+                  + (f"; {left} gap{'s' if left > 1 else ''} left missing (no fill validated under "
+                     f"{auto['max_error_cm']:g} cm)" if left else "")
                   + _pooled_note(auto.get("pooled_share")))
     return 0
 
@@ -429,7 +430,7 @@ def _print_auto(src: dict | None, report: dict | None = None) -> None:
         facts.append(f"noise {_cm(d['noise_cm'])} cm")
         facts.append(f"spikes {100 * d['spike_rate']:.1f} %")
         if d.get("n_gaps"):
-            facts.append(f"{d['n_gaps']} gaps")
+            facts.append(f"{d['n_gaps']} gap{'s' if d['n_gaps'] > 1 else ''}")
     line = f"auto: {chain} ({', '.join(facts)}); estimated error " + (
         f"{_cm(est)} cm RMSE ({src.get('how', '')})" if est is not None else "not available")
     left, lim = src.get("left_missing") or 0, src.get("max_fill_error_cm")
