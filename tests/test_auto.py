@@ -1035,3 +1035,18 @@ def test_auto_holds_the_rigid_groups_of_a_daz_skeleton(shared_data, monkeypatch)
     amc = io.read(bundled("16_15.amc")).slice(0, 360)
     n2, _ = corrupt.combine(amc, "gaussian:sigma_cm=3", seed=1)
     assert not [c for c in get("auto").denoise(n2).source["auto"]["chain"] if "rigid group" in c]
+
+
+def test_the_report_says_fixed_bones_hide_joint_angle_jitter(clip):
+    """Kept as measured, a clip's samples are charged the smallest of three noise bounds;
+    one is the spread of rigid distances, which joint-angle jitter of a skeleton (fixed
+    bones: a Kinect SDK skeleton, a solver's AMC) does not change. Where that bound reads
+    zero the report says the jitter is not measured (the estimate stands); with noise on
+    the positions the distances spread and nothing is added."""
+    m = clip.slice(0, 240)
+    how = get("auto").denoise(m).source["auto"]["how"]
+    assert "joint-angle jitter not measured as the bones keep fixed lengths" in how
+    rng = np.random.default_rng(0)
+    noisy = m.with_positions(m.positions + 0.1 * rng.normal(size=m.positions.shape))
+    src = get("auto").denoise(noisy).source["auto"]
+    assert src["diagnosis"]["noise_cm"] < 0.25 and "joint-angle" not in src["how"]
