@@ -421,7 +421,7 @@ class Auto(Denoiser):
                 # the joint angles keeps the distances, so their zero spread is no evidence
                 # of zero noise -- said, as no measurement on the clip tells the two apart
                 # (MSR-Action3D at 15 fps: 16 of 23 clips kept as measured, the diagnosis
-                # reading 0.04-0.23 cm of noise and the estimate ~0.00003 cm)
+                # reading 0.04-0.23 cm of noise, most estimates ~0.00003 cm)
                 unseen = (f"joint-angle jitter not measured as the bones keep fixed lengths "
                           f"(up to {float(d4):.2g} cm by time differences)")
             if spiky:
