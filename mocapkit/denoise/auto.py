@@ -416,7 +416,7 @@ class Auto(Denoiser):
             sig_r = distance_noise(X.reshape(T, -1, 3)[:, usable], kept_m.reshape(T, -1, 3).all(axis=2))
             est["kept"] = np.fmin(est["kept"], np.fmin(d4, sig_r))
             if sig_r < FIXED_BONES_CM and d4 > sig_r:
-                # every rigid distance is fixed to the micrometre: a skeleton's forward
+                # every rigid distance is fixed to 10 micrometres: a skeleton's forward
                 # kinematics (a Kinect SDK skeleton, a solver's AMC / BVH), where jitter of
                 # the joint angles keeps the distances, so their zero spread is no evidence
                 # of zero noise -- said, as no measurement on the clip tells the two apart
