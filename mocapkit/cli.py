@@ -18,6 +18,7 @@ from typing import Any, Iterator, Sequence
 
 import numpy as np
 
+from .diagnose import cm_text
 from .errors import MocapError, MocapFormatError, MocapValueError
 
 EXIT_BAD_INPUT = 2
@@ -382,7 +383,7 @@ def cmd_denoise(a: argparse.Namespace) -> int:
             chose = ", ".join(f"{k} {v}" for k, v in sorted(auto["chosen"].items(), key=lambda kv: -kv[1]))
             n, left = auto["gaps"], auto["left_gaps"]
             print(f"fill-auto: {n} gap{'s' if n > 1 else ''}, best validated fill per gap: {chose or 'none'}; "
-                  f"estimated fill error {_cm(auto['estimated_rmse_cm'])} cm RMSE (from observed stretches "
+                  f"estimated fill error {cm_text(auto['estimated_rmse_cm'])} cm RMSE (from observed stretches "
                   "hidden like the file's own gaps)"
                   + (f"; {left} gap{'s' if left > 1 else ''} left missing (no fill validated under "
                      f"{auto['max_error_cm']:g} cm)" if left else "")
@@ -402,17 +403,6 @@ def _pooled_note(share: float | None) -> str:
             f"scaled for such fills, it was a median three quarters of the true error)")
 
 
-def _cm(x: float) -> str:
-    """A length in cm to two significant digits, never fewer than two decimals: 1.30, 0.23,
-    0.019, 0.0056 (two fixed decimals printed a 0.0185 cm estimate as 0.01); under 0.0001
-    cm (a micrometre, far below any capture's resolution) ``< 0.0001`` (a noise-free clip's
-    estimate of 4e-15 cm had printed as 0.0000000000000037)."""
-    x = float(x)
-    if not np.isfinite(x) or x <= 0:
-        return f"{x:.2f}"
-    if x < 1e-4:
-        return "< 0.0001"
-    return f"{x:.{max(2, 1 - int(np.floor(np.log10(x))))}f}"
 
 
 def _print_auto(src: dict | None, report: dict | None = None) -> None:
@@ -427,12 +417,12 @@ def _print_auto(src: dict | None, report: dict | None = None) -> None:
     est = src.get("estimated_rmse_cm")
     facts = []
     if d:
-        facts.append(f"noise {_cm(d['noise_cm'])} cm")
+        facts.append(f"noise {cm_text(d['noise_cm'])} cm")
         facts.append(f"spikes {100 * d['spike_rate']:.1f} %")
         if d.get("n_gaps"):
             facts.append(f"{d['n_gaps']} gap{'s' if d['n_gaps'] > 1 else ''}")
     line = f"auto: {chain} ({', '.join(facts)}); estimated error " + (
-        f"{_cm(est)} cm RMSE ({src.get('how', '')})" if est is not None else "not available")
+        f"{cm_text(est)} cm RMSE ({src.get('how', '')})" if est is not None else "not available")
     left, lim = src.get("left_missing") or 0, src.get("max_fill_error_cm")
     if report:
         left = report.get("left_missing", left)

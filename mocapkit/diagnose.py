@@ -40,6 +40,24 @@ SPIKE_RATE = 0.005
 _BINS = ((1, 2), (3, 10), (11, 30), (31, 120), (121, None))      # gap lengths, frames
 
 
+def cm_text(x: float) -> str:
+    """A length in cm as the reports print it: two significant digits, never fewer than
+    two decimals -- 1.30, 0.23, 0.019, 0.0056 (two fixed decimals printed a 0.0185 cm
+    estimate as 0.01); under 0.0001 cm (a micrometre, far below any capture's resolution)
+    ``< 0.0001`` (a noise-free clip's estimate of 4e-15 cm had printed as
+    0.0000000000000037, and a 0.00015 cm noise level as 0.000).
+
+    >>> [cm_text(v) for v in (1.3, 0.0186, 0.00015, 4e-15)]
+    ['1.30', '0.019', '0.00015', '< 0.0001']
+    """
+    x = float(x)
+    if not np.isfinite(x) or x <= 0:
+        return f"{x:.2f}"
+    if x < 1e-4:
+        return "< 0.0001"
+    return f"{x:.{max(2, 1 - int(np.floor(np.log10(x))))}f}"
+
+
 @dataclass(frozen=True)
 class Diagnosis:
     """Measured properties of one clip (cm, seconds, Hz); see the module docstring."""
@@ -64,7 +82,7 @@ class Diagnosis:
         """Human-readable report, one fact per line."""
         dur = self.n_frames / self.fps
         out = [f"frames: {self.n_frames} at {self.fps:g} fps ({dur:.1f} s), {self.n_points} points",
-               (f"noise: {self.noise_cm:.3f} cm RMS (GCV estimate on the samples kept)"
+               (f"noise: {cm_text(self.noise_cm)} cm RMS (GCV estimate on the samples kept)"
                 if np.isfinite(self.noise_cm) else
                 "noise: not measurable (too few frames or measured samples for the GCV estimate)"),
                f"spikes: {self.n_spikes} samples ({100 * self.spike_rate:.2f} % of observed)"
@@ -72,7 +90,8 @@ class Diagnosis:
         if self.n_gaps:
             bins = ", ".join(f"{k}: {v}" for k, v in self.gap_bins.items() if v)
             out.append(f"gaps: {self.n_gaps} ({100 * self.missing:.1f} % of samples missing; {bins}); "
-                       f"longest {self.longest_gap} frames ({self.longest_gap / self.fps:.2f} s); "
+                       f"longest {self.longest_gap} frame{'s' if self.longest_gap > 1 else ''} "
+                       f"({self.longest_gap / self.fps:.2f} s); "
                        f"{self.edge_gaps} at the clip's ends")
         else:
             out.append("gaps: none")

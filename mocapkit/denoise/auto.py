@@ -157,7 +157,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..diagnose import SPIKE_RATE, diagnose, diagnosis_of, robust_fit, used_columns
+from ..diagnose import SPIKE_RATE, cm_text, diagnose, diagnosis_of, robust_fit, used_columns
 from ..gaps import gap_lengths
 from ..motion import Motion
 from ..signal import estimate_noise
@@ -423,7 +423,7 @@ class Auto(Denoiser):
                 # (MSR-Action3D at 15 fps: 16 of 23 clips kept as measured, the diagnosis
                 # reading 0.04-0.23 cm of noise, most estimates ~0.00003 cm)
                 unseen = (f"joint-angle jitter not measured as the bones keep fixed lengths "
-                          f"(up to {float(d4):.2g} cm by time differences)")
+                          f"(up to {cm_text(d4)} cm by time differences)")
             if spiky:
                 # the prior that a kept end sample is a spike: the rate of the samples that
                 # stayed rejected after the second look, not the robust test's -- a clip
