@@ -23,12 +23,14 @@ from pathlib import Path
 from typing import Any, Callable, Sequence
 
 
-def run_or_render(out: Path, run: Callable[[Path, argparse.Namespace], dict] | None,
+def run_or_render(out: Path | Callable[[argparse.Namespace], Path],
+                  run: Callable[[Path, argparse.Namespace], dict] | None,
                   render: Callable[[dict], str], description: str,
                   options: Sequence[tuple[str, dict]] = (), argv: Sequence[str] | None = None) -> int:
     """Parse ``--data DIR``, ``--render-only`` and ``options`` ((flag, add_argument kwargs));
     unless rendering only, ``run(data, args)`` returns the document (``rows`` and any
-    settings), written with ``seconds`` to ``out``'s .json; ``render(doc)`` writes ``out``."""
+    settings), written with ``seconds`` to ``out``'s .json; ``render(doc)`` writes ``out``
+    (``out(args)`` where the report depends on an option, e.g. a clip set)."""
     from mocapkit.datasets import shared_data_dir
 
     ap = argparse.ArgumentParser(description=description)
@@ -37,6 +39,8 @@ def run_or_render(out: Path, run: Callable[[Path, argparse.Namespace], dict] | N
     for flag, kw in options:
         ap.add_argument(flag, **kw)
     a = ap.parse_args(argv)
+    if callable(out):
+        out = out(a)
     js = out.with_suffix(".json")
     if not a.render_only:
         if a.data and not Path(a.data).is_dir():       # (shared_data_dir would look elsewhere)

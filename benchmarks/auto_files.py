@@ -239,31 +239,25 @@ def render(doc: dict) -> str:
     return "\n".join(out) + "\n"
 
 
-def main_in_tmp(out: Path, run_rows, render_doc, doc: str, settings: dict | None = None,
-                argv=None) -> int:
-    """``run_or_render`` with ``run_rows(data, tmp)`` given a temporary folder for its files
-    (the corrupted and cleaned files of a CLI route); ``settings`` go into the document."""
+def main_in_tmp(out, run_doc, render_doc, doc: str, options=()) -> int:
+    """``run_or_render`` with ``run_doc(data, tmp, args)`` given a temporary folder for its
+    files (the corrupted and cleaned files of a CLI route); it returns the document."""
     def collect(data: Path, a) -> dict:
         with tempfile.TemporaryDirectory() as d:
-            return {**(settings or {}), "rows": run_rows(data, Path(d))}
+            return run_doc(data, Path(d), a)
 
-    return run_or_render(out, collect, render_doc, doc, argv=argv)
+    return run_or_render(out, collect, render_doc, doc, options)
+
+
+#: ``--clip-set``: the report and the protocol module's clips of each
+CLIP_SETS = {"heldout": (OUT, P.HELDOUT_CLIPS), "unseen": (OUT.with_name("auto_files_unseen.md"), P.UNSEEN_CLIPS)}
 
 
 def main() -> int:
-    # ``--clip-set unseen``: the protocol's UNSEEN_CLIPS, written to auto_files_unseen.md
-    argv = sys.argv[1:]
-    if "--clip-set" in argv:
-        i = argv.index("--clip-set")
-        cset = argv[i + 1] if i + 1 < len(argv) else ""
-        if cset not in ("heldout", "unseen"):
-            raise SystemExit(f"auto_files.py: --clip-set must be heldout or unseen, got {cset!r}")
-        argv = argv[:i] + argv[i + 2:]
-        if cset == "unseen":
-            return main_in_tmp(OUT.with_name("auto_files_unseen.md"),
-                               lambda data, tmp: run(data, tmp, P.UNSEEN_CLIPS), render, __doc__,
-                               {"clip_set": "unseen"}, argv)
-    return main_in_tmp(OUT, run, render, __doc__, argv=argv)
+    return main_in_tmp(lambda a: CLIP_SETS[a.clip_set][0],
+                       lambda data, tmp, a: {"clip_set": a.clip_set,
+                                             "rows": run(data, tmp, CLIP_SETS[a.clip_set][1])},
+                       render, __doc__, [("--clip-set", {"choices": tuple(CLIP_SETS), "default": "heldout"})])
 
 
 if __name__ == "__main__":

@@ -145,7 +145,7 @@ def render(doc: dict) -> str:
 
 
 def main() -> int:
-    return main_in_tmp(OUT, run, render, __doc__)
+    return main_in_tmp(OUT, lambda data, tmp, a: {"rows": run(data, tmp)}, render, __doc__)
 
 
 if __name__ == "__main__":
