@@ -175,62 +175,41 @@ def _solve_weighted(Y: np.ndarray, W: np.ndarray, s: np.ndarray, order: int,
     T = Y.shape[0]
     P = _penalty_bands(T, order)
     s = np.broadcast_to(np.asarray(s, float), ok.shape)
-    if _shared_triples(W, s):
-        _solve_triples(Y, W, s, P, order, ok, out)
-        return out
-    idx = np.flatnonzero(ok)
+    # columns whose triples share weights and s (a point's x, y, z: the fills' splines) are
+    # solved with one factorisation and three right-hand sides (:func:`_shared_triples`)
+    k = 3 if _shared_triples(W, s) else 1
+    heads = np.flatnonzero(ok[0::k]) * k                            # each system's first column
     # ~8,000 unknowns a call: the per-call cost is gone by then, and a longer system leaves
     # the cache (10,000 frames took 7 % longer in blocks of 16 columns than one by one)
-    for sl in channel_blocks(len(idx), max(1, _SOLVE_BLOCK // max(T, 1))):
-        cols = idx[sl]
-        Wb = np.asarray(W[:, cols], float).T                        # (c, T)
-        ab = s[cols][None, :, None] * P[:, None, :]                 # (m + 1, c, T)
+    for sl in channel_blocks(len(heads), max(1, _SOLVE_BLOCK // max(T, 1))):
+        c0 = heads[sl]
+        Wb = np.asarray(W[:, c0], float).T                          # (c, T)
+        ab = s[c0][None, :, None] * P[:, None, :]                   # (m + 1, c, T)
         ab[order] += Wb
-        rhs = (Wb * Y[:, cols].T).reshape(-1, 1)
+        rhs = np.stack([(Wb * Y[:, c0 + j].T).reshape(-1) for j in range(k)], axis=1)
         _, x, info = dpbsv(ab.reshape(order + 1, -1), rhs, overwrite_ab=1, overwrite_b=1)
-        if info == 0:
-            out[:, cols] = x.reshape(len(cols), T).T
-        else:                      # a column numerically singular: each on its own
-            for c in cols:
-                out[:, c] = _solve_column(Y[:, c], W[:, c], s[c], P, order)
+        for j in range(k):
+            if info == 0:
+                out[:, c0 + j] = x[:, j].reshape(len(c0), T).T
+            else:                  # a system numerically singular: each column on its own
+                for c in c0 + j:
+                    out[:, c] = _solve_column(Y[:, c], W[:, c], s[c], P, order)
     return out
 
 
 def _shared_triples(W: np.ndarray, s: np.ndarray) -> bool:
     """Whether the columns come in triples (a point's x, y, z) with the same weights and
-    the same s -- as ``group=3`` fits and point masks make them -- so that each triple's
-    three systems have one matrix."""
+    the same s, so that each triple's three systems have one matrix: :func:`_solve_weighted`
+    then factorises it once and solves three right-hand sides (LAPACK ``dpbsv`` with nrhs =
+    3 solves each with the factor as a single solve would: the same numbers), half the time
+    of three factorisations (a 62-frame, 31-point clip: 0.40 -> 0.20 ms a solve). Where it
+    holds: one s for every column (the interpolating splines of ``auto``'s short-hole
+    fills) or an s held per point; a GCV fit chooses s per column."""
     C = W.shape[1]
     if C % 3 or C < 3:
         return False
     return bool(np.array_equal(s[0::3], s[1::3]) and np.array_equal(s[0::3], s[2::3])
                 and np.array_equal(W[:, 0::3], W[:, 1::3]) and np.array_equal(W[:, 0::3], W[:, 2::3]))
-
-
-def _solve_triples(Y: np.ndarray, W: np.ndarray, s: np.ndarray, P: np.ndarray, order: int,
-                   ok: np.ndarray, out: np.ndarray) -> None:
-    """:func:`_solve_weighted` for columns in triples sharing their matrix
-    (:func:`_shared_triples`): one banded Cholesky per point and its three coordinates as
-    three right-hand sides (LAPACK ``dpbsv`` with nrhs = 3 solves each with the factor as
-    a single solve would: the same numbers), half the time of three factorisations (a
-    62-frame, 31-point clip: 0.40 -> 0.20 ms a solve). Where it applies: one s for every
-    column (the interpolating splines of ``auto``'s short-hole fills) or an s held per
-    point; a GCV fit chooses s per column, and its solves take the general path."""
-    T = Y.shape[0]
-    pts = np.flatnonzero(ok[0::3])
-    for sl in channel_blocks(len(pts), max(1, _SOLVE_BLOCK // max(T, 1))):
-        c0 = 3 * pts[sl]
-        Wb = np.asarray(W[:, c0], float).T                          # (c, T)
-        ab = s[c0][None, :, None] * P[:, None, :]                   # (m + 1, c, T)
-        ab[order] += Wb
-        rhs = np.stack([(Wb * Y[:, c0 + k].T).reshape(-1) for k in range(3)], axis=1)
-        _, x, info = dpbsv(ab.reshape(order + 1, -1), rhs, overwrite_ab=1, overwrite_b=1)
-        for k in range(3):
-            if info == 0:
-                out[:, c0 + k] = x[:, k].reshape(len(c0), T).T
-            else:                  # a point numerically singular: each column on its own
-                for c in c0 + k:
-                    out[:, c] = _solve_column(Y[:, c], W[:, c], s[c], P, order)
 
 
 def _solve_column(y: np.ndarray, w: np.ndarray, s: float, P: np.ndarray, order: int) -> np.ndarray:
