@@ -379,10 +379,8 @@ def fixed_bones(motion, positions: np.ndarray | None = None, *, zero_length: boo
         # a scale check: the median over at most SCALE_CHECK_FRAMES evenly spaced frames
         # (all 10,000 of a long clip cost 24 ms a call, and auto calls it up to three times)
         P = P[spaced_frames(len(P), SCALE_CHECK_FRAMES)]
-        with np.errstate(invalid="ignore"), warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)          # a bone never seen: NaN
-            pos = lengths > 0
-            ratio = nanmedian0(bone_lengths(P, bones[pos])) / lengths[pos]
+        pos = lengths > 0
+        ratio = nanmedian0(bone_lengths(P, bones[pos])) / lengths[pos]     # a bone never seen: NaN
         if not np.isfinite(ratio).any() or not 0.8 <= float(np.nanmedian(ratio)) <= 1.25:
             return bones[:0], lengths[:0]
     return bones, lengths
@@ -1189,7 +1187,7 @@ def cluster_template(P: np.ndarray, observed: np.ndarray, *, n_iter: int = 5,
         Q, o = Q[sub], o[sub]
     best = int(np.argmax(o.sum(axis=1))) if start == "most" else len(Q) // 2
     tmpl = np.where(o[best][:, None], Q[best], np.nan)
-    complete = bool(o.all())
+    complete = bool(o.all())      # (the frames used see at least min_points markers)
     for _ in range(int(n_iter)):
         if complete:                # (no missing-point bookkeeping: three times faster)
             R, t = kabsch(np.broadcast_to(tmpl, Q.shape), Q)

@@ -402,6 +402,6 @@ def test_process_noise_selection_runs_shared_covariances_with_the_same_numbers()
     Yb, Mb = np.tile(Y, (1, 3)), np.ones((70, 18), bool)
     first, Rb = np.tile(Y[0], 3), np.full(18, 0.25)
     plain = ss._innovations_2(Yb, Mb, F, Qm, Rb, first)
-    shared = ss._innovations_2(Yb, Mb, F, Qm, Rb, first, shared=6)
+    shared = ss._innovations_shared(Yb, float(F[0, 1]), Qm, Rb, first, 6)
     for a, b in zip(plain, shared):
         np.testing.assert_array_equal(a, b)

@@ -104,7 +104,7 @@ def select_process_noise(Y, mask=None, /, *, dt: float, r, order: int = 2,
     if F.shape[0] == 2 and M.all() and np.all(rr == rr[0]):
         # every frame observed and one noise level: the covariances depend on the grid
         # point only (the same numbers for its C channels), so they are run on G filters
-        NU, SS = _innovations_2(Yb, Mb, F, Qm, Rb, first, shared=C)
+        NU, SS = _innovations_shared(Yb, float(F[0, 1]), Qm, Rb, first, C)
     elif F.shape[0] <= 2:
         NU, SS = _innovations_2(Yb, Mb, F, Qm, Rb, first)
     else:
@@ -127,28 +127,10 @@ def _cutoff_grid(grid_hz, fs: float) -> np.ndarray:
     return np.asarray(grid_hz, dtype=float)
 
 
-def _innovations_2(Yb, Mb, F, Qm, Rb, first, shared: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+def _innovations_2(Yb, Mb, F, Qm, Rb, first) -> tuple[np.ndarray, np.ndarray]:
     """Forward Kalman pass for n <= 2 states with the 2x2 algebra on (B,) component
     arrays (as :func:`mocapkit.signal.rts._rts_scalar`): innovations and their variances
-    (T, B); prior x = (first, 0), P = diag(1e4, 1e6). ``shared`` = k: every sample
-    observed and the filters in runs of k with one model (Qm, Rb): the covariances and
-    gains are run once per run (:func:`_gains_2`), the frame loop then updates the means
-    only -- the same numbers, a third of the operations a frame."""
-    if shared is not None and F.shape[0] == 2:
-        k = int(shared)
-        S, K0, K1 = _gains_2(Yb.shape[0], float(F[0, 1]), Qm[::k], Rb[::k])
-        S, K0, K1 = (np.repeat(a, k, axis=1) for a in (S, K0, K1))
-        NU = np.empty(Yb.shape)
-        d = float(F[0, 1])
-        x0_, x1 = first.copy(), np.zeros(Yb.shape[1])
-        for t in range(Yb.shape[0]):
-            if t > 0:
-                x0_ = x0_ + d * x1
-            nu = Yb[t] - x0_
-            NU[t] = nu
-            x0_ = x0_ + K0[t] * nu
-            x1 = x1 + K1[t] * nu
-        return NU, S
+    (T, B); prior x = (first, 0), P = diag(1e4, 1e6)."""
     T, B = Yb.shape
     n = F.shape[0]
     NU = np.empty((T, B))
@@ -187,6 +169,25 @@ def _innovations_2(Yb, Mb, F, Qm, Rb, first, shared: int | None = None) -> tuple
             p01 = p01 - k0 * p01
         p00 = p00 - k0 * p00
     return NU, SS
+
+
+def _innovations_shared(Yb: np.ndarray, d: float, Qm: np.ndarray, Rb: np.ndarray, first: np.ndarray,
+                        k: int) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_innovations_2` for two states (F = [[1, d], [0, 1]]) with every sample
+    observed and the filters in runs of k sharing one model (Qm, Rb): the covariances and
+    gains are run once per run (:func:`_gains_2`) and the frame loop updates the means only
+    -- the same numbers, a third of the operations a frame."""
+    S, K0, K1 = (np.repeat(a, k, axis=1) for a in _gains_2(Yb.shape[0], d, Qm[::k], Rb[::k]))
+    NU = np.empty(Yb.shape)
+    x0, x1 = first.copy(), np.zeros(Yb.shape[1])
+    for t in range(Yb.shape[0]):            # the recursion of the means: frame by frame
+        if t > 0:
+            x0 = x0 + d * x1
+        nu = Yb[t] - x0
+        NU[t] = nu
+        x0 = x0 + K0[t] * nu
+        x1 = x1 + K1[t] * nu
+    return NU, S
 
 
 def _gains_2(T: int, d: float, Qm: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
