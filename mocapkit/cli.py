@@ -18,7 +18,7 @@ from typing import Any, Iterator, Sequence
 
 import numpy as np
 
-from .diagnose import cm_text
+from .diagnose import cm_text, count_text
 from .errors import MocapError, MocapFormatError, MocapValueError
 
 EXIT_BAD_INPUT = 2
@@ -382,10 +382,10 @@ def cmd_denoise(a: argparse.Namespace) -> int:
         if auto and auto.get("estimated_rmse_cm") is not None:
             chose = ", ".join(f"{k} {v}" for k, v in sorted(auto["chosen"].items(), key=lambda kv: -kv[1]))
             n, left = auto["gaps"], auto["left_gaps"]
-            print(f"fill-auto: {n} gap{'s' if n > 1 else ''}, best validated fill per gap: {chose or 'none'}; "
+            print(f"fill-auto: {count_text(n, 'gap')}, best validated fill per gap: {chose or 'none'}; "
                   f"estimated fill error {cm_text(auto['estimated_rmse_cm'])} cm RMSE (from observed stretches "
                   "hidden like the file's own gaps)"
-                  + (f"; {left} gap{'s' if left > 1 else ''} left missing (no fill validated under "
+                  + (f"; {count_text(left, 'gap')} left missing (no fill validated under "
                      f"{auto['max_error_cm']:g} cm)" if left else "")
                   + _pooled_note(auto.get("pooled_share")))
     return 0
@@ -403,8 +403,6 @@ def _pooled_note(share: float | None) -> str:
             f"scaled for such fills, it was a median three quarters of the true error)")
 
 
-
-
 def _print_auto(src: dict | None, report: dict | None = None) -> None:
     """One line: what ``auto`` chose and its estimated error. ``report``: the gap policy's
     report of the written result (:func:`mocapkit.gaps.apply_policy`), whose count of
@@ -420,7 +418,7 @@ def _print_auto(src: dict | None, report: dict | None = None) -> None:
         facts.append(f"noise {cm_text(d['noise_cm'])} cm")
         facts.append(f"spikes {100 * d['spike_rate']:.1f} %")
         if d.get("n_gaps"):
-            facts.append(f"{d['n_gaps']} gap{'s' if d['n_gaps'] > 1 else ''}")
+            facts.append(count_text(d["n_gaps"], "gap"))
     line = f"auto: {chain} ({', '.join(facts)}); estimated error " + (
         f"{cm_text(est)} cm RMSE ({src.get('how', '')})" if est is not None else "not available")
     left, lim = src.get("left_missing") or 0, src.get("max_fill_error_cm")

@@ -58,6 +58,15 @@ def cm_text(x: float) -> str:
     return f"{x:.{max(2, 1 - int(np.floor(np.log10(x))))}f}"
 
 
+def count_text(n: int, noun: str) -> str:
+    """``n`` and the noun, plural but for one, as the reports print counts.
+
+    >>> count_text(1, "gap"), count_text(12, "gap")
+    ('1 gap', '12 gaps')
+    """
+    return f"{n} {noun}{'' if n == 1 else 's'}"
+
+
 @dataclass(frozen=True)
 class Diagnosis:
     """Measured properties of one clip (cm, seconds, Hz); see the module docstring."""
@@ -90,8 +99,7 @@ class Diagnosis:
         if self.n_gaps:
             bins = ", ".join(f"{k}: {v}" for k, v in self.gap_bins.items() if v)
             out.append(f"gaps: {self.n_gaps} ({100 * self.missing:.1f} % of samples missing; {bins}); "
-                       f"longest {self.longest_gap} frame{'s' if self.longest_gap > 1 else ''} "
-                       f"({self.longest_gap / self.fps:.2f} s); "
+                       f"longest {count_text(self.longest_gap, 'frame')} ({self.longest_gap / self.fps:.2f} s); "
                        f"{self.edge_gaps} at the clip's ends")
         else:
             out.append("gaps: none")

@@ -36,8 +36,8 @@ A method that raises is a ``failed`` row (and counted in the summary).
 (``source['auto']['estimated_rmse_cm']``) beside it, and the share of auto's squared
 error on the glitches of the ground truth (:func:`truth_glitches`), and on ``missing30``
 auto's, the oracle's and the best candidate's RMSE with those samples left out of the
-score (the oracle re-chosen and the best candidate taken on the rest); seconds. Summary rows (``clip =
-'summary'``), per frame rate and condition: median and worst over clips of auto /
+score (the oracle re-chosen and the best candidate taken on the rest); seconds. Summary
+rows (``clip = 'summary'``), per frame rate and condition: median and worst over clips of auto /
 oracle-classical and auto / best; on ``clean`` the error auto adds; over the corrupted
 conditions the share of cases whose estimate is within a factor 1.5 of the truth; auto's
 time over the time of the last method it ran (see :func:`_picked`) and over the summed
@@ -286,8 +286,7 @@ def _picked(case: dict[str, Row]) -> str:
         return "mssa"
     if any("kalman" in c for c in chain):
         return "kalman-cv"
-    spikes = any(c.startswith(("spike removal", "spike test")) for c in chain)
-    return "gcv-spline-robust" if spikes else "gcv-spline"
+    return "gcv-spline-robust" if "gcv-spline-robust" in _chain_methods(case) else "gcv-spline"
 
 
 #: a step of auto's chain (its report's words) -> the candidate method that does that
